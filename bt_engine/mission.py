@@ -1,0 +1,208 @@
+"""Load, validate and build a mission; tick it and inspect every node and the blackboard.
+
+This is the Python face of btrun for tests and tools::
+
+    from bt_engine import Mission, SimClock
+
+    m = Mission.from_file("missions/hello.xml", clock=SimClock())
+    m.tick()
+    assert m.status_of("wait") == "RUNNING"
+    m.blackboard["target"] = (1.0, 0.0, 1.0)
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator, MutableMapping
+from typing import Any
+
+from bt_engine.builder import build_tree
+from bt_engine.clock import Clock, SimClock
+from bt_engine.node import FAILURE, RUNNING, SKIPPED, BTNode, MissionContext, NodeStatus
+from bt_engine.registry import REGISTRY, Registry
+from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
+from bt_engine.validate import validate
+
+
+def load_spec(path: str) -> MissionSpec:
+    """Read a mission file (``.xml``, ``.yaml``/``.yml``) into a spec (problems kept inside)."""
+    ext = os.path.splitext(path)[1].lower()
+    if ext in (".yaml", ".yml"):
+        from bt_engine.yaml_io import load_yaml
+
+        return load_yaml(path)
+    from bt_engine.xml_io import load_xml
+
+    if ext != ".xml" and os.path.exists(path):
+        spec = MissionSpec(file=path)
+        spec.load_problems.append(
+            Problem(Loc(path, 1, 1), f"unknown mission file type '{ext}' (expected .xml, .yaml or .yml)")
+        )
+        return spec
+    if not os.path.exists(path):
+        spec = MissionSpec(file=path)
+        spec.load_problems.append(Problem(Loc(path, 0, 0), "mission file not found"))
+        return spec
+    return load_xml(path)
+
+
+def check_file(path: str, registry: Registry | None = None) -> tuple[MissionSpec, list[Problem]]:
+    """Load and validate ``path``; return the spec and every problem found."""
+    spec = load_spec(path)
+    return spec, validate(spec, registry or REGISTRY)
+
+
+class _BlackboardView(MutableMapping):
+    """Dictionary view of a mission's root blackboard scope."""
+
+    def __init__(self, mission: Mission) -> None:
+        self._m = mission
+
+    def __getitem__(self, key: str) -> Any:
+        return self._m.scope.get(key)
+
+    def __setitem__(self, key: str, value: Any) -> None:
+        self._m.scope.set(key, value)
+
+    def __delitem__(self, key: str) -> None:
+        self._m.scope.unset(key)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._m.scope.all_items())
+
+    def __len__(self) -> int:
+        return len(self._m.scope.all_items())
+
+    def __repr__(self) -> str:
+        return f"Blackboard({self._m.scope.all_items()!r})"
+
+
+class Mission:
+    """A validated, built mission: tick it and inspect it.
+
+    Args:
+        spec: a loaded spec (see :func:`load_spec`).
+        clock: the mission clock (default: a fresh :class:`SimClock`).
+        registry: the node registry (default: the process-wide one).
+        vehicle: the vehicle leaves talk to, if any.
+        resources: extra shared objects for plug-in nodes.
+        blackboard: initial entries (e.g. from ``--set``).
+        namespace: the py_trees blackboard namespace (default: a fresh unique one).
+
+    Raises:
+        MissionError: with every located problem if the spec is invalid.
+    """
+
+    def __init__(
+        self,
+        spec: MissionSpec,
+        clock: Clock | None = None,
+        registry: Registry | None = None,
+        vehicle: Any = None,
+        resources: dict[str, Any] | None = None,
+        blackboard: dict[str, Any] | None = None,
+        namespace: str | None = None,
+        enums: dict[str, int] | None = None,
+    ) -> None:
+        self.registry = registry or REGISTRY
+        problems = validate(spec, self.registry)
+        if problems:
+            raise MissionError(problems)
+        self.spec = spec
+        self.clock = clock or SimClock()
+        self.ctx = MissionContext(self.clock, vehicle, dict(resources or {}), dict(enums or {}))
+        for model in self.registry.models():
+            for port in model.ports.values():
+                members = getattr(port.type, "members", None)
+                if members:
+                    for k, v in members.items():
+                        self.ctx.enums.setdefault(k, v)
+        self.root, self.scope, self.nodes, self._changes = build_tree(
+            spec, self.registry, self.ctx, namespace
+        )
+        self.blackboard: MutableMapping[str, Any] = _BlackboardView(self)
+        for k, v in (blackboard or {}).items():
+            self.scope.set(k, v)
+        self._by_path = {n.path: n for n in self.nodes}
+        self._by_name: dict[str, list[BTNode]] = {}
+        for n in self.nodes:
+            self._by_name.setdefault(n.name, []).append(n)
+        self.ticks = 0
+        self.last_failure = ""
+        self.status: NodeStatus = self.root.bt_status
+
+    @classmethod
+    def from_file(cls, path: str, **kwargs: Any) -> Mission:
+        """Load, validate and build the mission in ``path`` (XML or YAML)."""
+        return cls(load_spec(path), **kwargs)
+
+    # -- ticking --------------------------------------------------------------------------
+    def tick(self) -> NodeStatus:
+        """Tick the root once (again at once if a node asked for a wake-up); return its status.
+
+        As in BehaviorTree.CPP's ``tickOnce``, a finished root is reset to IDLE afterwards,
+        so the next tick starts the mission again; :attr:`status` keeps the result.
+        """
+        ctx = self.ctx
+        ctx.woken = False
+        status = self.root.execute_tick()
+        while status is RUNNING and ctx.woken:
+            ctx.woken = False
+            status = self.root.execute_tick()
+        if status is FAILURE:
+            for node, st in reversed(self._changes):
+                if st is FAILURE and not node.children:
+                    self.last_failure = f"{node.describe()} failed ({node.loc})"
+                    break
+        if status is not RUNNING and status is not SKIPPED:
+            self.root.reset_status()
+        self.ticks += 1
+        self.status = status
+        return status
+
+    def drain_changes(self) -> dict[str, str]:
+        """Statuses that changed since the last call, as ``{path: status}``."""
+        out = {n.path: n.bt_status.value for n, _ in self._changes}
+        self._changes.clear()
+        return out
+
+    def halt(self) -> None:
+        """Halt every running node (actions stop; the tree goes back to IDLE)."""
+        if self.root.bt_status is RUNNING:
+            self.root.halt_node()
+        self.root.reset_status()
+
+    def close(self) -> None:
+        """Halt and remove this mission's entries from the shared py_trees blackboard."""
+        self.halt()
+        self.scope.clear()
+
+    # -- inspection -----------------------------------------------------------------------
+    def node(self, key: str) -> BTNode:
+        """Return a node by its unique ``name`` or its path (``Main/Sequence/GoTo``).
+
+        Raises KeyError (listing candidates) if unknown or ambiguous.
+        """
+        if key in self._by_path:
+            return self._by_path[key]
+        found = self._by_name.get(key, [])
+        if len(found) == 1:
+            return found[0]
+        if len(found) > 1:
+            raise KeyError(f"name {key!r} is ambiguous; use a path: {[n.path for n in found]}")
+        ends = [n for n in self.nodes if n.path.endswith("/" + key)]
+        if len(ends) == 1:
+            return ends[0]
+        raise KeyError(f"no node {key!r}; paths are: {list(self._by_path)}")
+
+    def status_of(self, key: str) -> str:
+        """The BehaviorTree.CPP status (``"RUNNING"`` ...) of a node by name or path."""
+        return self.node(key).bt_status.value
+
+    def statuses(self) -> dict[str, str]:
+        """Every node's status, by path (pre-order)."""
+        return {n.path: n.bt_status.value for n in self.nodes}
+
+    def running_nodes(self) -> list[BTNode]:
+        """Nodes currently RUNNING, outermost first."""
+        return [n for n in self.nodes if n.bt_status is RUNNING]

@@ -1,0 +1,431 @@
+"""The base classes of every node: BehaviorTree.CPP v4 tick semantics on py_trees behaviours.
+
+Each node is a :class:`py_trees.behaviour.Behaviour`, so py_trees' displays and visitors work
+on a btrun tree, but the tick follows BehaviorTree.CPP v4 (``TreeNode::executeTick``):
+pre-conditions (``_failureIf``, ``_successIf``, ``_skipIf``, ``_while``) are checked, then the
+node's own :meth:`BTNode.tick_impl`, then post-conditions (``_onSuccess``, ``_onFailure``,
+``_post``); ``_onHalted`` runs when a running node is halted.
+
+Status mapping onto py_trees (``node.status``):
+
+====================  =========================
+BehaviorTree.CPP       py_trees ``Status``
+====================  =========================
+IDLE                   INVALID
+SKIPPED                INVALID (``bt_status`` keeps SKIPPED)
+RUNNING                RUNNING
+SUCCESS                SUCCESS
+FAILURE                FAILURE
+====================  =========================
+
+``node.bt_status`` always holds the exact BehaviorTree.CPP status.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import py_trees
+from py_trees.common import Status as PTStatus
+
+from bt_engine.ports import ANY, NO_DEFAULT, STRING, Port, PortValueError
+
+if TYPE_CHECKING:
+    from bt_engine.blackboard import Scope
+    from bt_engine.clock import Clock
+    from bt_engine.script import Script
+    from bt_engine.spec import Loc
+
+
+class NodeStatus(enum.Enum):
+    """BehaviorTree.CPP v4 node statuses."""
+
+    IDLE = "IDLE"
+    RUNNING = "RUNNING"
+    SUCCESS = "SUCCESS"
+    FAILURE = "FAILURE"
+    SKIPPED = "SKIPPED"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+IDLE = NodeStatus.IDLE
+RUNNING = NodeStatus.RUNNING
+SUCCESS = NodeStatus.SUCCESS
+FAILURE = NodeStatus.FAILURE
+SKIPPED = NodeStatus.SKIPPED
+
+TO_PY_TREES = {
+    IDLE: PTStatus.INVALID,
+    SKIPPED: PTStatus.INVALID,
+    RUNNING: PTStatus.RUNNING,
+    SUCCESS: PTStatus.SUCCESS,
+    FAILURE: PTStatus.FAILURE,
+}
+
+# Order matters: BehaviorTree.CPP checks pre-conditions in this order.
+PRE_CONDITIONS = ("_failureIf", "_successIf", "_skipIf", "_while")
+POST_CONDITIONS = ("_onHalted", "_onFailure", "_onSuccess", "_post")
+
+
+class NodeRuntimeError(RuntimeError):
+    """A node could not run (e.g. an input entry is missing); carries the node's location."""
+
+    def __init__(self, node: BTNode, message: str) -> None:
+        self.node = node
+        where = f"{node.loc}: " if node.loc is not None else ""
+        super().__init__(f"{where}{node.bt_id} '{node.name}': {message}")
+
+
+@dataclass
+class MissionContext:
+    """What nodes of one mission share: its clock, the vehicle (if any) and resources.
+
+    ``resources`` is a free dictionary for plug-in packages (perception models, galleries).
+    ``enums`` are the integer values scripts may name (``FIXED_YAW``).
+    """
+
+    clock: Clock
+    vehicle: Any = None
+    resources: dict[str, Any] = field(default_factory=dict)
+    enums: dict[str, int] = field(default_factory=dict)
+    messages: list[str] = field(default_factory=list)
+    #: set by a node that wants the root ticked again at once (BehaviorTree.CPP wake-up)
+    woken: bool = False
+
+    def log(self, message: str) -> None:
+        """Record a message from a node (shown by the runner, written to the tick log)."""
+        self.messages.append(message)
+
+
+_LITERAL, _REF = 0, 1
+
+
+class BTNode(py_trees.behaviour.Behaviour):
+    """Base of all btrun nodes. Subclasses implement :meth:`tick_impl` (and :meth:`halt`)."""
+
+    bt_id: ClassVar[str] = ""
+    kind: ClassVar[str] = "Action"
+    ports: ClassVar[tuple[Port, ...]] = ()
+    aliases: ClassVar[tuple[str, ...]] = ()
+    category: ClassVar[str] = ""
+
+    def __init__(self, name: str, ctx: MissionContext | None = None) -> None:
+        super().__init__(name)
+        self.bt_status: NodeStatus = IDLE
+        self.ctx = ctx
+        self.scope: Scope | None = None
+        self.loc: Loc | None = None
+        self.path = name
+        self.uid = 0
+        self._bindings: dict[str, tuple[int, Any]] = {}
+        self._pre: list[tuple[int, Script]] | None = None
+        self._post: dict[str, Script] | None = None
+        self._changes: list[tuple[BTNode, NodeStatus]] | None = None
+
+    # -- status -------------------------------------------------------------------------
+    def set_status(self, status: NodeStatus) -> None:
+        """Set the BehaviorTree.CPP status (and the py_trees one)."""
+        if status is not self.bt_status:
+            self.bt_status = status
+            self.status = TO_PY_TREES[status]
+            changes = self._changes
+            if changes is not None:
+                changes.append((self, status))
+
+    def reset_status(self) -> None:
+        """Back to IDLE (BehaviorTree.CPP ``resetStatus``)."""
+        self.set_status(IDLE)
+
+    # -- ticking ------------------------------------------------------------------------
+    def execute_tick(self) -> NodeStatus:
+        """Tick this node once, with pre/post-conditions, and return its new status."""
+        pre = self._pre
+        if pre is not None:
+            new = self._check_pre_conditions(pre)
+            if new is None:
+                new = self.tick_impl()
+        else:
+            new = self.tick_impl()
+        if self._post is not None and (new is SUCCESS or new is FAILURE):
+            self._run_post(new)
+        self.set_status(new)
+        return new
+
+    def tick_impl(self) -> NodeStatus:
+        """The node's own work for one tick; return its status. Subclasses override."""
+        raise NotImplementedError(f"{type(self).__name__}.tick_impl")
+
+    def halt(self) -> None:
+        """Stop whatever the node is doing and go back to IDLE. Subclasses extend."""
+        self.reset_status()
+
+    def halt_node(self) -> None:
+        """Halt, then run the ``_onHalted`` script (BehaviorTree.CPP ``haltNode``)."""
+        self.halt()
+        if self._post is not None and "_onHalted" in self._post:
+            self._exec(self._post["_onHalted"])
+
+    def _exec(self, script: Script) -> Any:
+        return script.execute(self.scope, self.ctx.enums if self.ctx else None)
+
+    def _check_pre_conditions(self, pre: list[tuple[int, Script]]) -> NodeStatus | None:
+        st = self.bt_status
+        for index, script in pre:
+            if st is IDLE or st is SKIPPED:
+                if _truthy(self._exec(script)):
+                    if index == 0:
+                        return FAILURE
+                    if index == 1:
+                        return SUCCESS
+                    if index == 2:
+                        return SKIPPED
+                elif index == 3:
+                    return SKIPPED
+            elif st is RUNNING and index == 3:
+                if not _truthy(self._exec(script)):
+                    self.halt_node()
+                    return SKIPPED
+        return None
+
+    def _run_post(self, status: NodeStatus) -> None:
+        post = self._post
+        if status is SUCCESS and "_onSuccess" in post:
+            self._exec(post["_onSuccess"])
+        elif status is FAILURE and "_onFailure" in post:
+            self._exec(post["_onFailure"])
+        if "_post" in post:
+            self._exec(post["_post"])
+
+    # py_trees compatibility: a btrun node can be ticked by py_trees machinery too.
+    def tick(self) -> Iterator[py_trees.behaviour.Behaviour]:
+        """py_trees generator API: tick with BehaviorTree.CPP semantics, yield self."""
+        self.execute_tick()
+        yield self
+
+    def update(self) -> PTStatus:
+        """py_trees API: one tick, as a py_trees status."""
+        return TO_PY_TREES[self.execute_tick()]
+
+    def stop(self, new_status: PTStatus = PTStatus.INVALID) -> None:
+        """py_trees API: stopping a node halts it."""
+        if self.bt_status is RUNNING:
+            self.halt_node()
+
+    # -- ports --------------------------------------------------------------------------
+    def bind_literal(self, port: str, value: Any) -> None:
+        """Bind ``port`` to an already converted literal value (used by the builder)."""
+        self._bindings[port] = (_LITERAL, value)
+
+    def bind_entry(self, port: str, key: str) -> None:
+        """Bind ``port`` to the blackboard entry ``key`` (used by the builder)."""
+        self._bindings[port] = (_REF, key)
+
+    def port_decl(self, name: str) -> Port | None:
+        """Return the declared port called ``name``."""
+        for p in type(self).ports:
+            if p.name == name:
+                return p
+        return None
+
+    def has_input(self, name: str) -> bool:
+        """True if the port is bound in the file or has a default."""
+        if name in self._bindings:
+            kind, key = self._bindings[name]
+            return kind == _LITERAL or self.scope.has(key)
+        p = self.port_decl(name)
+        return p is not None and p.default is not NO_DEFAULT
+
+    def get_input(self, name: str) -> Any:
+        """Return the value of input port ``name`` converted to its declared type.
+
+        Raises :class:`NodeRuntimeError` (located) if a referenced entry is missing or its
+        value does not convert.
+        """
+        b = self._bindings.get(name)
+        if b is None:
+            p = self.port_decl(name)
+            if p is None or p.default is NO_DEFAULT:
+                raise NodeRuntimeError(self, f"input port '{name}' has no value")
+            return p.type.convert(p.default) if p.default is not None else None
+        kind, val = b
+        if kind == _LITERAL:
+            return val
+        try:
+            value = self.scope.get(val)
+        except KeyError:
+            raise NodeRuntimeError(
+                self, f"input port '{name}' reads blackboard entry {{{val}}}, which is not set"
+            ) from None
+        p = self.port_decl(name)
+        if p is not None and p.type is not ANY and p.type is not STRING and value is not None:
+            try:
+                return p.type.convert(value)
+            except PortValueError as exc:
+                raise NodeRuntimeError(self, f"input port '{name}' from {{{val}}}: {exc}") from None
+        return value
+
+    def set_output(self, name: str, value: Any) -> bool:
+        """Write output port ``name`` if the mission bound it; return True if written."""
+        b = self._bindings.get(name)
+        if b is None or b[0] != _REF:
+            return False
+        self.scope.set(b[1], value)
+        return True
+
+    def output_key(self, name: str) -> str | None:
+        """The blackboard entry an output port is bound to, or None."""
+        b = self._bindings.get(name)
+        return b[1] if b is not None and b[0] == _REF else None
+
+    # -- helpers ------------------------------------------------------------------------
+    def now(self) -> float:
+        """Mission time in seconds from the injected clock."""
+        return self.ctx.clock.now()
+
+    def emit_wake_up(self) -> None:
+        """Ask for another root tick right away (BehaviorTree.CPP ``emitWakeUpSignal``)."""
+        if self.ctx is not None:
+            self.ctx.woken = True
+
+    def describe(self) -> str:
+        """``ID 'name'`` for messages."""
+        return self.bt_id if self.name == self.bt_id else f"{self.bt_id} '{self.name}'"
+
+
+def _truthy(value: Any) -> bool:
+    if isinstance(value, str):
+        low = value.strip().lower()
+        if low in ("false", "0", ""):
+            return False
+        return True
+    return bool(value)
+
+
+class ControlNode(BTNode):
+    """A node with one or more children."""
+
+    kind = "Control"
+
+    def __init__(self, name: str, ctx: MissionContext | None = None) -> None:
+        super().__init__(name, ctx)
+        self.children: list[BTNode] = []
+
+    def add_child(self, child: BTNode) -> None:
+        """Append a child (builder use)."""
+        child.parent = self
+        self.children.append(child)
+
+    def halt_child(self, index: int) -> None:
+        """Halt child ``index`` if running, then reset it to IDLE."""
+        child = self.children[index]
+        if child.bt_status is RUNNING:
+            child.halt_node()
+        child.reset_status()
+
+    def reset_children(self) -> None:
+        """Halt every running child and reset all to IDLE."""
+        for child in self.children:
+            if child.bt_status is RUNNING:
+                child.halt_node()
+            child.reset_status()
+
+    def halt(self) -> None:
+        self.reset_children()
+        self.reset_status()
+
+
+class DecoratorNode(BTNode):
+    """A node with exactly one child."""
+
+    kind = "Decorator"
+
+    def __init__(self, name: str, ctx: MissionContext | None = None) -> None:
+        super().__init__(name, ctx)
+        self.children: list[BTNode] = []
+
+    def add_child(self, child: BTNode) -> None:
+        """Set the child (builder use)."""
+        child.parent = self
+        self.children = [child]
+
+    @property
+    def child(self) -> BTNode:
+        """The decorated child."""
+        return self.children[0]
+
+    def halt_child(self) -> None:
+        """Halt the child if running, then reset it to IDLE."""
+        child = self.children[0]
+        if child.bt_status is RUNNING:
+            child.halt_node()
+        child.reset_status()
+
+    def halt(self) -> None:
+        self.halt_child()
+        self.reset_status()
+
+
+class LeafNode(BTNode):
+    """A node without children."""
+
+    def __init__(self, name: str, ctx: MissionContext | None = None) -> None:
+        super().__init__(name, ctx)
+        self.children = []
+
+
+class SyncActionNode(LeafNode):
+    """An action that finishes within one tick: :meth:`tick_impl` returns SUCCESS or FAILURE."""
+
+    kind = "Action"
+
+
+class ConditionNode(LeafNode):
+    """A check: implement :meth:`check` returning True (SUCCESS) or False (FAILURE)."""
+
+    kind = "Condition"
+
+    def check(self) -> bool:
+        """Return True if the condition holds."""
+        raise NotImplementedError
+
+    def tick_impl(self) -> NodeStatus:
+        return SUCCESS if self.check() else FAILURE
+
+
+class StatefulActionNode(LeafNode):
+    """An action that may take many ticks (BehaviorTree.CPP ``StatefulActionNode``).
+
+    On the first tick :meth:`on_start` runs; while RUNNING each tick calls :meth:`on_running`;
+    a parent halting the node calls :meth:`on_halted`.
+    """
+
+    kind = "Action"
+
+    def on_start(self) -> NodeStatus:
+        """Start the action; return RUNNING, SUCCESS or FAILURE."""
+        raise NotImplementedError
+
+    def on_running(self) -> NodeStatus:
+        """Continue the action; return RUNNING, SUCCESS or FAILURE."""
+        raise NotImplementedError
+
+    def on_halted(self) -> None:  # noqa: B027 - optional hook
+        """Clean up when a parent halts the running action."""
+
+    def tick_impl(self) -> NodeStatus:
+        prev = self.bt_status
+        if prev is IDLE:
+            return self.on_start()
+        if prev is RUNNING:
+            return self.on_running()
+        return prev
+
+    def halt(self) -> None:
+        if self.bt_status is RUNNING:
+            self.on_halted()
+        self.reset_status()

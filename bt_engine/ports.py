@@ -1,0 +1,375 @@
+"""Port declarations and port types.
+
+A node declares its ports once (direction, type, default, description). The declaration is
+the single source of truth for validation, XML/YAML conversion, ``btrun nodes``, the Groot2
+palette and the generated node reference.
+
+Values arrive as text from XML (``"1;2;0.5"``) and as native values from YAML
+(``[1, 2, 0.5]``); every type converts both, and writes text back for XML.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+
+class PortValueError(ValueError):
+    """A value that does not convert to a port's type; the message says what was expected."""
+
+
+class PortType:
+    """Base class of port types: a name for files and docs, and two conversions."""
+
+    name = "any"
+    expected = "any value"
+
+    def convert(self, value: Any) -> Any:
+        """Convert ``value`` (text from XML or a native YAML value) or raise PortValueError."""
+        return value
+
+    def to_text(self, value: Any) -> str:
+        """Return ``value`` as XML attribute text that :meth:`convert` reads back."""
+        if isinstance(value, bool):
+            return "true" if value else "false"
+        return str(value)
+
+    def to_yaml(self, value: Any) -> Any:
+        """Return ``value`` as a plain YAML value."""
+        return value
+
+    def __repr__(self) -> str:
+        return f"<PortType {self.name}>"
+
+
+class AnyType(PortType):
+    """Any value; text stays text (BehaviorTree.CPP's ``AnyTypeAllowed``)."""
+
+
+class StringType(PortType):
+    """Text."""
+
+    name = "string"
+    expected = "text"
+
+    def convert(self, value: Any) -> str:
+        if isinstance(value, (dict, list)):
+            raise PortValueError(f"expected {self.expected}, got a {type(value).__name__}")
+        if isinstance(value, bool):
+            return "true" if value else "false"
+        return str(value)
+
+
+class FloatType(PortType):
+    """A real number (``1.5``, ``-2``, ``1e-3``)."""
+
+    name = "float"
+    expected = "a number"
+
+    def convert(self, value: Any) -> float:
+        if isinstance(value, bool):
+            raise PortValueError(f"expected {self.expected}, got boolean {value}")
+        try:
+            out = float(value.strip() if isinstance(value, str) else value)
+        except (TypeError, ValueError):
+            raise PortValueError(f"expected {self.expected}, got {value!r}") from None
+        if math.isnan(out):
+            raise PortValueError(f"expected {self.expected}, got NaN")
+        return out
+
+    def to_text(self, value: Any) -> str:
+        return repr(float(value))
+
+
+class IntType(PortType):
+    """A whole number (``3``, ``-1``, ``0x10``)."""
+
+    name = "int"
+    expected = "a whole number"
+
+    def convert(self, value: Any) -> int:
+        if isinstance(value, bool):
+            raise PortValueError(f"expected {self.expected}, got boolean {value}")
+        if isinstance(value, int):
+            return value
+        if isinstance(value, float):
+            if value.is_integer():
+                return int(value)
+            raise PortValueError(f"expected {self.expected}, got {value!r}")
+        if isinstance(value, str):
+            text = value.strip()
+            try:
+                return int(text, 0)
+            except ValueError:
+                pass
+            try:
+                f = float(text)
+            except ValueError:
+                f = math.nan
+            if f.is_integer():
+                return int(f)
+        raise PortValueError(f"expected {self.expected}, got {value!r}")
+
+
+class BoolType(PortType):
+    """``true``/``false`` (also ``1``/``0``, ``yes``/``no``, any case)."""
+
+    name = "bool"
+    expected = "true or false"
+    _TRUE = {"true", "1", "yes", "on"}
+    _FALSE = {"false", "0", "no", "off"}
+
+    def convert(self, value: Any) -> bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, int) and value in (0, 1):
+            return bool(value)
+        if isinstance(value, str):
+            low = value.strip().lower()
+            if low in self._TRUE:
+                return True
+            if low in self._FALSE:
+                return False
+        raise PortValueError(f"expected {self.expected}, got {value!r}")
+
+
+class EnumType(PortType):
+    """One of a set of names; Aerostack2-style integers are accepted too.
+
+    >>> YAW = EnumType("YawMode", {"KEEP_YAW": 0, "PATH_FACING": 1, "FIXED_YAW": 2})
+    >>> YAW.convert("1"), YAW.convert("fixed_yaw")
+    ('PATH_FACING', 'FIXED_YAW')
+    """
+
+    def __init__(self, name: str, members: Mapping[str, int]) -> None:
+        self.name = name
+        self.members = dict(members)
+        self._by_value = {v: k for k, v in self.members.items()}
+        self._by_upper = {k.upper(): k for k in self.members}
+        listing = ", ".join(f"{k} ({v})" for k, v in self.members.items())
+        self.expected = f"one of {listing}"
+
+    def convert(self, value: Any) -> str:
+        if isinstance(value, bool):
+            raise PortValueError(f"expected {self.expected}, got {value!r}")
+        if isinstance(value, int) and value in self._by_value:
+            return self._by_value[value]
+        if isinstance(value, str):
+            text = value.strip()
+            if text.upper() in self._by_upper:
+                return self._by_upper[text.upper()]
+            try:
+                number = int(text)
+            except ValueError:
+                number = None
+            if number in self._by_value:
+                return self._by_value[number]
+        raise PortValueError(f"expected {self.expected}, got {value!r}")
+
+    def value_of(self, member: str) -> int:
+        """Return the integer of a member name."""
+        return self.members[member]
+
+
+def _floats(parts: Sequence[Any], what: str) -> tuple[float, ...]:
+    out = []
+    for p in parts:
+        if isinstance(p, bool):
+            raise PortValueError(f"expected {what}, got boolean {p}")
+        try:
+            f = float(p.strip() if isinstance(p, str) else p)
+        except (TypeError, ValueError):
+            raise PortValueError(f"expected {what}, got {p!r} in it") from None
+        if not math.isfinite(f):
+            raise PortValueError(f"expected {what}, got {p!r} in it")
+        out.append(f)
+    return tuple(out)
+
+
+class Vec3Type(PortType):
+    """Three numbers: ``"x;y;z"`` in XML (Aerostack2 syntax), ``[x, y, z]`` in YAML."""
+
+    name = "vec3"
+    expected = 'three numbers "x;y;z"'
+
+    def convert(self, value: Any) -> tuple[float, float, float]:
+        if isinstance(value, str):
+            parts: Sequence[Any] = [p for p in re.split(r"[;,]", value)]
+        elif isinstance(value, (list, tuple)):
+            parts = value
+        else:
+            raise PortValueError(f"expected {self.expected}, got {value!r}")
+        if len(parts) != 3:
+            raise PortValueError(f"expected {self.expected}, got {len(parts)} value(s) in {value!r}")
+        x, y, z = _floats(parts, self.expected)
+        return (x, y, z)
+
+    def to_text(self, value: Any) -> str:
+        return ";".join(_num_text(v) for v in value)
+
+    def to_yaml(self, value: Any) -> list[float]:
+        return [float(v) for v in value]
+
+
+class PathType(PortType):
+    """A list of points: ``"x;y;z|x;y;z"`` in XML, ``[[x, y, z], ...]`` in YAML."""
+
+    name = "path"
+    expected = 'points "x;y;z|x;y;z|..."'
+
+    def convert(self, value: Any) -> tuple[tuple[float, float, float], ...]:
+        if isinstance(value, str):
+            chunks: Sequence[Any] = [c for c in value.split("|") if c.strip()]
+        elif isinstance(value, (list, tuple)):
+            chunks = value
+        else:
+            raise PortValueError(f"expected {self.expected}, got {value!r}")
+        if not chunks:
+            raise PortValueError(f"expected {self.expected}, got an empty path")
+        vec = Vec3Type()
+        points = []
+        for i, c in enumerate(chunks):
+            try:
+                points.append(vec.convert(c))
+            except PortValueError as exc:
+                raise PortValueError(f"point {i + 1}: {exc}") from None
+        return tuple(points)
+
+    def to_text(self, value: Any) -> str:
+        return "|".join(";".join(_num_text(v) for v in p) for p in value)
+
+    def to_yaml(self, value: Any) -> list[list[float]]:
+        return [[float(v) for v in p] for p in value]
+
+
+_DURATION = re.compile(r"^\s*([-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)\s*(ms|s|min)?\s*$")
+
+
+class DurationType(PortType):
+    """A duration in seconds: ``2.5``, ``"2.5s"``, ``"500ms"``, ``"1min"`` (bare numbers are s)."""
+
+    name = "duration"
+    expected = 'a duration like "2.5", "2.5s" or "500ms"'
+
+    def convert(self, value: Any) -> float:
+        if isinstance(value, bool):
+            raise PortValueError(f"expected {self.expected}, got {value!r}")
+        if isinstance(value, (int, float)):
+            seconds = float(value)
+        elif isinstance(value, str):
+            m = _DURATION.match(value)
+            if not m:
+                raise PortValueError(f"expected {self.expected}, got {value!r}")
+            scale = {"ms": 1e-3, "s": 1.0, "min": 60.0, None: 1.0}[m.group(2)]
+            seconds = float(m.group(1)) * scale
+        else:
+            raise PortValueError(f"expected {self.expected}, got {value!r}")
+        if not math.isfinite(seconds) or seconds < 0:
+            raise PortValueError(f"expected {self.expected} (not negative), got {value!r}")
+        return seconds
+
+    def to_text(self, value: Any) -> str:
+        return _num_text(value)
+
+
+def _num_text(v: Any) -> str:
+    f = float(v)
+    return str(int(f)) if f.is_integer() and abs(f) < 1e15 else repr(f)
+
+
+ANY = AnyType()
+STRING = StringType()
+FLOAT = FloatType()
+INT = IntType()
+BOOL = BoolType()
+VEC3 = Vec3Type()
+PATH = PathType()
+DURATION = DurationType()
+
+#: Type names as written in a ``<TreeNodesModel>`` ``type=`` attribute or a YAML model.
+TYPES_BY_NAME: dict[str, PortType] = {
+    "any": ANY,
+    "string": STRING,
+    "std::string": STRING,
+    "float": FLOAT,
+    "double": FLOAT,
+    "int": INT,
+    "unsigned": INT,
+    "bool": BOOL,
+    "vec3": VEC3,
+    "path": PATH,
+    "duration": DURATION,
+}
+
+
+class _NoDefault:
+    def __repr__(self) -> str:
+        return "NO_DEFAULT"
+
+    def __bool__(self) -> bool:
+        return False
+
+
+NO_DEFAULT: Any = _NoDefault()
+
+INPUT, OUTPUT, INOUT = "input", "output", "inout"
+
+
+@dataclass(frozen=True)
+class Port:
+    """One declared port of a node.
+
+    ``direction`` is ``"input"``, ``"output"`` or ``"inout"``. A port without a default is
+    required for inputs; outputs are never required (an unbound output is simply not written).
+    """
+
+    name: str
+    direction: str = INPUT
+    type: PortType = field(default=ANY)
+    default: Any = NO_DEFAULT
+    description: str = ""
+
+    @property
+    def required(self) -> bool:
+        """True if a mission file must give this port a value."""
+        return self.direction == INPUT and self.default is NO_DEFAULT
+
+    @property
+    def reads(self) -> bool:
+        """True if the node reads this port."""
+        return self.direction in (INPUT, INOUT)
+
+    @property
+    def writes(self) -> bool:
+        """True if the node writes this port."""
+        return self.direction in (OUTPUT, INOUT)
+
+
+def input_port(name: str, type: PortType = ANY, default: Any = NO_DEFAULT, description: str = "") -> Port:
+    """Declare an input port (required unless it has a default)."""
+    return Port(name, INPUT, type, default, description)
+
+
+def output_port(name: str, type: PortType = ANY, description: str = "") -> Port:
+    """Declare an output port (bind it to a blackboard entry ``{key}`` in the mission)."""
+    return Port(name, OUTPUT, type, NO_DEFAULT, description)
+
+
+def inout_port(name: str, type: PortType = ANY, default: Any = NO_DEFAULT, description: str = "") -> Port:
+    """Declare a port the node both reads and writes."""
+    return Port(name, INOUT, type, default, description)
+
+
+_REF = re.compile(r"^\{\s*(@?[A-Za-z_][\w.\-/]*|=)\s*\}$")
+
+
+def blackboard_ref(value: Any) -> str | None:
+    """Return the entry name if ``value`` is a ``{key}`` reference (``"="`` for ``{=}``)."""
+    if isinstance(value, str) and value.startswith("{") and value.endswith("}"):
+        m = _REF.match(value.strip())
+        if m:
+            return m.group(1)
+    return None

@@ -1,0 +1,143 @@
+"""The node registry: every node type a mission may use, with its declared ports.
+
+The engine knows no concrete drone nodes; packages register theirs here (see
+:func:`register`). Validation, conversion, ``btrun nodes``, the Groot2 palette and the node
+reference are all generated from these declarations.
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from bt_engine.ports import Port
+
+if TYPE_CHECKING:
+    from bt_engine.node import BTNode
+
+ACTION, CONDITION, CONTROL, DECORATOR, SUBTREE = (
+    "Action",
+    "Condition",
+    "Control",
+    "Decorator",
+    "SubTree",
+)
+KINDS = (ACTION, CONDITION, CONTROL, DECORATOR, SUBTREE)
+
+
+@dataclass
+class NodeModel:
+    """What the registry knows of one node type."""
+
+    id: str
+    kind: str
+    cls: type[BTNode]
+    ports: dict[str, Port]
+    description: str
+    min_children: int
+    max_children: int | None
+    category: str = ""
+
+    @property
+    def summary(self) -> str:
+        """The first line of the description."""
+        return self.description.strip().splitlines()[0] if self.description.strip() else ""
+
+
+def _children_range(kind: str, cls: Any) -> tuple[int, int | None]:
+    explicit = getattr(cls, "children_range", None)
+    if explicit is not None:
+        return explicit
+    if kind == CONTROL:
+        return (1, None)
+    if kind == DECORATOR:
+        return (1, 1)
+    return (0, 0)
+
+
+class Registry:
+    """A name -> :class:`NodeModel` table with aliases (e.g. ``SequenceStar``)."""
+
+    def __init__(self) -> None:
+        self._models: dict[str, NodeModel] = {}
+        self._aliases: dict[str, str] = {}
+
+    def register(self, cls: type[BTNode], *, replace: bool = False) -> type[BTNode]:
+        """Register a node class; its ``bt_id``, ``kind``, ``ports`` and docstring describe it.
+
+        Returns the class so this can be used as a class decorator.
+        """
+        node_id = getattr(cls, "bt_id", None) or cls.__name__
+        kind = cls.kind
+        if kind not in KINDS:
+            raise ValueError(f"{cls.__name__}: kind must be one of {KINDS}, not {kind!r}")
+        if node_id in self._models and not replace and self._models[node_id].cls is not cls:
+            raise ValueError(f"a node called {node_id!r} is already registered")
+        ports = {p.name: p for p in getattr(cls, "ports", ())}
+        lo, hi = _children_range(kind, cls)
+        model = NodeModel(
+            id=node_id,
+            kind=kind,
+            cls=cls,
+            ports=ports,
+            description=inspect.cleandoc(cls.__doc__ or ""),
+            min_children=lo,
+            max_children=hi,
+            category=getattr(cls, "category", "") or "",
+        )
+        self._models[node_id] = model
+        for alias in getattr(cls, "aliases", ()):
+            self._aliases[alias] = node_id
+        return cls
+
+    def get(self, node_id: str) -> NodeModel | None:
+        """Return the model of ``node_id`` (or of the node it is an alias of), else None."""
+        m = self._models.get(node_id)
+        if m is None and node_id in self._aliases:
+            m = self._models[self._aliases[node_id]]
+        return m
+
+    def __contains__(self, node_id: str) -> bool:
+        return self.get(node_id) is not None
+
+    def ids(self) -> list[str]:
+        """All registered IDs, sorted."""
+        return sorted(self._models)
+
+    def models(self) -> list[NodeModel]:
+        """All models, sorted by kind then ID."""
+        order = {k: i for i, k in enumerate(KINDS)}
+        return sorted(self._models.values(), key=lambda m: (order[m.kind], m.category, m.id))
+
+    def suggest(self, node_id: str, extra: list[str] | None = None) -> str | None:
+        """Return the closest known name to ``node_id`` (for "did you mean")."""
+        names = list(self._models) + list(self._aliases) + list(extra or [])
+        lowered = {n.lower(): n for n in names}
+        if node_id.lower() in lowered:
+            return lowered[node_id.lower()]
+        close = difflib.get_close_matches(node_id, names, n=1, cutoff=0.6)
+        return close[0] if close else None
+
+    def copy(self) -> Registry:
+        """A copy that can take extra nodes without changing this one."""
+        r = Registry()
+        r._models = dict(self._models)
+        r._aliases = dict(self._aliases)
+        return r
+
+
+#: The process-wide default registry; built-ins and plug-in packages register here.
+REGISTRY = Registry()
+
+
+def register(cls: type[BTNode]) -> type[BTNode]:
+    """Class decorator: register ``cls`` in the default registry."""
+    return REGISTRY.register(cls)
+
+
+def suggest_name(name: str, candidates: list[str]) -> str | None:
+    """Closest of ``candidates`` to ``name``, or None."""
+    close = difflib.get_close_matches(name, candidates, n=1, cutoff=0.6)
+    return close[0] if close else None

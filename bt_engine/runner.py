@@ -1,0 +1,223 @@
+"""The runner: tick a mission at a fixed rate on its clock, with hooks and a tick log.
+
+On a :class:`~bt_engine.clock.SimClock` each step advances the clock by one period, calls
+the ``before_tick`` hooks (the simulator steps its physics up to the new time), ticks the
+tree, then calls ``after_tick`` hooks (the safety supervisor). On a wall clock the runner
+sleeps until the next period. Ctrl-C halts the tree and runs the shutdown hooks.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from bt_engine.mission import Mission
+from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeRuntimeError, NodeStatus
+from bt_engine.ticklog import TickLog
+
+
+class Hooks(Protocol):
+    """What a platform (simulator, real drone, supervisor) may plug into the runner."""
+
+    def before_tick(self, t_s: float) -> None: ...
+
+    def after_tick(self, t_s: float) -> None: ...
+
+    def shutdown(self, reason: str) -> None: ...
+
+
+@dataclass
+class RunResult:
+    """How a run ended."""
+
+    status: str  # SUCCESS, FAILURE or ABORTED
+    reason: str
+    ticks: int
+    mission_time_s: float
+    wall_time_s: float
+    tick_periods_s: list[float] = field(default_factory=list, repr=False)
+
+
+class Abort(Exception):
+    """Raised by a hook to end the run as ABORTED (e.g. a safety fault)."""
+
+
+class Runner:
+    """Tick ``mission`` at ``rate_hz`` on its clock.
+
+    Args:
+        mission: the built mission.
+        rate_hz: ticks per second of mission time (default 50).
+        hooks: objects with ``before_tick``/``after_tick``/``shutdown`` (any may be missing).
+        log: where to write one JSON line per tick (optional).
+        telemetry: a callable returning a small dict of vehicle state for the tick log.
+        on_tick: a callable run after every tick (e.g. the live terminal view).
+    """
+
+    def __init__(
+        self,
+        mission: Mission,
+        rate_hz: float = 50.0,
+        hooks: list[Any] | None = None,
+        log: TickLog | None = None,
+        telemetry: Callable[[], dict] | None = None,
+        on_tick: Callable[[Runner], None] | None = None,
+    ) -> None:
+        if not rate_hz > 0:
+            raise ValueError(f"tick rate must be > 0 Hz, got {rate_hz}")
+        self.mission = mission
+        self.clock = mission.clock
+        self.period_s = 1.0 / rate_hz
+        self.hooks = list(hooks or [])
+        self.log = log
+        self.telemetry = telemetry
+        self.on_tick = on_tick
+        self.trace: list[dict] = []
+        self.keep_trace = True
+        self.status: NodeStatus = mission.status
+        self.tick_periods_s: list[float] = []
+        self._interrupted = 0
+        self._last_wall: float | None = None
+        self._next_t = self.clock.now()
+
+    # -- one step -------------------------------------------------------------------------
+    def step(self) -> NodeStatus:
+        """Advance the clock one period, run hooks, tick the tree once; return its status."""
+        clock = self.clock
+        self._next_t += self.period_s
+        if getattr(clock, "is_simulated", False):
+            clock.sleep_until(self._next_t)
+        else:
+            clock.sleep_until(self._next_t)
+            now_wall = time.monotonic()
+            if self._last_wall is not None:
+                self.tick_periods_s.append(now_wall - self._last_wall)
+            self._last_wall = now_wall
+        t = clock.now()
+        for h in self.hooks:
+            fn = getattr(h, "before_tick", None)
+            if fn is not None:
+                fn(t)
+        status = self.mission.tick()
+        for h in self.hooks:
+            fn = getattr(h, "after_tick", None)
+            if fn is not None:
+                fn(t)
+        self.status = status
+        self._record(t, status)
+        if self.on_tick is not None:
+            self.on_tick(self)
+        return status
+
+    def _record(self, t: float, status: NodeStatus) -> None:
+        m = self.mission
+        rec = {"tick": m.ticks, "t": round(t, 6), "status": status.value}
+        changed = m.drain_changes()
+        if changed:
+            rec["changed"] = changed
+        writes = m.scope.drain_writes()
+        if writes:
+            rec["bb"] = writes
+        if m.ctx.messages:
+            rec["messages"] = list(m.ctx.messages)
+            m.ctx.messages.clear()
+        if self.telemetry is not None:
+            rec["vehicle"] = self.telemetry()
+        if self.keep_trace:
+            self.trace.append(rec)
+        if self.log is not None:
+            self.log.write(rec)
+
+    def run_until(self, predicate: Callable[[Mission], bool], max_ticks: int = 100_000) -> int:
+        """Step until ``predicate(mission)`` is true; return the ticks taken.
+
+        Raises TimeoutError if it does not hold within ``max_ticks``.
+        """
+        for i in range(1, max_ticks + 1):
+            self.step()
+            if predicate(self.mission):
+                return i
+        raise TimeoutError(f"condition not reached within {max_ticks} ticks")
+
+    # -- whole run ------------------------------------------------------------------------
+    def run(self, max_time_s: float | None = None) -> RunResult:
+        """Tick until the root finishes, a hook aborts, Ctrl-C, or ``max_time_s`` passes."""
+        wall0 = time.perf_counter()
+        start_t = self.clock.now()
+        reason = ""
+        result = "FAILURE"
+        old = _install_sigint(self)
+        try:
+            while True:
+                if self._interrupted:
+                    result, reason = "ABORTED", "operator interrupt (Ctrl-C)"
+                    break
+                try:
+                    status = self.step()
+                except Abort as exc:
+                    result, reason = "ABORTED", str(exc)
+                    break
+                except NodeRuntimeError as exc:
+                    result, reason = "ABORTED", str(exc)
+                    break
+                if status is SUCCESS:
+                    result, reason = "SUCCESS", "the mission tree returned SUCCESS"
+                    break
+                if status is FAILURE:
+                    result, reason = "FAILURE", _failure_reason(self.mission)
+                    break
+                if status is not RUNNING:
+                    result, reason = "FAILURE", f"the root returned {status.value}"
+                    break
+                if max_time_s is not None and self.clock.now() - start_t >= max_time_s:
+                    result, reason = "ABORTED", f"mission time limit of {max_time_s:g} s reached"
+                    break
+        finally:
+            _restore_sigint(old)
+            if result != "SUCCESS" or self.mission.root.bt_status is RUNNING:
+                self.mission.halt()
+            for h in self.hooks:
+                fn = getattr(h, "shutdown", None)
+                if fn is not None:
+                    fn(reason if result != "SUCCESS" else "mission complete")
+            if self.log is not None:
+                self.log.flush()
+        return RunResult(
+            result,
+            reason,
+            self.mission.ticks,
+            self.clock.now() - start_t,
+            time.perf_counter() - wall0,
+            self.tick_periods_s,
+        )
+
+    def interrupt(self) -> None:
+        """Ask the run to stop at the next tick (what Ctrl-C does)."""
+        self._interrupted += 1
+
+
+def _failure_reason(mission: Mission) -> str:
+    return mission.last_failure or "the mission tree returned FAILURE"
+
+
+def _install_sigint(runner: Runner):
+    try:
+        def handler(signum, frame):  # noqa: ARG001
+            runner.interrupt()
+            if runner._interrupted >= 2:
+                raise KeyboardInterrupt
+
+        return signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not in the main thread
+        return None
+
+
+def _restore_sigint(old) -> None:
+    if old is not None:
+        try:
+            signal.signal(signal.SIGINT, old)
+        except ValueError:
+            pass

@@ -1,0 +1,136 @@
+"""The in-memory mission spec that both XML and YAML load to.
+
+Every element keeps the file, line and column it came from so that validation and run-time
+errors can point at it. The spec is plain data: it can be validated, built into a running
+tree, or written back to either format.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Loc:
+    """A place in a file (1-based line and column)."""
+
+    file: str
+    line: int = 0
+    col: int = 0
+
+    def __str__(self) -> str:
+        return f"{self.file}:{self.line}:{self.col}"
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with an input file."""
+
+    loc: Loc
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.loc}: {self.message}"
+
+
+class MissionError(Exception):
+    """One or more located problems with mission (or rig/world) files; nothing may run."""
+
+    def __init__(self, problems: list[Problem]) -> None:
+        self.problems = sorted(problems, key=lambda p: (p.loc.file, p.loc.line, p.loc.col))
+        super().__init__("\n".join(str(p) for p in self.problems))
+
+
+@dataclass
+class AttrSpec:
+    """One attribute of a node: its raw value (text from XML, native from YAML) and place."""
+
+    value: Any
+    loc: Loc
+
+
+@dataclass
+class NodeSpec:
+    """One node of a tree as written in the file.
+
+    ``type`` is the node's registered ID (``GoTo``, ``Sequence``, ``SubTree``). ``tag`` is the
+    element spelling used (``Action`` for ``<Action ID="GoTo">``), kept for faithful output.
+    """
+
+    type: str
+    loc: Loc
+    attrs: dict[str, AttrSpec] = field(default_factory=dict)
+    children: list[NodeSpec] = field(default_factory=list)
+    tag: str = ""
+    comments: list[str] = field(default_factory=list)
+    type_loc: Loc | None = None
+
+    @property
+    def name(self) -> str | None:
+        """The ``name`` attribute, if any."""
+        a = self.attrs.get("name")
+        return None if a is None else str(a.value)
+
+    def walk(self):
+        """Yield this node and all its descendants, depth first."""
+        yield self
+        for c in self.children:
+            yield from c.walk()
+
+
+@dataclass
+class PortModel:
+    """A port as declared in a ``<TreeNodesModel>`` (used for SubTrees and unknown nodes)."""
+
+    name: str
+    direction: str
+    type: str = ""
+    default: Any = None
+    description: str = ""
+
+
+@dataclass
+class ModelSpec:
+    """A ``<TreeNodesModel>`` entry."""
+
+    id: str
+    kind: str
+    loc: Loc
+    ports: dict[str, PortModel] = field(default_factory=dict)
+    description: str = ""
+
+
+@dataclass
+class TreeSpec:
+    """One ``<BehaviorTree ID=...>``: exactly one root node."""
+
+    id: str
+    loc: Loc
+    root: NodeSpec | None = None
+    comments: list[str] = field(default_factory=list)
+    extra_roots: list[NodeSpec] = field(default_factory=list)
+
+
+@dataclass
+class MissionSpec:
+    """A whole mission: its trees, the main tree, node models and where it came from."""
+
+    file: str
+    trees: dict[str, TreeSpec] = field(default_factory=dict)
+    main_tree: str | None = None
+    models: dict[str, ModelSpec] = field(default_factory=dict)
+    format_version: str | None = "4"
+    comments: list[str] = field(default_factory=list)
+    includes: list[str] = field(default_factory=list)
+    root_loc: Loc | None = None
+    #: problems found while loading (kept so validation can report everything at once)
+    load_problems: list[Problem] = field(default_factory=list)
+
+    def main_tree_id(self) -> str | None:
+        """The tree to run: the named main tree, or the only tree if there is one."""
+        if self.main_tree:
+            return self.main_tree
+        if len(self.trees) == 1:
+            return next(iter(self.trees))
+        return None
