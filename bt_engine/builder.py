@@ -53,7 +53,7 @@ class _Builder:
             else:
                 node.bind_literal(key, port.type.convert(attr.value))
         labels = _child_labels(spec.children, self.registry)
-        for child_spec, child_label in zip(spec.children, labels):
+        for child_spec, child_label in zip(spec.children, labels, strict=True):
             node.add_child(self.node(child_spec, scope, path, child_label))
         return node
 

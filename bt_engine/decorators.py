@@ -19,6 +19,7 @@ from bt_engine.ports import BOOL, INT, input_port
 from bt_engine.registry import REGISTRY
 
 CATEGORY = "built-in"
+TIME_EPS = 1e-9  # mission-time comparison tolerance
 
 
 class Inverter(DecoratorNode):
@@ -187,7 +188,7 @@ class Timeout(DecoratorNode):
             self.started = True
             self.set_status(RUNNING)
             self.deadline = self.now() + msec / 1000.0 if msec > 0 else float("inf")
-        elif child.bt_status is RUNNING and self.now() >= self.deadline:
+        elif child.bt_status is RUNNING and self.now() >= self.deadline - TIME_EPS:
             self.halt_child()
             self.started = False
             return FAILURE
@@ -219,7 +220,7 @@ class Delay(DecoratorNode):
             self.started = True
             self.set_status(RUNNING)
             self.until = self.now() + self.get_input("delay_msec") / 1000.0
-        if self.now() < self.until:
+        if self.now() < self.until - TIME_EPS:
             return RUNNING
         st = self.children[0].execute_tick()
         if st is SUCCESS or st is FAILURE:

@@ -21,6 +21,8 @@ from bt_engine.registry import REGISTRY
 from bt_engine.script import ScriptError, parse_script
 
 CATEGORY = "built-in"
+#: tolerance when comparing mission times (so a 500 ms sleep at 10 Hz takes exactly 5 ticks)
+TIME_EPS = 1e-9
 
 
 class AlwaysSuccess(SyncActionNode):
@@ -62,7 +64,7 @@ class Sleep(StatefulActionNode):
         return RUNNING
 
     def on_running(self) -> NodeStatus:
-        return SUCCESS if self.now() >= self.until else RUNNING
+        return SUCCESS if self.now() >= self.until - TIME_EPS else RUNNING
 
 
 class SetBlackboard(SyncActionNode):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import signal
 import time
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -80,6 +81,8 @@ class Runner:
         self.status: NodeStatus = mission.status
         self.tick_periods_s: list[float] = []
         self._interrupted = 0
+        self.last_record: dict = {}
+        self.error_traceback = ""
         self._last_wall: float | None = None
         self._next_t = self.clock.now()
 
@@ -126,6 +129,7 @@ class Runner:
             m.ctx.messages.clear()
         if self.telemetry is not None:
             rec["vehicle"] = self.telemetry()
+        self.last_record = rec
         if self.keep_trace:
             self.trace.append(rec)
         if self.log is not None:
@@ -162,6 +166,11 @@ class Runner:
                     break
                 except NodeRuntimeError as exc:
                     result, reason = "ABORTED", str(exc)
+                    break
+                except Exception as exc:  # a bug in a leaf must not leave the drone flying
+                    self.error_traceback = traceback.format_exc()
+                    where = _raising_node(exc)
+                    result, reason = "ABORTED", f"internal error{where}: {type(exc).__name__}: {exc}"
                     break
                 if status is SUCCESS:
                     result, reason = "SUCCESS", "the mission tree returned SUCCESS"
@@ -201,6 +210,20 @@ class Runner:
 
 def _failure_reason(mission: Mission) -> str:
     return mission.last_failure or "the mission tree returned FAILURE"
+
+
+def _raising_node(exc: BaseException) -> str:
+    """' in <node> (<file:line:col>)' for the deepest node whose code raised ``exc``."""
+    from bt_engine.node import BTNode
+
+    found = None
+    tb = exc.__traceback__
+    while tb is not None:
+        obj = tb.tb_frame.f_locals.get("self")
+        if isinstance(obj, BTNode):
+            found = obj
+        tb = tb.tb_next
+    return f" in {found.describe()} ({found.loc})" if found is not None else ""
 
 
 def _install_sigint(runner: Runner):

@@ -126,7 +126,7 @@ class _Loader:
             self.problem(Loc(self.file, line, col), f"XML syntax error: {msg}")
             return
         elements = [el for el in root.iter() if _is_element(el)]
-        for el, (off, attrs) in zip(elements, self.pos.tags):
+        for el, (off, attrs) in zip(elements, self.pos.tags, strict=False):
             self.locs[el] = (
                 self.pos.loc(self.file, off),
                 {k: self.pos.loc(self.file, v) for k, v in attrs.items()},

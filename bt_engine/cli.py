@@ -1,0 +1,206 @@
+"""``btrun``: run, validate, show, convert, list nodes, replay.
+
+Exit codes: 0 mission SUCCESS (or command done), 1 mission FAILURE/ABORTED, 2 invalid input.
+Bad input is reported as ``file:line:col: message`` lines, never as a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from bt_engine.spec import MissionError, Problem
+
+COMMANDS = ("run", "validate", "show", "convert", "nodes", "replay")
+
+
+def _print_problems(problems: list[Problem], stream=None) -> None:
+    stream = stream or sys.stderr
+    for p in problems:
+        print(str(p), file=stream)
+    n = len(problems)
+    print(f"{n} problem{'s' if n != 1 else ''} found; nothing was run.", file=stream)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="btrun",
+        description="Fly behaviour-tree missions (BehaviorTree.CPP XML or YAML) on the "
+        "simulator or a real Crazyflie.",
+        epilog="`btrun MISSION` is short for `btrun run MISSION`.",
+    )
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    r = sub.add_parser("run", help="run a mission (default command)")
+    r.add_argument("mission", help="mission file (.xml, .yaml)")
+    r.add_argument("--rig", help="rig file (default: rigs/sim.yaml, the simulator)")
+    r.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set a blackboard input (target=1;2;1) or a rig/world setting "
+        "(world.scan_pallet=3A, rig.realtime=1); repeatable",
+    )
+    r.add_argument("--seed", type=int, default=0, help="random seed of the simulator (default 0)")
+    r.add_argument("--rate", type=float, default=50.0, help="tick rate in Hz (default 50)")
+    r.add_argument("--out", help="run folder (default runs/<mission>-<time>)")
+    r.add_argument("--max-time", type=float, default=900.0, help="mission time limit in s (default 900)")
+    r.add_argument(
+        "--realtime",
+        nargs="?",
+        const=1.0,
+        type=float,
+        metavar="FACTOR",
+        help="pace the run on the wall clock (optionally FACTOR times real time)",
+    )
+    r.add_argument("--quiet", "-q", action="store_true", help="print only the result")
+    r.add_argument("--no-report", action="store_true", help="skip the flight report")
+
+    v = sub.add_parser("validate", help="check mission files; report every problem")
+    v.add_argument("files", nargs="+")
+
+    s = sub.add_parser("show", help="print a mission's tree")
+    s.add_argument("mission")
+    s.add_argument("--format", choices=("text", "dot", "svg", "png"), default="text")
+    s.add_argument("--output", "-o", help="output file (for dot/svg/png)")
+
+    c = sub.add_parser("convert", help="convert a mission between XML and YAML")
+    c.add_argument("source")
+    c.add_argument("dest")
+
+    n = sub.add_parser("nodes", help="list the nodes missions can use")
+    n.add_argument("--kind", choices=("action", "condition", "control", "decorator"))
+    n.add_argument("--groot", metavar="FILE", help="write a Groot2 TreeNodesModel palette")
+    n.add_argument("--markdown", metavar="FILE", help="write the node reference (Markdown)")
+    n.add_argument("--verbose", "-v", action="store_true", help="full descriptions")
+
+    rp = sub.add_parser("replay", help="step through a run's tick log")
+    rp.add_argument("log", help="ticks.jsonl or the run folder")
+    rp.add_argument("--tick", type=int, help="show the tree at this tick and exit")
+    rp.add_argument("--all", action="store_true", help="print every tick that changed something")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``btrun`` command; returns the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] not in COMMANDS and not argv[0].startswith("-"):
+        argv.insert(0, "run")
+    args = _parser().parse_args(argv)
+    if args.command is None:
+        _parser().print_help()
+        return 2
+    try:
+        from bt_engine.plugins import load_plugins
+
+        load_plugins()
+        if args.command == "run":
+            from bt_engine.run_cmd import run_command
+
+            return run_command(args)
+        return globals()[f"_cmd_{args.command}"](args)
+    except MissionError as exc:
+        _print_problems(exc.problems)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 1
+    except BrokenPipeError:
+        return 0
+
+
+def _cmd_validate(args) -> int:
+    from bt_engine.mission import check_file
+    from bt_engine.registry import REGISTRY
+
+    worst = 0
+    all_problems: list[Problem] = []
+    for f in args.files:
+        _, problems = check_file(f, REGISTRY)
+        if problems:
+            all_problems += problems
+            worst = 2
+        else:
+            print(f"{f}: ok")
+    if all_problems:
+        _print_problems(all_problems)
+    return worst
+
+
+def _load_valid(path: str):
+    from bt_engine.mission import check_file
+    from bt_engine.registry import REGISTRY
+
+    spec, problems = check_file(path, REGISTRY)
+    if problems:
+        raise MissionError(problems)
+    return spec
+
+
+def _cmd_show(args) -> int:
+    from bt_engine.display import dot_source, render_dot, spec_rows, tree_lines
+
+    spec = _load_valid(args.mission)
+    if args.format == "text":
+        print(f"{spec.main_tree_id()}  ({args.mission})")
+        print("\n".join(tree_lines(spec_rows(spec))))
+        return 0
+    dot = dot_source(spec)
+    if args.format == "dot":
+        if args.output:
+            with open(args.output, "w") as f:
+                f.write(dot)
+        else:
+            print(dot, end="")
+        return 0
+    out = args.output or os.path.splitext(os.path.basename(args.mission))[0] + f".{args.format}"
+    try:
+        render_dot(dot, args.format, out)
+    except RuntimeError as exc:
+        print(f"btrun show: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {out}")
+    return 0
+
+
+def _cmd_convert(args) -> int:
+    from bt_engine.registry import REGISTRY
+    from bt_engine.yaml_io import convert_file
+
+    problems = convert_file(args.source, args.dest, REGISTRY)
+    if problems:
+        raise MissionError(problems)
+    print(f"wrote {args.dest}")
+    return 0
+
+
+def _cmd_nodes(args) -> int:
+    from bt_engine.catalogue import catalogue_markdown, catalogue_text, groot_palette
+    from bt_engine.registry import REGISTRY
+
+    wrote = False
+    if args.groot:
+        with open(args.groot, "w", encoding="utf-8") as f:
+            f.write(groot_palette(REGISTRY))
+        print(f"wrote Groot2 palette {args.groot}")
+        wrote = True
+    if args.markdown:
+        with open(args.markdown, "w", encoding="utf-8") as f:
+            f.write(catalogue_markdown(REGISTRY))
+        print(f"wrote node reference {args.markdown}")
+        wrote = True
+    if not wrote:
+        print(catalogue_text(REGISTRY, args.kind, args.verbose), end="")
+    return 0
+
+
+def _cmd_replay(args) -> int:
+    from bt_engine.replay import replay
+
+    return replay(args.log, args.tick, args.all)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,191 @@
+"""Validation: every kind of bad mission is reported at once, located, and nothing runs."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from helpers import wrap
+
+from bt_engine import REGISTRY
+from bt_engine.cli import main
+from bt_engine.validate import validate
+from bt_engine.xml_io import load_xml
+
+
+def problems_of(xml: str) -> list[str]:
+    return [str(p) for p in validate(load_xml("m.xml", text=xml), REGISTRY)]
+
+
+def one(xml: str) -> str:
+    found = problems_of(xml)
+    assert len(found) == 1, found
+    return found[0]
+
+
+CASES = [
+    # (body, expected location, expected fragment)
+    ('<Sleeep msec="1"/>', "m.xml:3:1", "unknown node 'Sleeep'; did you mean 'Sleep'?"),
+    ('<Sleep msec="abc"/>', "m.xml:3:8", "expected a whole number, got 'abc'"),
+    ("<Sleep/>", "m.xml:3:1", "Sleep needs port 'msec'"),
+    ('<Sleep msec="1" colour="x"/>', "m.xml:3:17", "Sleep has no port 'colour'"),
+    ('<Sleep msecs="1" msec="2"/>', "m.xml:3:8", "did you mean 'msec'?"),
+    ("<Inverter/>", "m.xml:3:1", "Inverter is a decorator node and takes 1 child; found 0"),
+    (
+        "<Inverter><AlwaysSuccess/><AlwaysFailure/></Inverter>",
+        "m.xml:3:1",
+        "takes 1 child; found 2",
+    ),
+    ("<Sequence/>", "m.xml:3:1", "takes at least 1 child; found 0"),
+    ("<IfThenElse><AlwaysSuccess/></IfThenElse>", "m.xml:3:1", "takes 2 to 3 children; found 1"),
+    ("<AlwaysSuccess><AlwaysSuccess/></AlwaysSuccess>", "m.xml:3:1", "takes no children; found 1"),
+    ('<Script code="x := (1 +"/>', "m.xml:3:9", "bad script 'x := (1 +'"),
+    ('<AlwaysSuccess _skipIf="a ==="/>', "m.xml:3:16", "_skipIf: bad script"),
+    ('<SubTree ID="Nope"/>', "m.xml:3:10", "SubTree 'Nope' is not defined"),
+    ('<Parallel success_count="two"><AlwaysSuccess/></Parallel>', "m.xml:3:11", "expected a whole number"),
+    ('<RunOnce then_skip="maybe"><AlwaysSuccess/></RunOnce>', "m.xml:3:10", "expected true or false"),
+    ('<Sleep msec="{bad key}"/>', "m.xml:3:8", "not a valid blackboard reference"),
+    ('<Action ID="Sleeep" msec="1"/>', "m.xml:3:9", "unknown node 'Sleeep'"),
+    ("<Action/>", "m.xml:3:1", "<Action> needs an ID"),
+]
+
+
+@pytest.mark.parametrize("body,where,fragment", CASES)
+def test_each_problem_is_located_with_value_and_expectation(body, where, fragment):
+    msg = one(wrap(body))
+    assert msg.startswith(where + ": "), msg
+    assert fragment in msg
+
+
+def test_all_problems_are_reported_at_once():
+    body = '<Sequence>\n<Sleeep/>\n<Sleep msec="x"/>\n<Inverter/>\n<SubTree ID="Q"/>\n</Sequence>'
+    found = problems_of(wrap(body))
+    assert len(found) == 4
+    assert [int(p.split(":")[1]) for p in found] == [4, 5, 6, 7]
+
+
+def test_output_port_bound_to_literal_is_an_error():
+    from bt_engine.node import SyncActionNode
+    from bt_engine.ports import FLOAT, output_port
+
+    class Measure(SyncActionNode):
+        """Write a measurement."""
+
+        bt_id = "MeasureX"
+        ports = (output_port("value", FLOAT, "measured value"),)
+
+        def tick_impl(self):
+            self.set_output("value", 1.0)
+            from bt_engine.node import SUCCESS
+
+            return SUCCESS
+
+    reg = REGISTRY.copy()
+    reg.register(Measure)
+    spec = load_xml("m.xml", text=wrap('<MeasureX value="3"/>'))
+    (p,) = validate(spec, reg)
+    assert "output port 'value' of MeasureX is bound to the literal '3'" in str(p)
+    assert "{value}" in str(p)
+    assert not validate(load_xml("m.xml", text=wrap('<MeasureX value="{v}"/>')), reg)
+
+
+def test_recursive_subtrees_are_refused():
+    xml = wrap('<SubTree ID="A"/>', '<BehaviorTree ID="A"><SubTree ID="B"/></BehaviorTree>'
+               '<BehaviorTree ID="B"><SubTree ID="A"/></BehaviorTree>')
+    msg = one(xml)
+    assert "recursive SubTree: Main -> A -> B -> A" in msg
+
+
+def test_no_main_tree():
+    xml = ('<root BTCPP_format="4"><BehaviorTree ID="A"><AlwaysSuccess/></BehaviorTree>'
+           '<BehaviorTree ID="B"><AlwaysSuccess/></BehaviorTree></root>')
+    assert "no main tree: set main_tree_to_execute to one of A, B" in one(xml)
+    xml2 = xml.replace('BTCPP_format="4"', 'BTCPP_format="4" main_tree_to_execute="C"')
+    assert "main tree 'C' is not defined" in one(xml2)
+
+
+def test_single_tree_without_main_attribute_is_main():
+    xml = '<root BTCPP_format="4"><BehaviorTree ID="Only"><AlwaysSuccess/></BehaviorTree></root>'
+    assert problems_of(xml) == []
+
+
+def test_xml_syntax_error_is_located():
+    msg = one("<root>\n<BehaviorTree ID='A'>\n<Sequence>\n</BehaviorTree></root>")
+    assert re.match(r"m\.xml:4:\d+: XML syntax error", msg), msg
+
+
+def test_dtd_and_entities_are_refused():
+    xml = ('<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY a "aaaa"><!ENTITY b "&a;&a;&a;">]>\n'
+           '<root><BehaviorTree ID="A"><AlwaysSuccess name="&b;"/></BehaviorTree></root>')
+    assert one(xml).startswith("m.xml:2:1: DOCTYPE, DTD and entity declarations are not allowed")
+
+
+def test_external_entity_is_never_read(tmp_path):
+    secret = tmp_path / "secret.txt"
+    secret.write_text("TOPSECRET")
+    xml = (f'<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY x SYSTEM "file://{secret}">]>\n'
+           '<root><BehaviorTree ID="A"><AlwaysSuccess name="&x;"/></BehaviorTree></root>')
+    found = problems_of(xml)
+    assert found and "TOPSECRET" not in " ".join(found)
+
+
+def test_models_of_unknown_nodes_matter_only_where_used():
+    model = ('<TreeNodesModel><Action ID="FancyThing"><input_port name="a"/></Action>'
+             "</TreeNodesModel>")
+    assert problems_of(wrap("<AlwaysSuccess/>", model)) == []
+    msg = one(wrap('<FancyThing a="1"/>', model))
+    assert "declared in <TreeNodesModel> but btrun has no implementation" in msg
+
+
+def test_subtree_ports_checked_against_tree_nodes_model():
+    extra = ('<BehaviorTree ID="Scan"><AlwaysSuccess/></BehaviorTree>'
+             '<TreeNodesModel><SubTree ID="Scan"><input_port name="speed"/>'
+             '<output_port name="found"/></SubTree></TreeNodesModel>')
+    assert problems_of(wrap('<SubTree ID="Scan" speed="0.1" found="{f}"/>', extra)) == []
+    assert "SubTree 'Scan' has no port 'sped'" in one(wrap('<SubTree ID="Scan" speed="1" sped="1" found="{f}"/>', extra))
+    assert "needs port 'speed'" in one(wrap('<SubTree ID="Scan" found="{f}"/>', extra))
+    assert "output port 'found' of SubTree 'Scan' is bound to the literal" in one(
+        wrap('<SubTree ID="Scan" speed="1" found="3"/>', extra)
+    )
+
+
+def test_include_loop_and_missing_include(tmp_path):
+    a = tmp_path / "a.xml"
+    b = tmp_path / "b.xml"
+    a.write_text('<root main_tree_to_execute="A"><include path="b.xml"/>'
+                 '<BehaviorTree ID="A"><SubTree ID="B"/></BehaviorTree></root>')
+    b.write_text('<root><include path="a.xml"/><BehaviorTree ID="B"><AlwaysSuccess/></BehaviorTree></root>')
+    from bt_engine.mission import check_file
+
+    _, problems = check_file(str(a), REGISTRY)
+    assert len(problems) == 1 and "include loop: a.xml -> b.xml -> a.xml" in str(problems[0])
+    b.write_text('<root><BehaviorTree ID="B"><AlwaysSuccess/></BehaviorTree></root>')
+    _, problems = check_file(str(a), REGISTRY)
+    assert problems == []
+    a.write_text('<root><include path="missing.xml"/><BehaviorTree ID="A"><AlwaysSuccess/></BehaviorTree></root>')
+    _, problems = check_file(str(a), REGISTRY)
+    assert "included file not found" in str(problems[0])
+
+
+def test_cli_validate_exit_code_and_no_traceback(tmp_path, capsys):
+    bad = tmp_path / "bad.xml"
+    bad.write_text(wrap('<Sequence><Sleeep/><Sleep msec="x"/></Sequence>'))
+    good = tmp_path / "good.xml"
+    good.write_text(wrap("<AlwaysSuccess/>"))
+    assert main(["validate", str(good)]) == 0
+    assert main(["validate", str(good), str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}:3:11: unknown node 'Sleeep'" in err
+    assert "2 problems found; nothing was run." in err
+    assert "Traceback" not in err
+    # `btrun run` refuses to fly an invalid mission with the same messages
+    assert main([str(bad), "--out", str(tmp_path / "run")]) == 2
+    assert not (tmp_path / "run").exists()
+
+
+def test_v3_spellings_load():
+    xml = ('<root main_tree_to_execute="Main"><BehaviorTree ID="Main"><SequenceStar>'
+           '<Action ID="AlwaysSuccess"/><Condition ID="AlwaysSuccess"/>'
+           '<SubTreePlus ID="S" __autoremap="1"/></SequenceStar></BehaviorTree>'
+           '<BehaviorTree ID="S"><AlwaysSuccess/></BehaviorTree></root>')
+    assert problems_of(xml) == []
