@@ -18,7 +18,7 @@ from typing import Any
 
 from bt_engine.builder import build_tree
 from bt_engine.clock import Clock, SimClock
-from bt_engine.node import FAILURE, RUNNING, SKIPPED, BTNode, MissionContext, NodeStatus
+from bt_engine.node import FAILURE, RUNNING, SKIPPED, SUCCESS, BTNode, MissionContext, NodeStatus
 from bt_engine.registry import REGISTRY, Registry
 from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
 from bt_engine.validate import validate
@@ -50,6 +50,24 @@ def check_file(path: str, registry: Registry | None = None) -> tuple[MissionSpec
     """Load and validate ``path``; return the spec and every problem found."""
     spec = load_spec(path)
     return spec, validate(spec, registry or REGISTRY)
+
+
+def mission_inputs(spec: MissionSpec) -> dict[str, Any]:
+    """Default values of the mission's input ports.
+
+    A mission declares its inputs the BehaviorTree.CPP way: a ``<SubTree ID="...">`` entry
+    in ``<TreeNodesModel>`` for the main tree, with ``<input_port name=... default=...>``.
+    The runner seeds the blackboard with these defaults; ``--set name=value`` overrides them.
+    """
+    main = spec.main_tree_id()
+    model = spec.models.get(main) if main else None
+    if model is None:
+        return {}
+    return {
+        p.name: p.default
+        for p in model.ports.values()
+        if p.direction in ("input", "inout") and p.default is not None and not p.name.startswith("__")
+    }
 
 
 class _BlackboardView(MutableMapping):
@@ -121,6 +139,10 @@ class Mission:
             spec, self.registry, self.ctx, namespace
         )
         self.blackboard: MutableMapping[str, Any] = _BlackboardView(self)
+        self.inputs = mission_inputs(spec)
+        for k, v in self.inputs.items():
+            if k not in (blackboard or {}):
+                self.scope.set(k, v)
         for k, v in (blackboard or {}).items():
             self.scope.set(k, v)
         self._by_path = {n.path: n for n in self.nodes}
@@ -129,6 +151,7 @@ class Mission:
             self._by_name.setdefault(n.name, []).append(n)
         self.ticks = 0
         self.last_failure = ""
+        self.finished: dict[str, str] = {}
         self.status: NodeStatus = self.root.bt_status
 
     @classmethod
@@ -162,8 +185,13 @@ class Mission:
 
     def drain_changes(self) -> dict[str, str]:
         """Statuses that changed since the last call, as ``{path: status}``."""
-        out = {n.path: n.bt_status.value for n, _ in self._changes}
-        self._changes.clear()
+        changes = self._changes
+        out = {n.path: n.bt_status.value for n, _ in changes}
+        #: leaves that finished during the drained ticks, even if reset to IDLE since
+        self.finished = {
+            n.path: st.value for n, st in changes if (st is SUCCESS or st is FAILURE) and not n.children
+        }
+        changes.clear()
         return out
 
     def halt(self) -> None:

@@ -19,14 +19,12 @@ from bt_engine.runner import Runner
 from bt_engine.spec import Loc, MissionError, Problem
 from bt_engine.ticklog import TickLog, to_jsonable
 
-RIG_PREFIXES = ("rig.", "world.", "faults.", "sim.", "camera.", "mocap.", "link.", "vehicle.")
-
 
 def parse_sets(items: list[str]) -> tuple[dict[str, Any], dict[str, str], list[Problem]]:
     """Split ``--set KEY=VALUE`` items into blackboard entries and rig/world overrides.
 
-    Keys starting with ``rig.``, ``world.`` (and the rig's other sections) go to the rig;
-    ``rig.`` itself is stripped. Blackboard values are read as YAML scalars (numbers,
+    Dotted keys (``world.scan_pallet``, ``control.setpoint_mode``) are rig/world settings;
+    a leading ``rig.`` is stripped. Plain keys are blackboard entries. Blackboard values are read as YAML scalars (numbers,
     booleans), otherwise kept as text; ports convert them when read.
     """
     bb: dict[str, Any] = {}
@@ -43,7 +41,7 @@ def parse_sets(items: list[str]) -> tuple[dict[str, Any], dict[str, str], list[P
         if not key:
             problems.append(Problem(Loc("--set", i, 1), f"empty key in {item!r}"))
             continue
-        if key.startswith(RIG_PREFIXES):
+        if "." in key:
             rig[key[4:] if key.startswith("rig.") else key] = value
         else:
             try:
@@ -91,7 +89,9 @@ class _PlainLog:
             return
         rec = runner.last_record
         t = rec.get("t", 0.0)
-        for path, st in rec.get("changed", {}).items():
+        events = dict(rec.get("changed", {}))
+        events.update(rec.get("done", {}))
+        for path, st in events.items():
             node = self.actions.get(path)
             if node is not None and st in ("RUNNING", "SUCCESS", "FAILURE"):
                 print(f"[{t:8.2f} s] {node.describe():<32} {st}", flush=True)

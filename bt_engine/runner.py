@@ -121,6 +121,9 @@ class Runner:
         changed = m.drain_changes()
         if changed:
             rec["changed"] = changed
+            done = {k: v for k, v in m.finished.items() if changed.get(k) != v}
+            if done:
+                rec["done"] = done
         writes = m.scope.drain_writes()
         if writes:
             rec["bb"] = writes

@@ -197,7 +197,7 @@ class _Validator:
             if key.startswith("_"):
                 self.add(attr.loc, f"unknown attribute '{key}' on SubTree")
                 continue
-            if model is not None and key not in model.ports:
+            if model is not None and key not in model.ports and not key.startswith("__"):
                 hint = suggest_name(key, list(model.ports))
                 self.add(
                     attr.loc,
@@ -214,6 +214,8 @@ class _Validator:
         if model is not None:
             auto = str(node.attrs["_autoremap"].value).lower() in ("true", "1") if "_autoremap" in node.attrs else False
             for p in model.ports.values():
+                if p.name.startswith("__"):
+                    continue
                 if p.direction == "input" and p.default is None and p.name not in node.attrs and not auto:
                     self.add(
                         node.loc,

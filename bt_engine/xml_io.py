@@ -221,7 +221,8 @@ class _Loader:
         loc = self.loc(el)
         attrs = {}
         for name, value in el.attrib.items():
-            key = "_autoremap" if name == "__autoremap" else name
+            # v3 spellings of a shared blackboard (Aerostack2 files use __shared_blackboard)
+            key = "_autoremap" if name in ("__autoremap", "__shared_blackboard") else name
             attrs[key] = AttrSpec(value, self.attr_loc(el, name))
         node_type = tag
         type_loc = loc

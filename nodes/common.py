@@ -1,0 +1,36 @@
+"""Shared port types and helpers for the drone leaves."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from bt_engine.node import BTNode, NodeRuntimeError
+from bt_engine.ports import EnumType
+
+#: Aerostack2's yaw modes; names or integers are accepted in mission files.
+YAW_MODE = EnumType("YawMode", {"KEEP_YAW": 0, "PATH_FACING": 1, "FIXED_YAW": 2})
+
+CATEGORY_FLIGHT = "flight"
+CATEGORY_CHECK = "checks"
+
+
+def vehicle_of(node: BTNode) -> Any:
+    """The vehicle a leaf flies, or a located error if the mission runs without one."""
+    v = node.ctx.vehicle if node.ctx is not None else None
+    if v is None:
+        raise NodeRuntimeError(node, "needs a vehicle: run the mission with a rig (e.g. rigs/sim.yaml)")
+    return v
+
+
+def angle_input(node: BTNode, rad_port: str, deg_port: str) -> float:
+    """Read an angle given either in radians (``rad_port``) or degrees (``deg_port``)."""
+    deg = node.get_input(deg_port)
+    if deg is not None:
+        return math.radians(deg)
+    return node.get_input(rad_port)
+
+
+def yaw_mode_value(name: str) -> int:
+    """Integer of a yaw-mode name."""
+    return YAW_MODE.value_of(name)
