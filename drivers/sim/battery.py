@@ -1,0 +1,26 @@
+"""Simulated 1S LiPo: charge drawn by the motors, voltage sag under load, injected sag."""
+
+from __future__ import annotations
+
+from drivers.battery import ocv_from_soc
+
+
+class SimBattery:
+    """State of charge integrates the current; voltage = OCV(soc) - I*R - injected sag."""
+
+    def __init__(self, params: dict) -> None:
+        self.capacity_c = params["battery_capacity_mah"] * 3.6
+        self.r_ohm = params["battery_internal_resistance_ohm"]
+        self.idle_a = params["battery_idle_current_a"]
+        self.coeff = params["battery_current_coeff"]
+        self.soc = params["battery_initial_soc"]
+        self.current_a = self.idle_a
+        self.sag_v = 0.0  # injected extra drop (fault "battery_sag")
+        self.voltage_v = ocv_from_soc(self.soc) - self.current_a * self.r_ohm
+
+    def update(self, dt_s: float, thrust_n: float) -> None:
+        """Draw current for ``dt_s`` at total motor thrust ``thrust_n``."""
+        i = self.idle_a + self.coeff * max(thrust_n, 0.0) ** 1.5
+        self.current_a = i
+        self.soc = max(0.0, self.soc - i * dt_s / self.capacity_c)
+        self.voltage_v = max(0.0, ocv_from_soc(self.soc) - i * self.r_ohm - self.sag_v)
