@@ -84,17 +84,18 @@ class Runner:
         self.last_record: dict = {}
         self.error_traceback = ""
         self._last_wall: float | None = None
-        self._next_t = self.clock.now()
+        self._t0 = self.clock.now()
+        self._steps = 0
 
     # -- one step -------------------------------------------------------------------------
     def step(self) -> NodeStatus:
         """Advance the clock one period, run hooks, tick the tree once; return its status."""
         clock = self.clock
-        self._next_t += self.period_s
-        if getattr(clock, "is_simulated", False):
-            clock.sleep_until(self._next_t)
-        else:
-            clock.sleep_until(self._next_t)
+        self._steps += 1
+        # t0 + n * period, not a running sum, so tick times do not drift with float error
+        next_t = self._t0 + self._steps * self.period_s
+        clock.sleep_until(next_t)
+        if not getattr(clock, "is_simulated", False):
             now_wall = time.monotonic()
             if self._last_wall is not None:
                 self.tick_periods_s.append(now_wall - self._last_wall)

@@ -58,8 +58,27 @@ class _Motion(StatefulActionNode):
         self.started_s = self.now()
         self.reached_since: float | None = None
         self.progress = self.start_motion()
-        if self.progress.failed:
-            return self._fail(self.progress.reason)
+        p = self.progress
+        pos_tol, yaw_tol = (
+            self.tolerances() if self.port_decl("pos_threshold") else (p.position_tolerance_m, p.yaw_tolerance_rad)
+        )
+        # One record per motion, for the flight report (what was asked, when, and how it ended).
+        self.record = {
+            "node": self.path,
+            "name": self.name,
+            "kind": self.bt_id,
+            "goal": list(p.goal),
+            "goal_yaw_rad": p.goal_yaw_rad,
+            "pos_threshold_m": pos_tol,
+            "yaw_threshold_rad": yaw_tol,
+            "t_start": self.started_s,
+            "t_reached": None,
+            "t_end": None,
+            "result": "RUNNING",
+        }
+        self.ctx.resources.setdefault("motions", []).append(self.record)
+        if p.failed:
+            return self._fail(p.reason)
         return self.on_running()
 
     def done(self) -> bool:
@@ -76,8 +95,10 @@ class _Motion(StatefulActionNode):
         if self.done():
             if self.reached_since is None:
                 self.reached_since = now
+                if self.record["t_reached"] is None:
+                    self.record["t_reached"] = now
             if now - self.reached_since >= self.settle_s - 1e-9:
-                return SUCCESS
+                return self._finish(SUCCESS)
         else:
             self.reached_since = None
         if now - self.started_s >= self.timeout_s - 1e-9:
@@ -88,11 +109,25 @@ class _Motion(StatefulActionNode):
             )
         return RUNNING
 
+    def _finish(self, status: NodeStatus, reason: str = "") -> NodeStatus:
+        rec = getattr(self, "record", None)
+        if rec is not None:
+            p = self.progress
+            rec.update(
+                t_end=self.now(),
+                result=status.value,
+                reason=reason,
+                final_distance_m=p.distance_m,
+                final_yaw_error_rad=p.yaw_error_rad,
+            )
+        return status
+
     def _fail(self, reason: str) -> NodeStatus:
         self.ctx.log(f"{self.describe()} failed: {reason}")
-        return FAILURE
+        return self._finish(FAILURE, reason)
 
     def on_halted(self) -> None:
+        self._finish(NodeStatus.IDLE, "halted")
         v = getattr(self, "vehicle", None)
         if v is not None and v.is_flying:
             v.hover()

@@ -20,3 +20,32 @@ def wrap(body: str, extra: str = "") -> str:
         '<root BTCPP_format="4" main_tree_to_execute="Main">\n'
         f'  <BehaviorTree ID="Main">\n{body}\n  </BehaviorTree>\n{extra}</root>\n'
     )
+
+
+def sim_mission(xml_or_path: str, seed: int = 0, overrides: dict | None = None, rate_hz: float = 50.0, **kw):
+    """A mission flying the in-process simulator: returns ``(mission, runner, platform)``.
+
+    ``xml_or_path`` is a mission file path or inline XML text.
+    """
+    import nodes  # noqa: F401  (registers the drone leaves)
+    from bt_engine import Runner
+    from bt_engine.mission import load_spec
+    from drivers.rig import load_rig
+
+    clock = SimClock()
+    platform = load_rig(None, overrides).make_platform(clock, seed)
+    if xml_or_path.lstrip().startswith("<"):
+        spec = load_xml("inline.xml", text=xml_or_path)
+    else:
+        spec = load_spec(xml_or_path)
+    mission = Mission(spec, clock=clock, vehicle=platform.vehicle, **kw)
+    return mission, Runner(mission, rate_hz=rate_hz, hooks=[platform]), platform
+
+
+def problems_of_xml(xml: str) -> list[str]:
+    """Validation problems of inline XML against the default registry (drone leaves too)."""
+    import nodes  # noqa: F401
+    from bt_engine.registry import REGISTRY
+    from bt_engine.validate import validate
+
+    return [str(p) for p in validate(load_xml("m.xml", text=xml), REGISTRY)]

@@ -103,8 +103,9 @@ def test_pre_and_post_conditions():
     recorder = Runner(m)
     assert recorder.step() is SUCCESS
     assert m.blackboard["done"] is True and m.blackboard["count"] == 1
-    skipped = [r for r in recorder.trace[-1]["changed"].items() if "skipped" in r[0]]
-    assert skipped  # the skipped node's status was reported in the tick
+    # as in BT.CPP, a skipped node keeps its previous status; only its parent sees SKIPPED
+    assert m.status_of("skipped") == "IDLE"
+    assert "Main/Sequence/skipped" not in recorder.trace[-1].get("done", {})
 
 
 def test_while_precondition_halts_running_node():
