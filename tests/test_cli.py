@@ -1,0 +1,122 @@
+"""The btrun command: run folder, summary, exit codes, --set, show, nodes, replay, determinism."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+from helpers import REPO
+
+from bt_engine.cli import main
+
+SQUARE = os.path.join(REPO, "missions", "square.xml")
+YAW = os.path.join(REPO, "missions", "yaw_test.xml")
+
+
+def run_cli(*args: str) -> int:
+    return main([*args])
+
+
+def test_run_writes_summary_and_tick_log(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert run_cli(YAW, "--out", str(out), "--no-report") == 0
+    s = json.loads((out / "summary.json").read_text())
+    for key in ("status", "reason", "ticks", "mission_time_s", "wall_time_s", "blackboard", "sim"):
+        assert key in s
+    assert s["status"] == "SUCCESS" and s["sim"]["landed"] is True
+    lines = (out / "ticks.jsonl").read_text().splitlines()
+    assert json.loads(lines[0])["header"]["nodes"]
+    assert len(lines) == s["ticks"] + 1
+    printed = capsys.readouterr().out
+    assert "SUCCESS" in printed and "run folder:" in printed and "x real time" in printed
+
+
+def test_same_seed_same_tick_log_different_seed_differs(tmp_path):
+    logs = []
+    for name, seed in (("a", "5"), ("b", "5"), ("c", "6")):
+        out = tmp_path / name
+        assert run_cli(YAW, "--out", str(out), "--seed", seed, "-q", "--no-report") == 0
+        lines = (out / "ticks.jsonl").read_text().splitlines()[1:]
+        logs.append(lines)
+    assert logs[0] == logs[1]
+    assert logs[0] != logs[2]
+
+
+def test_world_setting_and_rig_errors_are_located(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert run_cli(YAW, "--out", str(out), "-q", "--no-report", "--set", "world.scan_pallet=2B") == 0
+    assert json.loads((out / "summary.json").read_text())["sim"]["scan_pallet"] == "2B"
+    assert run_cli(YAW, "--out", str(tmp_path / "x"), "--set", "world.scan_palet=2B") == 2
+    err = capsys.readouterr().err
+    assert "scan_palet" in err and "did you mean" in err and "Traceback" not in err
+    assert run_cli(YAW, "--set", "noequals") == 2
+    assert "expected KEY=VALUE" in capsys.readouterr().err
+
+
+def test_failure_exit_code_and_reason(tmp_path, capsys):
+    bad = tmp_path / "timeout.xml"
+    bad.write_text('<root BTCPP_format="4"><BehaviorTree ID="M"><Sequence><TakeOff/>'
+                   '<GoTo name="far" pose="5;0;1" timeout="1"/></Sequence></BehaviorTree></root>')
+    out = tmp_path / "run"
+    assert run_cli(str(bad), "--out", str(out), "--no-report") == 1
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "FAILURE" and "GoTo 'far' failed" in s["reason"]
+    assert s["sim"]["landed"] is True  # shutdown landed the drone
+    assert "time-out after 1 s" in capsys.readouterr().out
+
+
+def test_show_text_and_dot(tmp_path, capsys):
+    assert run_cli("show", SQUARE) == 0
+    text = capsys.readouterr().out
+    assert "└── Land 'land'" in text and "GoTo 'goto'" in text
+    dot = tmp_path / "t.dot"
+    assert run_cli("show", SQUARE, "--format", "dot", "-o", str(dot)) == 0
+    assert dot.read_text().startswith("digraph mission")
+
+
+def test_nodes_catalogue_groot_palette_and_markdown(tmp_path, capsys):
+    assert run_cli("nodes") == 0
+    listing = capsys.readouterr().out
+    for name in ("GoTo", "TakeOff", "Sequence", "IsHealthy", "Timeout"):
+        assert name in listing
+    pal = tmp_path / "palette.xml"
+    assert run_cli("nodes", "--groot", str(pal)) == 0
+    from lxml import etree
+
+    root = etree.parse(str(pal)).getroot()
+    goto = root.find("TreeNodesModel/Action[@ID='GoTo']")
+    names = {p.get("name") for p in goto}
+    assert {"pose", "max_speed", "yaw_mode", "pos_threshold"} <= names
+    assert root.find("TreeNodesModel/Condition[@ID='IsFlying']") is not None
+    md = tmp_path / "nodes.md"
+    assert run_cli("nodes", "--markdown", str(md)) == 0
+    assert "### GoTo" in md.read_text()
+
+
+def test_docs_node_reference_is_up_to_date():
+    """docs/nodes.md is generated from the declarations; regenerate it when they change."""
+    import nodes  # noqa: F401
+    from bt_engine.catalogue import catalogue_markdown
+    from bt_engine.registry import REGISTRY
+
+    with open(os.path.join(REPO, "docs", "nodes.md"), encoding="utf-8") as f:
+        assert f.read() == catalogue_markdown(REGISTRY), "run: btrun nodes --markdown docs/nodes.md"
+
+
+def test_replay_shows_tree_at_a_tick(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert run_cli(YAW, "--out", str(out), "-q", "--no-report") == 0
+    capsys.readouterr()
+    assert run_cli("replay", str(out), "--tick", "200") == 0
+    shown = capsys.readouterr().out
+    assert shown.startswith("tick 200") and "RUNNING" in shown
+    assert run_cli("replay", str(out), "--tick", "999999") == 2
+    assert run_cli("replay", str(tmp_path / "nothing")) == 2
+
+
+@pytest.mark.parametrize("args", [["validate"], ["show"], ["convert", "a.xml"]])
+def test_usage_errors_exit_2(args):
+    with pytest.raises(SystemExit) as e:
+        run_cli(*args)
+    assert e.value.code == 2
