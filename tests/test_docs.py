@@ -8,6 +8,8 @@ import re
 import pytest
 from helpers import REPO
 
+import nodes  # noqa: F401  (register the drone leaves before any registry snapshot)
+
 DOCS = ["engine.md", "testing-missions.md"]
 
 
