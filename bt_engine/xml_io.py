@@ -358,9 +358,15 @@ def value_to_text(value: Any) -> str:
     return str(value)
 
 
+def _comment(text: str) -> Any:
+    # XML forbids "--" inside a comment and a trailing "-"; YAML comments often have both.
+    safe = re.sub(r"-(?=-)", "- ", text).rstrip("-")
+    return etree.Comment(f" {safe} ")
+
+
 def _write_node(node: NodeSpec, parent: Any) -> None:
     for c in node.comments:
-        parent.append(etree.Comment(f" {c} "))
+        parent.append(_comment(c))
     el = etree.SubElement(parent, node.type)
     for k, a in node.attrs.items():
         el.set(k, value_to_text(a.value))
@@ -376,7 +382,7 @@ def dump_xml(spec: MissionSpec) -> str:
         root.set("main_tree_to_execute", main)
     for tree in spec.trees.values():
         for c in tree.comments:
-            root.append(etree.Comment(f" {c} "))
+            root.append(_comment(c))
         bt = etree.SubElement(root, "BehaviorTree", ID=tree.id)
         if tree.root is not None:
             _write_node(tree.root, bt)
@@ -392,7 +398,7 @@ def dump_xml(spec: MissionSpec) -> str:
                     pe.set("default", value_to_text(p.default))
                 if p.description:
                     pe.text = p.description
-    head = "".join(f"<!-- {c} -->\n" for c in spec.comments)
+    head = "".join(etree.tostring(_comment(c), encoding="unicode") + "\n" for c in spec.comments)
     etree.indent(root, space="  ")
     body = etree.tostring(root, encoding="unicode")
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + head + body + "\n"

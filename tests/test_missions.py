@@ -68,3 +68,26 @@ def test_mission_inputs_can_be_overridden(tmp_path):
     s = json.loads((out / "summary.json").read_text())
     assert s["blackboard"]["height"] == 0.6
     assert s["seed"] == 3
+
+
+def test_pallet_scan_xml_and_yaml_fly_identically(tmp_path):
+    """The YAML version is the same mission: same seed, same tick log, tick for tick."""
+    logs = []
+    for ext in ("xml", "yaml"):
+        out = tmp_path / ext
+        assert main([os.path.join(REPO, "missions", f"pallet_scan.{ext}"), "--out", str(out),
+                     "-q", "--no-report", "--seed", "2"]) == 0
+        logs.append((out / "ticks.jsonl").read_text().splitlines()[1:])
+    assert len(logs[0]) > 2000
+    assert logs[0] == logs[1]
+
+
+def test_yaml_copy_is_up_to_date(tmp_path):
+    """missions/pallet_scan.yaml is generated from the XML: regenerate it when the XML changes."""
+    from bt_engine.registry import REGISTRY
+    from bt_engine.yaml_io import convert_file
+
+    out = tmp_path / "p.yaml"
+    assert convert_file(os.path.join(REPO, "missions", "pallet_scan.xml"), str(out), REGISTRY) == []
+    with open(os.path.join(REPO, "missions", "pallet_scan.yaml"), encoding="utf-8") as f:
+        assert f.read() == out.read_text(), "run: btrun convert missions/pallet_scan.xml missions/pallet_scan.yaml"

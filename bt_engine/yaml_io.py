@@ -1,0 +1,541 @@
+"""The hand-writable YAML mission format <-> :class:`~bt_engine.spec.MissionSpec`.
+
+See ``docs/mission-yaml.md`` for the schema. Parsing uses PyYAML's safe loader only (libyaml's
+``CSafeLoader`` when available) and walks the composed node graph, so every tree, node and attribute keeps the
+``file:line:col`` of its key. YAML tags (other than the core scalar ones), anchors and
+aliases are refused, file size, node count and nesting depth are capped. PyYAML drops
+comments, so full-line ``#`` comments are recovered from the source text: a run of them
+directly above a node (or tree) is attached to it, and leading ones become the file header.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import yaml
+from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
+
+from bt_engine.ports import BOOL, PortValueError, blackboard_ref
+from bt_engine.registry import DECORATOR, KINDS, REGISTRY, SUBTREE, Registry, suggest_name
+from bt_engine.spec import (
+    AttrSpec,
+    Loc,
+    MissionSpec,
+    ModelSpec,
+    NodeSpec,
+    PortModel,
+    Problem,
+    TreeSpec,
+)
+from bt_engine.validate import CONDITION_ATTRS, SPECIAL_ATTRS
+from bt_engine.xml_io import MAX_FILE_BYTES, _Loader, _read, dump_xml
+
+TOP_KEYS = ("btrun", "main", "include", "trees", "models")
+MODEL_KEYS = ("kind", "description", "ports")
+PORT_KEYS = ("direction", "type", "default", "description")
+DIRECTIONS = ("input", "output", "inout")
+MAX_YAML_NODES = 200_000
+MAX_DEPTH = 200
+_CORE = "tag:yaml.org,2002:"
+ALLOWED_TAGS = tuple(_CORE + t for t in ("str", "int", "float", "bool", "null"))
+_WIDE = 1_000_000
+#: libyaml's SafeLoader when PyYAML has it (same safe constructor, ~30x faster), else PyYAML's
+_SAFE = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+FLOW_WIDTH = 100
+
+
+def _text(node: Node) -> bool:
+    return isinstance(node, ScalarNode) and node.tag == _CORE + "str" and node.value != ""
+
+
+def _null(node: Node) -> bool:
+    return isinstance(node, ScalarNode) and node.tag == _CORE + "null"
+
+
+def _kind(node: Node) -> str:
+    if isinstance(node, (MappingNode, SequenceNode)):
+        return "a mapping" if isinstance(node, MappingNode) else "a list"
+    return "nothing" if _null(node) else repr(node.value)
+
+
+_BAD = object()  # a value that was reported as a problem
+
+
+class _YamlLoader:
+    def __init__(self, file: str, text: str, spec: MissionSpec, stack: tuple[str, ...]) -> None:
+        self.file, self.text, self.spec, self.stack = file, text, spec, stack
+        self.top = len(stack) <= 1
+        self.lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+        self.claimed: set[int] = set()  # 1-based lines already used (comments, scalars)
+        self.construct = yaml.constructor.SafeConstructor().construct_object
+
+    def problem(self, where: Any, message: str) -> None:
+        loc = where if isinstance(where, Loc) else self.loc(where)
+        self.spec.load_problems.append(Problem(loc, message))
+
+    def loc(self, node: Any) -> Loc:
+        mark = getattr(node, "start_mark", node)
+        return Loc(self.file, mark.line + 1, mark.column + 1)
+
+    # -- parsing --------------------------------------------------------------------------
+    def run(self) -> None:
+        if len(self.text) > MAX_FILE_BYTES:
+            self.problem(Loc(self.file, 1, 1), f"file is larger than {MAX_FILE_BYTES} bytes")
+            return
+        if not self._scan_events():
+            return
+        try:
+            root = yaml.compose(self.text, Loader=_SAFE)
+        except yaml.YAMLError as exc:
+            self._syntax(exc)
+            return
+        if not isinstance(root, MappingNode):
+            got = "the file is empty" if root is None else f"got {_kind(root)}"
+            where = Loc(self.file, 1, 1) if root is None else root
+            self.problem(where, f"the top level must be a mapping with `trees:` ({got})")
+            return
+        self._claim_scalars(root)
+        if self.top:
+            self.spec.root_loc = self.loc(root)
+            for line in range(1, root.start_mark.line + 1):
+                self._claim_comment(line, self.spec.comments)
+        for name, key, value in self._pairs(root):
+            if self.top:
+                self.spec.comments.extend(self._comments_above(key))
+            if name == "btrun":
+                if not (value.tag == _CORE + "int" and value.value.strip() == "1"):
+                    self.problem(value, f"btrun: {_kind(value)} is not a supported format version (expected 1)")
+            elif name == "main":
+                if not _text(value):
+                    self.problem(value, f"main: expected the ID of a tree, got {_kind(value)}")
+                elif self.top:
+                    self.spec.main_tree, self.spec.root_loc = value.value, self.loc(value)
+            elif name == "include":
+                for item in value.value if isinstance(value, SequenceNode) else [value]:
+                    if _text(item):
+                        self._include(item)
+                    else:
+                        self.problem(item, f"include: expected a relative file path, got {_kind(item)}")
+            elif name == "trees" and self._mapping(value, "trees", "tree IDs mapped to their root node"):
+                for tid, tkey, tval in self._pairs(value):
+                    self._tree(tid, tkey, tval)
+            elif name == "models" and self._mapping(value, "models", "node IDs mapped to {kind, ports}"):
+                for mid, mkey, mval in self._pairs(value):
+                    self._model(mid, mkey, mval)
+            elif name not in TOP_KEYS:
+                self._unknown_key(key, name, TOP_KEYS, "top-level key")
+
+    def _scan_events(self) -> bool:
+        """Refuse tags, anchors, aliases, too many values and too deep nesting before composing.
+
+        The first refusal stops loading (one located problem is enough).
+        """
+        depth, count = 0, 0
+        try:
+            for ev in yaml.parse(self.text, Loader=_SAFE):
+                depth -= isinstance(ev, yaml.CollectionEndEvent)
+                if isinstance(ev, yaml.AliasEvent):
+                    msg = f"YAML aliases (*{ev.anchor}) are not allowed in mission files"
+                    self.problem(ev, msg + "; write the value out")
+                    return False
+                if not isinstance(ev, (yaml.ScalarEvent, yaml.CollectionStartEvent)):
+                    continue
+                if ev.anchor is not None:
+                    self.problem(ev, f"YAML anchors (&{ev.anchor}) are not allowed in mission files")
+                    return False
+                if ev.tag is not None and ev.tag not in ALLOWED_TAGS:
+                    tag = ev.tag.replace(_CORE, "!!", 1) if ev.tag.startswith(_CORE) else ev.tag
+                    self.problem(ev, f"YAML tag '{tag}' is not allowed in mission files (only plain values)")
+                    return False
+                count += 1
+                depth += isinstance(ev, yaml.CollectionStartEvent)
+                if depth > MAX_DEPTH or count > MAX_YAML_NODES:
+                    what = f"more than {MAX_YAML_NODES} YAML values"
+                    what = f"nested more than {MAX_DEPTH} deep" if depth > MAX_DEPTH else what
+                    self.problem(ev, f"the file has {what}; refusing to load it")
+                    return False
+        except yaml.YAMLError as exc:
+            self._syntax(exc)
+            return False
+        return True
+
+    def _syntax(self, exc: yaml.YAMLError) -> None:
+        bad = yaml.reader.Reader.NON_PRINTABLE.search(self.text)
+        if isinstance(exc, yaml.reader.ReaderError) and bad:
+            before = self.text[: bad.start()]
+            loc = Loc(self.file, before.count("\n") + 1, bad.start() - before.rfind("\n"))
+            self.problem(loc, f"YAML syntax error: unacceptable character {bad.group()!r}")
+            return
+        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        msg = getattr(exc, "problem", None) or str(exc)
+        if getattr(exc, "context", None):
+            msg += f" ({exc.context})"
+        line = self.lines[mark.line][: mark.column + 1] if mark and mark.line < len(self.lines) else ""
+        if "\t" in line:
+            msg += "; indent with spaces, not tabs"
+        self.problem(mark or Loc(self.file, 1, 1), f"YAML syntax error: {msg}")
+
+    def _pairs(self, mapping: MappingNode):
+        """Yield ``(name, key_node, value_node)``; report non-scalar and duplicate keys."""
+        seen: dict[str, Loc] = {}
+        for key, value in mapping.value:
+            if not (isinstance(key, ScalarNode) and key.value):
+                self.problem(key, f"expected a name as key, got {_kind(key)}")
+            elif key.value in seen:
+                self.problem(key, f"duplicate key '{key.value}' (first at {seen[key.value]})")
+            else:
+                seen[key.value] = self.loc(key)
+                yield key.value, key, value
+
+    def _mapping(self, node: Node, what: str, expected: str) -> bool:
+        if not isinstance(node, MappingNode) and not _null(node):
+            self.problem(node, f"{what}: expected {expected}, got {_kind(node)}")
+        return isinstance(node, MappingNode)
+
+    def _unknown_key(self, key: Node, name: str, known: tuple[str, ...], what: str) -> None:
+        hint = suggest_name(name, list(known))
+        tail = f"; did you mean '{hint}'?" if hint else ""
+        self.problem(key, f"unknown {what} '{name}' (expected {', '.join(known)}){tail}")
+
+    # -- comments -------------------------------------------------------------------------
+    def _claim_scalars(self, root: Node) -> None:
+        """Lines inside (multi-line) scalars are never comments."""
+        todo = [root]
+        while todo:
+            n = todo.pop()
+            if isinstance(n, ScalarNode):
+                end = n.end_mark.line + (n.end_mark.column > 0)
+                self.claimed.update(range(n.start_mark.line + 1, end + 1))
+            else:
+                todo.extend(n.value if isinstance(n, SequenceNode) else [x for kv in n.value for x in kv])
+
+    def _claim_comment(self, line: int, out: list[str]) -> bool:
+        text = self.lines[line - 1].strip() if 0 < line <= len(self.lines) else ""
+        if not text.startswith("#") or line in self.claimed:
+            return False
+        self.claimed.add(line)
+        out.append(text[1:].strip())
+        return True
+
+    def _comments_above(self, node: Node) -> list[str]:
+        """The run of full-line comments directly above ``node`` (each is used only once)."""
+        line, found = node.start_mark.line, []  # 1-based number of the line above
+        while line > 0 and self._claim_comment(line, found):
+            line -= 1
+        return found[::-1]
+
+    # -- trees and nodes ------------------------------------------------------------------
+    def _tree(self, tid: str, key: Node, value: Node) -> None:
+        loc = self.loc(key)
+        if tid in self.spec.trees:
+            self.problem(loc, f"tree '{tid}' is defined twice (first at {self.spec.trees[tid].loc})")
+            return
+        tree = self.spec.trees[tid] = TreeSpec(tid, loc, comments=self._comments_above(key))
+        nodes = [] if _null(value) else value.value if isinstance(value, SequenceNode) else [value]
+        if not nodes:
+            eg = f"`{tid}: {{Sequence: [...]}}`"
+            self.problem(loc, f"tree '{tid}' is empty: expected its root node, e.g. {eg}")
+            return
+        roots = [self._node(n) for n in nodes]
+        tree.root, tree.extra_roots = roots[0], roots[1:]
+
+    def _node(self, n: Node) -> NodeSpec:
+        bad = NodeSpec("?", self.loc(n))  # stands in for a wrong node, so parents stay right
+        if isinstance(n, ScalarNode) and _text(n):
+            notes = self._comments_above(n)
+            return NodeSpec(n.value, bad.loc, tag=n.value, comments=notes, type_loc=bad.loc)
+        if not isinstance(n, MappingNode) or not n.value:
+            got = "an empty mapping" if isinstance(n, MappingNode) else _kind(n)
+            eg = "a type name such as AlwaysSuccess, or `GoTo: {pose: [1, 0, 1]}`"
+            self.problem(n, f"expected a node ({eg}), got {got}")
+            return bad
+        if len(n.value) > 1:
+            names = [k.value for k, _ in n.value if isinstance(k, ScalarNode)]
+            self.problem(
+                n.value[1][0],
+                f"a node is a mapping with one key, its type; found {len(n.value)} keys "
+                f"({', '.join(names)}). Put the attributes inside the node, indented under "
+                f"'{names[0]}:' or as `{names[0]}: {{...}}`",
+            )
+            return bad
+        key, value = n.value[0]
+        if not _text(key):
+            self.problem(key, f"expected a node type name, got {_kind(key)}")
+            return bad
+        kloc = self.loc(key)
+        node = NodeSpec(key.value, kloc, tag=key.value, comments=self._comments_above(key), type_loc=kloc)
+        if isinstance(value, SequenceNode):
+            node.children = [self._node(c) for c in value.value]
+        elif isinstance(value, MappingNode):
+            self._attrs(node, value)
+        elif not _null(value):
+            hint = f" (write `SubTree: {{ID: {value.value}}}`)" if key.value == "SubTree" else ""
+            want = "attributes `{port: value}`, a list of children or nothing"
+            self.problem(value, f"{key.value}: expected {want}; got {_kind(value)}{hint}")
+        return node
+
+    def _attrs(self, node: NodeSpec, mapping: MappingNode) -> None:
+        child_key = None
+        for name, key, value in self._pairs(mapping):
+            if name in ("child", "children") and child_key is not None:
+                self.problem(key, f"{node.type} has both `{child_key}:` and `{name}:`; use one")
+            elif name == "children" and isinstance(value, SequenceNode):
+                child_key, node.children = name, [self._node(c) for c in value.value]
+            elif name == "child" and not isinstance(value, SequenceNode) and not _null(value):
+                child_key, node.children = name, [self._node(value)]
+            elif name == "children":
+                want, hint = "a list of nodes (`- Type: ...` lines)", "use `child:` for a single node"
+                self.problem(value, f"children: expected {want}, got {_kind(value)}; {hint}")
+            elif name == "child":
+                hint = "; use `children:` for a list" if isinstance(value, SequenceNode) else ""
+                self.problem(value, f"child: expected a single node, got {_kind(value)}{hint}")
+            elif _null(value):
+                hint = f'write {name}: "" for empty text'
+                self.problem(key, f"attribute '{name}' of {node.type} has no value ({hint})")
+            elif (val := self._value(value, name)) is not _BAD:
+                node.attrs["_autoremap" if name == "__autoremap" else name] = AttrSpec(val, self.loc(key))
+
+    def _value(self, n: Node, name: str) -> Any:
+        """A native value; a one-key mapping with no value is the blackboard reference ``{key}``."""
+        if isinstance(n, ScalarNode):
+            if n.tag in ALLOWED_TAGS[1:]:  # int, float, bool, null; others (timestamps...) stay text
+                return self.construct(n)
+            return n.value
+        if isinstance(n, SequenceNode):
+            items = [self._value(c, name) for c in n.value]
+            return _BAD if _BAD in items else items
+        (k, v), *more = n.value or [(None, None)]
+        if not more and isinstance(k, ScalarNode) and k.value and _null(v):
+            return "{" + k.value + "}"
+        want = "a value (number, text, true/false or a list)"
+        self.problem(n, f"'{name}': expected {want}, got a mapping; a reference is written \"{{entry}}\"")
+        return _BAD
+
+    # -- models and includes --------------------------------------------------------------
+    def _fields(self, node: Node, what: str, known: tuple[str, ...]):
+        """Yield ``(name, value_node, native_value)`` of a model or port mapping."""
+        if self._mapping(node, what, "a mapping with " + ", ".join(known)):
+            for name, key, value in self._pairs(node):
+                if name not in known:
+                    self._unknown_key(key, name, known, f"key of {what}")
+                    continue
+                val = None if _null(value) or name == "ports" else self._value(value, name)
+                if val is not _BAD:
+                    yield name, value, val
+
+    def _model(self, mid: str, key: Node, value: Node) -> None:
+        model = ModelSpec(mid, SUBTREE, self.loc(key))
+        for name, node, val in self._fields(value, f"model '{mid}'", MODEL_KEYS):
+            if name == "kind" and val not in KINDS:
+                self.problem(node, f"kind: expected one of {', '.join(KINDS)}, got {_kind(node)}")
+            elif name == "kind" or name == "description":
+                setattr(model, name, "" if val is None else str(val))
+            elif self._mapping(node, "ports", "port names mapped to {direction, type, ...}"):
+                for pname, _pkey, pvalue in self._pairs(node):
+                    port = model.ports[pname] = PortModel(pname, "input")
+                    what = f"port '{pname}' of model '{mid}'"
+                    for field, fnode, fval in self._fields(pvalue, what, PORT_KEYS):
+                        if field == "direction" and fval not in DIRECTIONS:
+                            want = ", ".join(DIRECTIONS)
+                            self.problem(fnode, f"direction: expected one of {want}, got {_kind(fnode)}")
+                        elif field == "default":
+                            port.default = fval
+                        else:
+                            setattr(port, field, "" if fval is None else str(fval))
+        self.spec.models.setdefault(mid, model)
+
+    def _include(self, item: ScalarNode) -> None:
+        path, loc = item.value, self.loc(item)
+        full = os.path.normpath(os.path.join(os.path.dirname(self.file), path))
+        if os.path.abspath(full) in self.stack:
+            chain = " -> ".join(os.path.basename(s) for s in self.stack) + f" -> {path}"
+            self.problem(loc, f"include loop: {chain}")
+        elif len(self.stack) > 20:
+            self.problem(loc, "includes nested more than 20 deep")
+        elif not os.path.isfile(full):
+            self.problem(loc, f"included file not found: {full}")
+        else:
+            self.spec.includes.append(full)
+            text = _read(full, self.spec.load_problems, loc)
+            stack = self.stack + (os.path.abspath(full),)
+            if text is not None and full.endswith((".yaml", ".yml")):
+                merge_yaml_include(full, text, self.spec, stack)
+            elif text is not None:
+                _Loader(full, text, self.spec, stack).run()
+
+
+def merge_yaml_include(path: str, text: str, spec: MissionSpec, stack: tuple[str, ...]) -> None:
+    """Load the YAML file ``path`` (already read into ``text``) into ``spec``.
+
+    ``stack`` holds the absolute paths of the files being loaded, this one last; only the
+    first file of the stack sets the main tree and the header comments.
+    """
+    _YamlLoader(path, text, spec, stack).run()
+
+
+def load_yaml(path: str, text: str | None = None) -> MissionSpec:
+    """Load a YAML mission into a spec; problems land in ``load_problems``, never raised."""
+    spec = MissionSpec(file=path)
+    if text is None:
+        text = _read(path, spec.load_problems)
+        if text is None:
+            return spec
+    merge_yaml_include(path, text, spec, (os.path.abspath(path),))
+    return spec
+
+
+# ---------------------------------------------------------------------------- writing
+
+
+def _fmt(value: Any) -> str:
+    """A value as a one-line YAML flow value (strings quoted only when needed, with ``"``)."""
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_fmt(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_fmt(k)}: {_fmt(v)}" for k, v in value.items()) + "}"
+    if not isinstance(value, (str, int, float, bool, type(None))):
+        value = str(value)
+    text = yaml.safe_dump([value], default_flow_style=True, width=_WIDE, allow_unicode=True)
+    if text.startswith("['"):  # prefer "..." (escapes, and the usual look of "{key}")
+        text = yaml.safe_dump(
+            [value], default_flow_style=True, width=_WIDE, allow_unicode=True, default_style='"'
+        )
+    return text.strip()[1:-1]
+
+
+def _comment_lines(comments: list[str], ind: int) -> list[str]:
+    lines = [ln.strip() for c in comments for ln in (c.splitlines() or [""])]
+    return [" " * ind + ("# " + ln if ln else "#") for ln in lines]
+
+
+class _Dumper:
+    def __init__(self, spec: MissionSpec, registry: Registry) -> None:
+        self.spec = spec
+        self.registry = registry
+
+    def value(self, node: NodeSpec, key: str, value: Any) -> Any:
+        """XML text -> native YAML value using the registry's port type, when one is known."""
+        if not isinstance(value, str) or blackboard_ref(value) is not None:
+            return value
+        model = self.registry.get(node.type)
+        if model is None or key in SPECIAL_ATTRS or key in CONDITION_ATTRS:
+            return value
+        if model.kind == SUBTREE:  # SubTree port literals are passed on as written
+            port_type = BOOL if key == "_autoremap" else None
+        else:
+            port = model.ports.get(key)
+            port_type = port.type if port is not None and not port.writes else None
+        try:
+            return value if port_type is None else port_type.to_yaml(port_type.convert(value))
+        except PortValueError:
+            return value
+
+    def item(self, node: NodeSpec, ind: int) -> list[str]:
+        lines = self.node(node, ind + 2)
+        lines[0] = " " * ind + "- " + lines[0][ind + 2 :]
+        return _comment_lines(node.comments, ind) + lines
+
+    def node(self, node: NodeSpec, ind: int) -> list[str]:
+        pad, head = " " * ind, _fmt(node.type)
+        attrs = [(_fmt(k), _fmt(self.value(node, k, a.value))) for k, a in node.attrs.items()]
+        kids = node.children
+        if not attrs and not kids:
+            return [pad + head]
+        if not kids:
+            flow = f"{pad}{head}: {{" + ", ".join(f"{k}: {v}" for k, v in attrs) + "}"
+            if len(flow) <= FLOW_WIDTH:
+                return [flow]
+        model = self.registry.get(node.type)
+        single = len(kids) == 1 and model is not None and model.kind == DECORATOR
+        lines = [pad + head + ":"]
+        if not attrs and not single:
+            for c in kids:
+                lines += self.item(c, ind + 2)
+            return lines
+        lines += [f"{pad}  {k}: {v}" for k, v in attrs]
+        if single:
+            lines.append(pad + "  child:")
+            lines += _comment_lines(kids[0].comments, ind + 4) + self.node(kids[0], ind + 4)
+        elif kids:
+            lines.append(pad + "  children:")
+            for c in kids:
+                lines += self.item(c, ind + 4)
+        return lines
+
+    def dump(self) -> str:
+        spec = self.spec
+        out = _comment_lines(spec.comments, 0) + ["btrun: 1"]
+        main = spec.main_tree_id()
+        if main:
+            out.append(f"main: {_fmt(main)}")
+        out.append("trees:")
+        for tree in spec.trees.values():
+            out += _comment_lines(tree.comments, 2)
+            roots = [tree.root] + tree.extra_roots if tree.root is not None else []
+            out.append(f"  {_fmt(tree.id)}:" + ("" if roots else " null"))
+            if len(roots) == 1:
+                out += _comment_lines(roots[0].comments, 4) + self.node(roots[0], 4)
+            else:
+                for r in roots:
+                    out += self.item(r, 4)
+        if spec.models:
+            out.append("models:")
+        for m in spec.models.values():
+            out += [f"  {_fmt(m.id)}:", f"    kind: {_fmt(m.kind)}"]
+            if m.description:
+                out.append(f"    description: {_fmt(m.description)}")
+            if m.ports:
+                out.append("    ports:")
+            for p in m.ports.values():
+                fields = (p.direction, p.type, p.default, p.description)
+                items = [f"{k}: {_fmt(v)}" for k, v in zip(PORT_KEYS, fields, strict=True) if v not in ("", None)]
+                flow = f"      {_fmt(p.name)}: {{" + ", ".join(items) + "}"
+                block = [f"      {_fmt(p.name)}:"] + ["        " + i for i in items]
+                out += [flow] if len(flow) <= FLOW_WIDTH else block
+        return "\n".join(out) + "\n"
+
+
+def dump_yaml(spec: MissionSpec, registry: Registry | None = None) -> str:
+    """Write a spec as hand-readable YAML (included trees are written inline).
+
+    ``registry`` (default: the process-wide one) gives port types, so XML text such as
+    ``"1;2;3"`` becomes ``[1.0, 2.0, 3.0]``; values of unknown ports stay text.
+    """
+    return _Dumper(spec, registry if registry is not None else REGISTRY).dump()
+
+
+def convert_file(src: str, dst: str, registry: Registry | None = None) -> list[Problem]:
+    """Convert a mission between XML and YAML (the format of ``dst`` by its extension).
+
+    Nothing is written if ``src`` has load problems; they are returned. Returns ``[]`` on
+    success.
+    """
+    from bt_engine.mission import load_spec
+
+    spec = load_spec(src)
+    if spec.load_problems:
+        return sorted(spec.load_problems, key=lambda p: (p.loc.file, p.loc.line, p.loc.col))
+    ext = os.path.splitext(dst)[1].lower()
+    if ext in (".yaml", ".yml"):
+        text = dump_yaml(spec, registry)
+    elif ext == ".xml":
+        roots = [r for t in spec.trees.values() for r in [t.root, *t.extra_roots] if r]
+        for holder in [spec, *spec.trees.values(), *(n for r in roots for n in r.walk())]:
+            holder.comments = [_xml_comment(c) for c in holder.comments]
+        text = dump_xml(spec)
+    else:
+        return [Problem(Loc(dst, 0, 0), f"unknown output type '{ext}' (expected .xml, .yaml or .yml)")]
+    try:
+        with open(dst, "w", encoding="utf-8") as f:
+            f.write(text)
+    except OSError as exc:
+        return [Problem(Loc(dst, 0, 0), f"cannot write {dst}: {exc.strerror or exc}")]
+    return []
+
+
+def _xml_comment(text: str) -> str:
+    """XML comments may not contain ``--`` (common in YAML comments such as ``# --- x ---``)."""
+    while "--" in text:
+        text = text.replace("--", "- -")
+    return text
