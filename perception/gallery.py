@@ -119,7 +119,9 @@ class Gallery:
     def open(cls, path: str, model_version: str | None = None) -> Gallery:
         """Open an existing gallery; refuse a damaged file or one of another model version."""
         if not os.path.exists(path):
-            raise GalleryError(f"{path}: no gallery file (enrol pallets first: btrun gallery enrol)")
+            raise GalleryError(
+                f"{path}: no gallery file (enrol pallets first: btrun gallery enrol)"
+            )
         try:
             conn = _connect(path)
             ok = conn.execute("PRAGMA quick_check").fetchone()[0]
@@ -135,7 +137,9 @@ class Gallery:
         except (KeyError, ValueError):
             raise GalleryError(f"{path}: not a btrun gallery (metadata missing)") from None
         if schema != SCHEMA_VERSION:
-            raise GalleryError(f"{path}: gallery schema {schema}, this btrun reads {SCHEMA_VERSION}")
+            raise GalleryError(
+                f"{path}: gallery schema {schema}, this btrun reads {SCHEMA_VERSION}"
+            )
         if model_version is not None and stored_version != model_version:
             raise GalleryError(
                 f"{path}: written by model '{stored_version}', but the embedder is "
@@ -166,18 +170,23 @@ class Gallery:
         """Add (or replace) ``identity`` with its three block embeddings, in one transaction."""
         emb = np.asarray(embeddings, dtype=np.float32)
         if emb.shape != (BLOCKS, self.dim):
-            raise GalleryError(f"enrol {identity}: expected embeddings of shape {(BLOCKS, self.dim)}, got {emb.shape}")
+            raise GalleryError(
+                f"enrol {identity}: expected embeddings of shape {(BLOCKS, self.dim)}, got {emb.shape}"
+            )
         if not np.all(np.isfinite(emb)):
             raise GalleryError(f"enrol {identity}: embeddings contain NaN or infinity")
         if not identity or len(identity) > 64:
             raise GalleryError(f"enrol: identity must be 1-64 characters, got {identity!r}")
         with self.conn:  # one transaction: all of it, or (if killed) none of it
-            exists = self.conn.execute("SELECT 1 FROM entries WHERE identity = ?", (identity,)).fetchone()
+            exists = self.conn.execute(
+                "SELECT 1 FROM entries WHERE identity = ?", (identity,)
+            ).fetchone()
             if exists and not replace:
                 raise GalleryError(f"enrol: {identity} is already enrolled")
             self.conn.execute("DELETE FROM entries WHERE identity = ?", (identity,))
             self.conn.execute(
-                "INSERT INTO entries VALUES (?, ?, ?, ?)", (identity, emb.tobytes(), time.time(), source)
+                "INSERT INTO entries VALUES (?, ?, ?, ?)",
+                (identity, emb.tobytes(), time.time(), source),
             )
             for i, png in enumerate(crops_png or []):
                 self.conn.execute("INSERT INTO crops VALUES (?, ?, ?)", (identity, i, png))
@@ -204,7 +213,9 @@ class Gallery:
 
     def _load_thresholds(self) -> Thresholds:
         meta = dict(self.conn.execute("SELECT key, value FROM meta").fetchall())
-        return Thresholds(float(meta.get("max_distance", "inf")), float(meta.get("min_margin", "0")))
+        return Thresholds(
+            float(meta.get("max_distance", "inf")), float(meta.get("min_margin", "0"))
+        )
 
     # -- reading ---------------------------------------------------------------------------
     def identities(self) -> list[str]:
@@ -221,13 +232,17 @@ class Gallery:
 
     def crops(self, identity: str) -> list[bytes]:
         """The PNG crops stored with ``identity`` (block order)."""
-        rows = self.conn.execute("SELECT png FROM crops WHERE identity = ? ORDER BY block", (identity,))
+        rows = self.conn.execute(
+            "SELECT png FROM crops WHERE identity = ? ORDER BY block", (identity,)
+        )
         return [r[0] for r in rows]
 
     def matrix(self) -> tuple[list[str], np.ndarray]:
         """All embeddings as ``(identities, array of shape (n, 3, dim))`` (cached)."""
         if self._cache is None:
-            rows = self.conn.execute("SELECT identity, embeddings FROM entries ORDER BY identity").fetchall()
+            rows = self.conn.execute(
+                "SELECT identity, embeddings FROM entries ORDER BY identity"
+            ).fetchall()
             ids = [r[0] for r in rows]
             arr = np.frombuffer(b"".join(r[1] for r in rows), dtype=np.float32)
             self._cache = (ids, arr.reshape(len(ids), BLOCKS, self.dim))
@@ -236,7 +251,9 @@ class Gallery:
     def __len__(self) -> int:
         return self.conn.execute("SELECT COUNT(*) FROM entries").fetchone()[0]
 
-    def match(self, query: np.ndarray, top_k: int = 5, thresholds: Thresholds | None = None) -> Match:
+    def match(
+        self, query: np.ndarray, top_k: int = 5, thresholds: Thresholds | None = None
+    ) -> Match:
         """Match three block embeddings (left to right) against every entry.
 
         Distance between two blocks: Euclidean distance of the embeddings; per entry: the mean
@@ -244,7 +261,9 @@ class Gallery:
         """
         q = np.asarray(query, dtype=np.float32)
         if q.shape != (BLOCKS, self.dim):
-            raise GalleryError(f"match: expected a query of shape {(BLOCKS, self.dim)}, got {q.shape}")
+            raise GalleryError(
+                f"match: expected a query of shape {(BLOCKS, self.dim)}, got {q.shape}"
+            )
         ids, g = self.matrix()
         if not ids:
             raise GalleryError(f"{self.path}: the gallery is empty: enrol pallets first")

@@ -123,8 +123,9 @@ def test_killed_enrolment_leaves_the_gallery_intact(tmp_path, gallery):
     env = dict(os.environ, PYTHONPATH=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     rnd = random.Random(1)
     for run in range(6):
-        p = subprocess.Popen([sys.executable, str(script), gallery.path, str(run)],
-                             stdout=subprocess.PIPE, env=env)
+        p = subprocess.Popen(
+            [sys.executable, str(script), gallery.path, str(run)], stdout=subprocess.PIPE, env=env
+        )
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:  # wait until it is enrolling
             line = p.stdout.readline()
@@ -147,8 +148,10 @@ def test_ten_thousand_entries_match_quickly(tmp_path):
     g = Gallery.create(str(tmp_path / "big.sqlite"), "v", 256)
     embs = rng.normal(size=(10_000, 3, 256)).astype(np.float32)
     with g.conn:
-        g.conn.executemany("INSERT INTO entries VALUES (?, ?, ?, '')",
-                           [(f"p{i:05d}", embs[i].tobytes(), 0.0) for i in range(10_000)])
+        g.conn.executemany(
+            "INSERT INTO entries VALUES (?, ?, ?, '')",
+            [(f"p{i:05d}", embs[i].tobytes(), 0.0) for i in range(10_000)],
+        )
     g._cache = None
     m = g.match(embs[1234] + 0.001)
     assert m.pallet_id == "p01234" and len(g) == 10_000
