@@ -144,6 +144,14 @@ def run_command(args) -> int:
     telemetry = getattr(platform, "telemetry_row", None)
     tty = sys.stdout.isatty() and not args.quiet
     hooks = [platform] if platform is not None else []
+    supervisor = None  # a plug-in's safety supervisor: first hook, so it lands before the platform
+    for mod in load_plugins() if platform is not None else ():
+        make = getattr(mod, "make_supervisor", None)
+        if make is not None:
+            supervisor = make(rig, platform, mission)
+            if supervisor is not None:
+                hooks.insert(0, supervisor)
+            break
     runner = Runner(mission, args.rate, hooks=hooks, log=log, telemetry=telemetry)
     if not args.quiet:
         where = f"rig {getattr(rig, 'path', '-')}" if rig is not None else "no vehicle"
@@ -184,6 +192,8 @@ def run_command(args) -> int:
         summary["sim" if getattr(rig, "kind", "sim") == "sim" else "vehicle"] = to_jsonable(
             platform.summary()
         )
+    if supervisor is not None and hasattr(supervisor, "summary"):
+        summary["safety"] = to_jsonable(supervisor.summary())
     if runner.error_traceback:
         with open(os.path.join(run_dir, "error.log"), "w") as f:
             f.write(runner.error_traceback)

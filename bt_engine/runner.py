@@ -3,7 +3,7 @@
 On a :class:`~bt_engine.clock.SimClock` each step advances the clock by one period, calls
 the ``before_tick`` hooks (the simulator steps its physics up to the new time), ticks the
 tree, then calls ``after_tick`` hooks (the safety supervisor). On a wall clock the runner
-sleeps until the next period. Ctrl-C halts the tree and runs the shutdown hooks.
+sleeps until the next period. Ctrl-C or SIGTERM halts the tree and runs the shutdown hooks.
 """
 
 from __future__ import annotations
@@ -74,6 +74,8 @@ class Runner:
         self.period_s = 1.0 / rate_hz
         self.hooks = list(hooks or [])
         self.log = log
+        if telemetry is None:  # a platform hook that reports vehicle state feeds the trace
+            telemetry = next((h.telemetry_row for h in self.hooks if hasattr(h, "telemetry_row")), None)
         self.telemetry = telemetry
         self.on_tick = on_tick
         self.trace: list[dict] = []
@@ -81,6 +83,8 @@ class Runner:
         self.status: NodeStatus = mission.status
         self.tick_periods_s: list[float] = []
         self._interrupted = 0
+        #: what interrupted the run: "Ctrl-C" (SIGINT) or "SIGTERM"
+        self.interrupt_source = "Ctrl-C"
         self.last_record: dict = {}
         self.error_traceback = ""
         self._last_wall: float | None = None
@@ -106,12 +110,14 @@ class Runner:
             if fn is not None:
                 fn(t)
         status = self.mission.tick()
-        for h in self.hooks:
-            fn = getattr(h, "after_tick", None)
-            if fn is not None:
-                fn(t)
-        self.status = status
-        self._record(t, status)
+        try:
+            for h in self.hooks:
+                fn = getattr(h, "after_tick", None)
+                if fn is not None:
+                    fn(t)
+        finally:  # a hook may end the run (Abort): the tick still goes into the log
+            self.status = status
+            self._record(t, status)
         if self.on_tick is not None:
             self.on_tick(self)
         return status
@@ -161,7 +167,7 @@ class Runner:
         try:
             while True:
                 if self._interrupted:
-                    result, reason = "ABORTED", "operator interrupt (Ctrl-C)"
+                    result, reason = "ABORTED", f"operator interrupt ({self.interrupt_source})"
                     break
                 try:
                     status = self.step()
@@ -189,15 +195,19 @@ class Runner:
                     result, reason = "ABORTED", f"mission time limit of {max_time_s:g} s reached"
                     break
         finally:
-            _restore_sigint(old)
-            if result != "SUCCESS" or self.mission.root.bt_status is RUNNING:
-                self.mission.halt()
-            for h in self.hooks:
-                fn = getattr(h, "shutdown", None)
-                if fn is not None:
-                    fn(reason if result != "SUCCESS" else "mission complete")
-            if self.log is not None:
-                self.log.flush()
+            try:
+                if result != "SUCCESS" or self.mission.root.bt_status is RUNNING:
+                    self.mission.halt()
+                # Signals stay ours while the shutdown hooks land the drone: a second
+                # SIGINT/SIGTERM raises KeyboardInterrupt there (the supervisor cuts the motors).
+                for h in self.hooks:
+                    fn = getattr(h, "shutdown", None)
+                    if fn is not None:
+                        fn(reason if result != "SUCCESS" else "mission complete")
+            finally:
+                _restore_sigint(old)
+                if self.log is not None:
+                    self.log.flush()
         return RunResult(
             result,
             reason,
@@ -230,21 +240,32 @@ def _raising_node(exc: BaseException) -> str:
     return f" in {found.describe()} ({found.loc})" if found is not None else ""
 
 
-def _install_sigint(runner: Runner):
+def _install_sigint(runner: Runner) -> dict | None:
+    """Route SIGINT (Ctrl-C) and SIGTERM to :meth:`Runner.interrupt`; return the old handlers.
+
+    The first signal asks the run to stop at the next tick (halt, land, write the summary);
+    a second one raises KeyboardInterrupt (emergency stop).
+    """
+
+    def handler(signum, frame):  # noqa: ARG001
+        runner.interrupt_source = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
+        runner.interrupt()
+        if runner._interrupted >= 2:
+            raise KeyboardInterrupt
+
+    old = {}
     try:
-        def handler(signum, frame):  # noqa: ARG001
-            runner.interrupt()
-            if runner._interrupted >= 2:
-                raise KeyboardInterrupt
-
-        return signal.signal(signal.SIGINT, handler)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, handler)
     except ValueError:  # not in the main thread
+        _restore_sigint(old)
         return None
+    return old
 
 
-def _restore_sigint(old) -> None:
-    if old is not None:
+def _restore_sigint(old: dict | None) -> None:
+    for sig, handler in (old or {}).items():
         try:
-            signal.signal(signal.SIGINT, old)
-        except ValueError:
+            signal.signal(sig, handler)
+        except (ValueError, TypeError):
             pass

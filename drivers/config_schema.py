@@ -207,6 +207,39 @@ def _validate_node(
     return value, [f"{where}: {m}" for m in messages]
 
 
+_PLAIN_TAGS = {
+    "tag:yaml.org,2002:" + t for t in ("str", "int", "float", "bool", "null", "map", "seq")
+}
+
+
+def _unsafe_nodes(root: yaml.Node, filename: str, limit: int = 100_000) -> list[str]:
+    """Refuse what a settings file never needs: object tags and anchors/aliases (whose
+    expansion can blow up), before anything is constructed."""
+    problems: list[str] = []
+    seen: set[int] = set()
+    stack = [root]
+    count = 0
+    while stack and len(problems) < 20:
+        node = stack.pop()
+        count += 1
+        if count > limit:
+            problems.append(f"{_loc(filename, node)}: more than {limit} values: not a settings file")
+            break
+        if id(node) in seen:
+            problems.append(f"{_loc(filename, node)}: YAML anchors and aliases are not allowed here")
+            continue
+        seen.add(id(node))
+        if node.tag not in _PLAIN_TAGS:
+            problems.append(f"{_loc(filename, node)}: YAML tag '{node.tag}' is not allowed here")
+            continue
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                stack += [v, k]
+        elif isinstance(node, yaml.SequenceNode):
+            stack += list(reversed(node.value))
+    return problems
+
+
 def load_yaml_file(
     path: str, spec: Field, text: str | None = None, marks: dict[str, str] | None = None
 ) -> dict:
@@ -234,6 +267,9 @@ def load_yaml_file(
         loader.dispose()
     if node is None:
         return defaults(spec)
+    unsafe = _unsafe_nodes(node, path)
+    if unsafe:
+        raise ConfigError(unsafe)
     if not isinstance(node, yaml.MappingNode):
         raise ConfigError([f"{_loc(path, node)}: expected a mapping at the top level"])
     data, problems = _validate_node(node, spec, "", path, loader, marks)

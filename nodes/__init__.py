@@ -2,10 +2,10 @@
 
 This package is btrun's plug-in (entry point ``btrun.plugins``): importing it registers the
 flight actions and vehicle conditions, and it gives the CLI the rig loader (simulator or
-real drone) and the flight report writer.
+real drone), the safety supervisor and the flight report writer.
 """
 
-from nodes import conditions, flight, geometry  # noqa: F401  (registration)
+from nodes import conditions, flight, geometry, safety  # noqa: F401  (registration)
 
 
 def load_rig(path, overrides=None):
@@ -13,6 +13,15 @@ def load_rig(path, overrides=None):
     from drivers.rig import load_rig as _load
 
     return _load(path, overrides)
+
+
+def make_supervisor(rig, platform, mission):
+    """The safety supervisor hook of a run (see :mod:`drivers.safety`), or None."""
+    if getattr(platform, "vehicle", None) is None:
+        return None
+    from drivers.safety import SafetySupervisor
+
+    return SafetySupervisor.from_rig(rig, platform, mission)
 
 
 def write_report(run_dir, trace, summary, mission):

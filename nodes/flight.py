@@ -129,7 +129,9 @@ class _Motion(StatefulActionNode):
     def on_halted(self) -> None:
         self._finish(NodeStatus.IDLE, "halted")
         v = getattr(self, "vehicle", None)
-        if v is not None and v.is_flying:
+        # Hold position, unless a newer motion (a sibling that took over, e.g. a Land in a
+        # ReactiveFallback) already replaced ours: never cancel someone else's motion.
+        if v is not None and v.is_flying and v.motion is getattr(self, "progress", None):
             v.hover()
 
     def tolerances(self) -> tuple[float, float]:

@@ -167,3 +167,21 @@ def test_yaw_mode_names_and_integers_validate():
     assert "expected one of KEEP_YAW (0), PATH_FACING (1), FIXED_YAW (2), got '5'" in p
     (p,) = problems_of_xml(wrap('<GoTo pose="1;2"/>'))
     assert 'expected three numbers "x;y;z", got 2 value(s)' in p
+
+
+def test_halted_goto_does_not_cancel_the_motion_that_replaced_it():
+    """A reactive fallback starts Land, then halts the running GoTo: the drone must land."""
+    m, run, pf = fly_to_start(
+        "<ReactiveFallback>"
+        '<ReactiveSequence><ScriptCondition code="land_now"/><Land name="land"/></ReactiveSequence>'
+        '<GoTo name="go" pose="5;0;1" max_speed="0.5"/>'
+        "</ReactiveFallback>",
+        blackboard={"land_now": False},
+    )
+    run.run_until(lambda mm: mm.status_of("go") == "RUNNING", 500)
+    for _ in range(50):
+        run.step()
+    m.blackboard["land_now"] = True
+    run.run_until(lambda mm: mm.status.value != "RUNNING", 3000)
+    assert m.status.value == "SUCCESS"
+    assert pf.vehicle.is_landed

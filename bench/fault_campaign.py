@@ -1,0 +1,258 @@
+"""Fault campaign: seeded simulated runs of missions/pallet_scan.xml with one fault each.
+
+Every run is a separate ``btrun run`` process (so a crash of one run cannot hide in another
+and the run folder is exactly what a user gets). The fault is injected at a random (seeded)
+mission time through the rig's ``faults.*`` settings, except:
+
+* ``geofence``: the geofence's far x wall is moved to a random x on the way to the pallet;
+* ``camera_stall``: the child process registers a blank renderer so that the camera runs;
+* ``leaf_exception``: the child process makes ``GoTo`` raise once the mission time passes;
+* ``sigint`` / ``sigterm``: the real ``btrun`` executable, paced at ``--realtime`` times real
+  time, receives the signal at a random wall time after its tick log appears (a signal during
+  Python start-up, before the runner exists, kills the process with nothing flying yet).
+
+For every run the table counts: ended landed and disarmed / crashed / still flying (ground
+truth of the simulator), and logs complete (``ticks.jsonl`` parses line by line, its last
+record is the last tick of ``summary.json``, ``summary.json`` has a ``safety`` key).
+
+Usage::
+
+    .venv/bin/python bench/fault_campaign.py --runs 20            # about 3 minutes on 2 CPUs
+    .venv/bin/python bench/fault_campaign.py --runs 3 --faults gust,sigterm
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MISSION = os.path.join(REPO, "missions", "pallet_scan.xml")
+BIN = os.path.dirname(sys.executable)
+
+#: fault type -> what it does (table order)
+FAULT_TYPES: dict[str, str] = {
+    "link_loss": "radio link down 0.2-1.5 s",
+    "mocap_dropout": "mocap frames lost (for good)",
+    "mocap_freeze": "mocap repeats its last frame (for good)",
+    "camera_stall": "camera stops (report only)",
+    "battery_sag": "battery sags 0.5-1.0 V",
+    "gust": "gust 2-4 m/s for 1-4 s",
+    "geofence": "geofence x wall at 1-8.5 m",
+    "leaf_exception": "GoTo raises RuntimeError",
+    "sigint": "SIGINT 0.1-2.8 s after start",
+    "sigterm": "SIGTERM 0.1-2.8 s after start",
+    "link_loss_long": "link down for good (limit)",
+}
+DEFAULT_FAULTS = [f for f in FAULT_TYPES if f != "link_loss_long"]
+
+
+def plan(fault: str, i: int, base_seed: int) -> dict[str, Any]:
+    """The seeded parameters of run ``i`` of ``fault``."""
+    rng = random.Random(f"campaign/{base_seed}/{fault}/{i}")
+    at = round(rng.uniform(3.0, 55.0), 2)
+    sets: list[str] = []
+    job: dict[str, Any] = {"fault": fault, "i": i, "seed": base_seed * 1000 + i, "at_s": at}
+    if fault == "link_loss":
+        sets += [f"faults.link_drop.at_s={at}",
+                 f"faults.link_drop.duration_s={rng.uniform(0.2, 1.5):.2f}"]
+    elif fault == "link_loss_long":
+        sets += [f"faults.link_drop.at_s={at}"]
+    elif fault == "mocap_dropout":
+        sets += [f"faults.mocap_drop.at_s={at}"]
+    elif fault == "mocap_freeze":
+        sets += [f"faults.mocap_freeze.at_s={at}"]
+    elif fault == "camera_stall":
+        sets += [f"faults.camera_stall.at_s={at}", "sensors.camera.renderer=campaign_blank"]
+    elif fault == "battery_sag":
+        sets += [f"faults.battery_sag.at_s={at}",
+                 f"faults.battery_sag.drop_v={rng.uniform(0.5, 1.0):.2f}"]
+    elif fault == "gust":
+        a, s = rng.uniform(0, 2 * math.pi), rng.uniform(2.0, 4.0)
+        sets += [f"faults.gust.at_s={at}",
+                 f"faults.gust.speed_mps=[{s * math.cos(a):.2f},{s * math.sin(a):.2f},0]",
+                 f"faults.gust.duration_s={rng.uniform(1.0, 4.0):.2f}"]
+    elif fault == "geofence":
+        x = round(rng.uniform(1.0, 8.5), 2)
+        job["at_s"] = None
+        job["fence_x"] = x
+        sets += [f"safety.geofence.max_m=[{x},3,2.5]"]
+    elif fault in ("sigint", "sigterm"):
+        job["at_s"] = None
+        job["wall_s"] = round(rng.uniform(0.1, 2.8), 2)
+    job["sets"] = sets
+    return job
+
+
+def check_logs(run_dir: str) -> tuple[bool, dict | None, str]:
+    """(complete, summary, why not): tick log parses to the last tick, summary present."""
+    spath = os.path.join(run_dir, "summary.json")
+    if not os.path.exists(spath):
+        return False, None, "no summary.json"
+    try:
+        with open(spath) as f:
+            summary = json.load(f)
+    except ValueError:
+        return False, None, "summary.json does not parse"
+    last = None
+    try:
+        with open(os.path.join(run_dir, "ticks.jsonl"), encoding="utf-8") as f:
+            for n, line in enumerate(f):
+                rec = json.loads(line)
+                if n == 0 and "header" not in rec:
+                    return False, summary, "no header line"
+                if "tick" in rec:
+                    if last is not None and rec["tick"] != last + 1:
+                        return False, summary, f"tick {last} followed by {rec['tick']}"
+                    last = rec["tick"]
+    except (OSError, ValueError) as exc:
+        return False, summary, f"tick log: {exc}"
+    if last != summary.get("ticks"):
+        return False, summary, f"last logged tick {last}, summary says {summary.get('ticks')}"
+    if "safety" not in summary:
+        return False, summary, "no safety summary"
+    return True, summary, ""
+
+
+def run_one(job: dict[str, Any], out: str, realtime: float) -> dict[str, Any]:
+    """Run one job as a child process; return its outcome."""
+    run_dir = os.path.join(out, f"{job['fault']}-{job['i']:03d}")
+    common = ["run", MISSION, "--quiet", "--no-report", "--seed", str(job["seed"]),
+              "--out", run_dir, "--max-time", "200"]
+    for s in job["sets"]:
+        common += ["--set", s]
+    t0 = time.monotonic()
+    if job["fault"] in ("sigint", "sigterm"):
+        exe = os.path.join(BIN, "btrun")
+        cmd = [exe] if os.path.exists(exe) else [sys.executable, "-m", "bt_engine.cli"]
+        proc = subprocess.Popen(cmd + common + ["--realtime", str(realtime)], cwd=REPO,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        log = os.path.join(run_dir, "ticks.jsonl")
+        start = time.monotonic() + 30.0
+        while not os.path.exists(log) and proc.poll() is None and time.monotonic() < start:
+            time.sleep(0.01)  # the runner is up (before that the drone is not flying yet)
+        try:
+            proc.wait(timeout=job["wall_s"])
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGINT if job["fault"] == "sigint" else signal.SIGTERM)
+        try:
+            _, err = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+        rc = proc.returncode
+    else:
+        proc2 = subprocess.run(
+            [sys.executable, os.path.abspath(__file__), "--child", json.dumps(job), "--"] + common,
+            cwd=REPO, capture_output=True, text=True, timeout=300,
+        )
+        rc, err = proc2.returncode, proc2.stderr
+    complete, summary, why = check_logs(run_dir)
+    res: dict[str, Any] = {"job": job, "rc": rc, "complete": complete, "why": why,
+                           "wall_s": time.monotonic() - t0, "stderr": err[-2000:]}
+    if summary is not None:
+        saf, sim = summary.get("safety", {}), summary.get("sim", {})
+        res.update(status=summary.get("status"), reason=summary.get("reason"),
+                   final=saf.get("final_state"), disarmed=saf.get("disarmed"),
+                   crashed=sim.get("crashed"), landed=sim.get("landed"),
+                   fault=saf.get("fault"), t_s=saf.get("t_s"),
+                   mission_time_s=summary.get("mission_time_s"),
+                   traceback_on_screen="Traceback" in err)
+    return res
+
+
+def child(job: dict[str, Any], argv: list[str]) -> int:
+    """Child mode: install the job's test-only patches, then run ``btrun``."""
+    from bt_engine.cli import main
+    from drivers.sim.camera import register_renderer
+
+    register_renderer("campaign_blank", lambda **_: (lambda pose, t_s: b"frame"))
+    if job["fault"] == "leaf_exception":
+        import nodes.flight as flight
+
+        original = flight.GoTo.on_running
+        at = float(job["at_s"])
+
+        def on_running(self):  # type: ignore[no-untyped-def]
+            if self.now() >= at:
+                raise RuntimeError("injected leaf bug (fault campaign)")
+            return original(self)
+
+        flight.GoTo.on_running = on_running  # type: ignore[method-assign]
+    return int(main(argv) or 0)
+
+
+def table(results: list[dict[str, Any]], faults: list[str]) -> str:
+    """The per-fault table (Markdown)."""
+    head = ("| fault | injected | runs | landed+disarmed | crashed | flying | logs complete "
+            "| ABORTED by fault | traceback on screen |")
+    rows = [head, "|" + "---|" * 9]
+    for f in faults:
+        rs = [r for r in results if r["job"]["fault"] == f]
+        landed = sum(1 for r in rs if r.get("final") == "landed" and r.get("disarmed"))
+        crashed = sum(1 for r in rs if r.get("final") == "crashed")
+        flying = sum(1 for r in rs if r.get("final") not in ("landed", "crashed"))
+        complete = sum(1 for r in rs if r["complete"])
+        aborted = sum(1 for r in rs if r.get("status") == "ABORTED")
+        tb = sum(1 for r in rs if r.get("traceback_on_screen"))
+        rows.append(f"| {f} | {FAULT_TYPES[f]} | {len(rs)} | {landed} | {crashed} | {flying} "
+                    f"| {complete} | {aborted} | {tb} |")
+    return "\n".join(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line entry point."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["--child"]:
+        return child(json.loads(argv[1]), argv[3:])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=20, help="runs per fault type (default 20)")
+    ap.add_argument("--seed", type=int, default=1, help="campaign seed (default 1)")
+    ap.add_argument("--faults", default=",".join(DEFAULT_FAULTS),
+                    help=f"comma-separated subset of {', '.join(FAULT_TYPES)}")
+    ap.add_argument("--jobs", type=int, default=max(2, (os.cpu_count() or 2)),
+                    help="parallel runs (default: CPUs)")
+    ap.add_argument("--realtime", type=float, default=20.0,
+                    help="pace of the signal runs (x real time, default 20)")
+    ap.add_argument("--out", default=None, help="keep the run folders here (default: temp)")
+    ap.add_argument("--json", default=None, help="write every run's outcome to this file")
+    args = ap.parse_args(argv)
+    faults = [f.strip() for f in args.faults.split(",") if f.strip()]
+    unknown = [f for f in faults if f not in FAULT_TYPES]
+    if unknown:
+        ap.error(f"unknown fault types {unknown}; known: {list(FAULT_TYPES)}")
+    out = args.out or tempfile.mkdtemp(prefix="fault_campaign-")
+    jobs = [plan(f, i, args.seed) for f in faults for i in range(args.runs)]
+    t0 = time.monotonic()
+    with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+        results = list(pool.map(lambda j: run_one(j, out, args.realtime), jobs))
+    wall = time.monotonic() - t0
+    print(table(results, faults))
+    print(f"\n{len(results)} runs in {wall:.0f} s wall (--runs {args.runs} --seed {args.seed}, "
+          f"--jobs {args.jobs}, signals at --realtime {args.realtime:g})")
+    bad = [r for r in results if not r["complete"] or r.get("final") != "landed"]
+    for r in bad[:15]:
+        j = r["job"]
+        print(f"  {j['fault']} #{j['i']} seed {j['seed']}: {r.get('status')} "
+              f"{r.get('reason')!s:.90} final={r.get('final')} logs={r['why'] or 'ok'}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(results, f, indent=1, default=str)
+    if args.out is None:
+        shutil.rmtree(out, ignore_errors=True)
+    return 0 if not [r for r in bad if r["job"]["fault"] != "link_loss_long"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
