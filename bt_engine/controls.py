@@ -142,6 +142,8 @@ class ReactiveSequence(ControlNode):
 
     bt_id = "ReactiveSequence"
     category = CATEGORY
+    #: BT.CPP >= 4.6 no longer throws when a second child returns RUNNING (EnableException)
+    throw_if_multiple_running = False
 
     def __init__(self, name: str, ctx=None) -> None:
         super().__init__(name, ctx)
@@ -160,6 +162,8 @@ class ReactiveFallback(ControlNode):
 
     bt_id = "ReactiveFallback"
     category = CATEGORY
+    #: BT.CPP >= 4.6 no longer throws when a second child returns RUNNING (EnableException)
+    throw_if_multiple_running = False
 
     def __init__(self, name: str, ctx=None) -> None:
         super().__init__(name, ctx)
@@ -185,7 +189,7 @@ def _reactive_tick(node, stop_on: NodeStatus, finish: NodeStatus) -> NodeStatus:
                     node.halt_child(i)
             if node.running_child == -1:
                 node.running_child = index
-            elif node.running_child != index:
+            elif node.throw_if_multiple_running and node.running_child != index:
                 raise NodeRuntimeError(
                     node, "only a single child can return RUNNING (BehaviorTree.CPP rule)"
                 )

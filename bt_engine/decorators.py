@@ -191,6 +191,8 @@ class Timeout(DecoratorNode):
         elif child.bt_status is RUNNING and self.now() >= self.deadline - TIME_EPS:
             self.halt_child()
             self.started = False
+            # BT.CPP's timer halts the child and emits a wake-up: tickOnce then re-ticks the root
+            self.emit_wake_up()
             return FAILURE
         st = child.execute_tick()
         if st is SUCCESS or st is FAILURE:
@@ -213,6 +215,7 @@ class Delay(DecoratorNode):
     def __init__(self, name: str, ctx=None) -> None:
         super().__init__(name, ctx)
         self.started = False
+        self.fired = False
         self.until = 0.0
 
     def tick_impl(self) -> NodeStatus:
@@ -220,8 +223,17 @@ class Delay(DecoratorNode):
             self.started = True
             self.set_status(RUNNING)
             self.until = self.now() + self.get_input("delay_msec") / 1000.0
-        if self.now() < self.until - TIME_EPS:
+            self.fired = self.now() >= self.until - TIME_EPS
+            if self.fired:
+                self.emit_wake_up()
+            # BT.CPP's timer callback runs on another thread: the first tick returns RUNNING
             return RUNNING
+        if not self.fired:
+            if self.now() < self.until - TIME_EPS:
+                return RUNNING
+            # the delay is over: BT.CPP's timer emits a wake-up, so tickOnce re-ticks the root
+            self.fired = True
+            self.emit_wake_up()
         st = self.children[0].execute_tick()
         if st is SUCCESS or st is FAILURE:
             self.started = False

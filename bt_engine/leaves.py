@@ -64,7 +64,11 @@ class Sleep(StatefulActionNode):
         return RUNNING
 
     def on_running(self) -> NodeStatus:
-        return SUCCESS if self.now() >= self.until - TIME_EPS else RUNNING
+        if self.now() >= self.until - TIME_EPS:
+            # BT.CPP's timer emits a wake-up when the time is up: tickOnce re-ticks the root
+            self.emit_wake_up()
+            return SUCCESS
+        return RUNNING
 
 
 class SetBlackboard(SyncActionNode):

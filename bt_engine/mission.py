@@ -152,6 +152,7 @@ class Mission:
         self.ticks = 0
         self.last_failure = ""
         self.finished: dict[str, str] = {}
+        self._drained = True
         self.status: NodeStatus = self.root.bt_status
 
     @classmethod
@@ -167,13 +168,17 @@ class Mission:
         so the next tick starts the mission again; :attr:`status` keeps the result.
         """
         ctx = self.ctx
-        ctx.woken = False
+        if not self._drained:  # nobody reads the changes: keep the list bounded
+            self._changes.clear()
+        self._drained = False
         status = self.root.execute_tick()
+        # As BT.CPP's WakeUpSignal: the flag is consumed only when checked (root RUNNING), so a
+        # wake-up emitted in a tick that finished the root carries over to the next tick.
         while status is RUNNING and ctx.woken:
             ctx.woken = False
             status = self.root.execute_tick()
         if status is FAILURE:
-            for node, st in reversed(self._changes):
+            for node, _, st in reversed(self._changes):
                 if st is FAILURE and not node.children:
                     self.last_failure = f"{node.describe()} failed ({node.loc})"
                     break
@@ -186,12 +191,18 @@ class Mission:
     def drain_changes(self) -> dict[str, str]:
         """Statuses that changed since the last call, as ``{path: status}``."""
         changes = self._changes
-        out = {n.path: n.bt_status.value for n, _ in changes}
+        first: dict[BTNode, NodeStatus] = {}
+        for n, old, _ in changes:
+            first.setdefault(n, old)
+        # only nodes whose status differs from before the ticks (IDLE->SUCCESS->IDLE is not
+        # a change); ``_value_`` is ``.value`` without the enum descriptor call (hot path)
+        out = {n.path: n.bt_status._value_ for n, old in first.items() if n.bt_status is not old}
         #: leaves that finished during the drained ticks, even if reset to IDLE since
         self.finished = {
-            n.path: st.value for n, st in changes if (st is SUCCESS or st is FAILURE) and not n.children
+            n.path: st._value_ for n, _, st in changes if (st is SUCCESS or st is FAILURE) and not n.children
         }
         changes.clear()
+        self._drained = True
         return out
 
     def halt(self) -> None:

@@ -49,6 +49,11 @@ class NodeStatus(enum.Enum):
     FAILURE = "FAILURE"
     SKIPPED = "SKIPPED"
 
+    # Members are singletons compared by identity, so the identity hash is consistent with
+    # equality; Enum's own __hash__ is a Python-level call, and set_status hashes a status
+    # twice per node per tick (bench/tick_overhead.py: ~15% of a tick).
+    __hash__ = object.__hash__
+
     def __str__(self) -> str:
         return self.value
 
@@ -125,17 +130,18 @@ class BTNode(py_trees.behaviour.Behaviour):
         self._bindings: dict[str, tuple[int, Any]] = {}
         self._pre: list[tuple[int, Script]] | None = None
         self._post: dict[str, Script] | None = None
-        self._changes: list[tuple[BTNode, NodeStatus]] | None = None
+        self._changes: list[tuple[BTNode, NodeStatus, NodeStatus]] | None = None
 
     # -- status -------------------------------------------------------------------------
     def set_status(self, status: NodeStatus) -> None:
         """Set the BehaviorTree.CPP status (and the py_trees one)."""
-        if status is not self.bt_status:
+        old = self.bt_status
+        if status is not old:
             self.bt_status = status
             self.status = TO_PY_TREES[status]
             changes = self._changes
             if changes is not None:
-                changes.append((self, status))
+                changes.append((self, old, status))
 
     def reset_status(self) -> None:
         """Back to IDLE (BehaviorTree.CPP ``resetStatus``)."""
@@ -153,7 +159,9 @@ class BTNode(py_trees.behaviour.Behaviour):
             new = self.tick_impl()
         if self._post is not None and (new is SUCCESS or new is FAILURE):
             self._run_post(new)
-        self.set_status(new)
+        # BT.CPP keeps the previous status (usually IDLE) of a skipped node; only the parent sees SKIPPED.
+        if new is not SKIPPED:
+            self.set_status(new)
         return new
 
     def tick_impl(self) -> NodeStatus:

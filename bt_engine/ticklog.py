@@ -22,9 +22,11 @@ def to_jsonable(value: Any, depth: int = 0) -> Any:
     if depth > 6:
         return repr(value)
     if isinstance(value, (list, tuple)):
-        return [to_jsonable(v, depth + 1) for v in value[:1000]]
+        return [to_jsonable(v, depth + 1) for v in (value if depth < 2 else value[:1000])]
     if isinstance(value, dict):
-        return {str(k): to_jsonable(v, depth + 1) for k, v in list(value.items())[:1000]}
+        items = list(value.items())
+        # records and their status/blackboard maps are complete; only nested values are capped
+        return {str(k): to_jsonable(v, depth + 1) for k, v in (items if depth < 2 else items[:1000])}
     tolist = getattr(value, "tolist", None)
     if callable(tolist) and getattr(value, "size", 1e9) <= 64:
         return to_jsonable(tolist(), depth + 1)

@@ -230,3 +230,24 @@ def test_clock_is_injected_not_read_from_time():
     r.run()
     assert clock.now() == pytest.approx(100.6)
     assert m is not None
+
+
+def test_changes_are_net_complete_and_bounded(tmp_path):
+    """A leaf that goes IDLE->SUCCESS->IDLE within a tick is 'done', not 'changed'; a tick
+    log record keeps every change of a large tree; undrained changes do not pile up."""
+    body = "<ReactiveSequence>" + "<AlwaysSuccess/>" * 1500 + '<Sleep name="s" msec="1000"/></ReactiveSequence>'
+    m = xml_mission(wrap(body))
+    log = TickLog(str(tmp_path / "t.jsonl"))
+    run = Runner(m, log=log)
+    run.step()
+    first = run.trace[-1]
+    assert len(first["changed"]) == 2  # the ReactiveSequence and the Sleep
+    assert len(first["done"]) == 1500
+    run.step()
+    assert "changed" not in run.trace[-1]
+    log.close()
+    _, recs = read_log(str(tmp_path / "t.jsonl"))
+    assert len(recs[0]["done"]) == 1500
+    for _ in range(20):
+        m.tick()  # nobody drains
+    assert len(m._changes) <= 3100  # one tick worth, not twenty
