@@ -19,7 +19,11 @@ Vec3 = tuple[float, float, float]
 
 @dataclass(frozen=True, slots=True)
 class RefSample:
-    """One reference sample: position (m), velocity (m/s), yaw (rad), yaw rate (rad/s)."""
+    """One reference sample: position (m), velocity (m/s), yaw (rad), yaw rate (rad/s).
+
+    ``ax_mps2``.. is the reference acceleration (m/s^2): the Vehicle feeds it forward to
+    make up for the lag of the firmware's velocity loop (see ``VehicleConfig.velocity_lead_s``).
+    """
 
     x_m: float
     y_m: float
@@ -30,6 +34,9 @@ class RefSample:
     yaw_rad: float
     yaw_rate_radps: float
     done: bool
+    ax_mps2: float = 0.0
+    ay_mps2: float = 0.0
+    az_mps2: float = 0.0
 
     @property
     def position(self) -> Vec3:
@@ -55,21 +62,29 @@ def trapezoid_profile(
 
     Works for any non-negative ``distance`` (metres or radians); clamps at both ends.
     """
+    s, v, _ = trapezoid_state(distance, speed_max, accel_max, t_s)
+    return s, v
+
+
+def trapezoid_state(
+    distance: float, speed_max: float, accel_max: float, t_s: float
+) -> tuple[float, float, float]:
+    """Distance, speed and acceleration at ``t_s`` of a rest-to-rest trapezoidal move."""
     if distance <= 0.0 or t_s <= 0.0:
-        return 0.0, 0.0
+        return 0.0, 0.0, 0.0
     v_peak = min(speed_max, math.sqrt(distance * accel_max))
     t_acc = v_peak / accel_max
     d_acc = 0.5 * accel_max * t_acc * t_acc
     t_cruise = (distance - 2.0 * d_acc) / v_peak
     t_total = 2.0 * t_acc + t_cruise
     if t_s >= t_total:
-        return distance, 0.0
+        return distance, 0.0, 0.0
     if t_s < t_acc:
-        return 0.5 * accel_max * t_s * t_s, accel_max * t_s
+        return 0.5 * accel_max * t_s * t_s, accel_max * t_s, accel_max
     if t_s < t_acc + t_cruise:
-        return d_acc + v_peak * (t_s - t_acc), v_peak
+        return d_acc + v_peak * (t_s - t_acc), v_peak, 0.0
     t_dec = t_total - t_s
-    return distance - 0.5 * accel_max * t_dec * t_dec, accel_max * t_dec
+    return distance - 0.5 * accel_max * t_dec * t_dec, accel_max * t_dec, -accel_max
 
 
 def slew_yaw(
@@ -163,7 +178,7 @@ class LineReference(Reference):
 
     def sample(self, t_s: float) -> RefSample:
         lim, tau = self.limits, t_s - self.t0_s
-        s, v = trapezoid_profile(self.length_m, lim.speed_mps, lim.accel_mps2, tau)
+        s, v, acc = trapezoid_state(self.length_m, lim.speed_mps, lim.accel_mps2, tau)
         ux, uy, uz = self._unit
         a, w = trapezoid_profile(
             abs(self.yaw_delta_rad), lim.yaw_rate_radps, lim.yaw_accel_radps2, tau
@@ -180,6 +195,9 @@ class LineReference(Reference):
             wrap_angle_rad(self.start_yaw_rad + sign * a),
             sign * w,
             tau >= self.duration_s,
+            ux * acc,
+            uy * acc,
+            uz * acc,
         )
 
 
@@ -223,7 +241,7 @@ class PathReference(Reference):
 
     def sample(self, t_s: float) -> RefSample:
         lim, tau = self.limits, t_s - self.t0_s
-        s, v = trapezoid_profile(self.length_m, lim.speed_mps, lim.accel_mps2, tau)
+        s, v, acc = trapezoid_state(self.length_m, lim.speed_mps, lim.accel_mps2, tau)
         i = self.segment_index = self._locate(s)
         a, b, length = self.points[i], self.points[i + 1], self.seg_len[i]
         f = (s - self.cum[i]) / length if length > 1e-9 else 1.0
@@ -245,6 +263,9 @@ class PathReference(Reference):
             self._yaw,
             self._yaw_rate,
             tau >= self.duration_s and yaw_done,
+            u[0] * acc,
+            u[1] * acc,
+            u[2] * acc,
         )
 
     def remaining_m(self, position: Vec3) -> float:
@@ -270,6 +291,7 @@ class StopReference(Reference):
     def sample(self, t_s: float) -> RefSample:
         tau = min(max(0.0, t_s - self.t0_s), self.duration_s)
         v = self.speed0 - self.limits.accel_mps2 * tau
+        acc = -self.limits.accel_mps2 if tau < self.duration_s else 0.0
         s = self.speed0 * tau - 0.5 * self.limits.accel_mps2 * tau * tau
         ux, uy, uz = self._unit
         sx, sy, sz = self.start
@@ -283,4 +305,7 @@ class StopReference(Reference):
             self.goal_yaw_rad,
             0.0,
             t_s - self.t0_s >= self.duration_s,
+            ux * acc,
+            uy * acc,
+            uz * acc,
         )

@@ -41,6 +41,7 @@ from drivers.vehicle_config import VehicleConfig
 from drivers.yaw import path_facing_yaw_rad, wrap_angle_rad, yaw_error_rad
 
 AIRBORNE = (FlightState.TAKING_OFF, FlightState.FLYING, FlightState.LANDING)
+LAND_PRESS_MPS = 0.1  # descent speed asked for below the touch-down height while landing
 
 
 class Vehicle:
@@ -414,11 +415,24 @@ class Vehicle:
     def _send(self, ref: RefSample) -> None:
         c = self.config
         self.setpoints_sent += 1
+        # Feed-forward velocity: the reference velocity led by the firmware velocity loop's lag
+        # (v_ref + lead * a_ref), so the drone's *actual* velocity follows v_ref.
+        lead_xy, lead_z = c.velocity_lead_s, c.velocity_lead_z_s
+        fx = ref.vx_mps + lead_xy * ref.ax_mps2
+        fy = ref.vy_mps + lead_xy * ref.ay_mps2
+        fz = ref.vz_mps + lead_z * ref.az_mps2
+        # A landing never asks to climb, and below the touch-down height it presses down at
+        # LAND_PRESS_MPS: the braking feed-forward near the floor would otherwise lift a
+        # drone that touched down a little early back off the floor.
+        landing = self.flight_state == FlightState.LANDING
+        low = landing and self.position[2] - self._ground_z < c.landed_height_m
         if c.setpoint_mode == "velocity":
             x, y, z = self.position
-            vx = ref.vx_mps + c.velocity_kp * (ref.x_m - x)
-            vy = ref.vy_mps + c.velocity_kp * (ref.y_m - y)
-            vz = ref.vz_mps + c.velocity_kp * (ref.z_m - z)
+            vx = fx + c.velocity_kp * (ref.x_m - x)
+            vy = fy + c.velocity_kp * (ref.y_m - y)
+            vz = fz + c.velocity_kp * (ref.z_m - z)
+            if landing:
+                vz = min(vz, -LAND_PRESS_MPS if low else 0.0)
             speed = math.sqrt(vx * vx + vy * vy + vz * vz)
             if speed > c.max_speed_mps:
                 k = c.max_speed_mps / speed
@@ -426,11 +440,14 @@ class Vehicle:
             rate = ref.yaw_rate_radps + c.yaw_kp * yaw_error_rad(ref.yaw_rad, self.yaw_rad)
             self.link.send_velocity_setpoint(vx, vy, vz, rate)
             return
+        # Position mode: the firmware sends v_sp = Kp * (sp - p); lead_s = 1 / Kp turns the
+        # offset lead_s * (feed-forward velocity) into exactly that feed-forward velocity.
         lead = c.lead_s
+        z_sp = ref.z_m + lead * fz
         self.link.send_position_setpoint(
-            ref.x_m + lead * ref.vx_mps,
-            ref.y_m + lead * ref.vy_mps,
-            ref.z_m + lead * ref.vz_mps,
+            ref.x_m + lead * fx,
+            ref.y_m + lead * fy,
+            min(z_sp, ref.z_m - (lead * LAND_PRESS_MPS if low else 0.0)) if landing else z_sp,
             ref.yaw_rad,
         )
 

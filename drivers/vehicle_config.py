@@ -24,7 +24,12 @@ class VehicleConfig:
     yaw_tolerance_deg: float = 15.0
     settle_time_s: float = 0.3
     lead_s: float = 0.5  # position mode: send ref + lead_s * ref velocity (1 / firmware Kp)
-    velocity_kp: float = 2.0  # velocity mode: v_sp = v_ref + kp * (p_ref - p)
+    velocity_kp: float = 2.5  # velocity mode: v_sp = v_ff + kp * (p_ref - p)
+    # Both modes: feed-forward velocity v_ff = v_ref + lead * a_ref, lead ~ the lag of the
+    # firmware velocity loop (xy: 1/(g * 25 deg/(m/s)) ~ 0.23 s + attitude 0.05 s; z: 0.19 s
+    # + motor 0.03 s), so the drone's actual velocity follows v_ref (no lag, no overshoot).
+    velocity_lead_s: float = 0.25
+    velocity_lead_z_s: float = 0.2
     yaw_kp: float = 3.0  # velocity mode: yaw_rate_sp = r_ref + kp * wrap(yaw_ref - yaw)
     pose_source: str = "mocap"  # "mocap" | "onboard"
     link_stale_s: float = 0.5
