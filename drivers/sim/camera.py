@@ -37,6 +37,8 @@ def make_renderer(name: str | None, **kwargs: Any) -> Renderer | None:
     """Build the renderer ``name`` (None or "none" -> no renderer)."""
     if name in (None, "none"):
         return None
+    import drivers.sim.renderer  # noqa: F401  (registers the "pallet" renderer)
+
     if name not in _RENDERERS:
         raise ValueError(f"unknown camera renderer '{name}' (known: {renderer_names()})")
     return _RENDERERS[name](**kwargs)

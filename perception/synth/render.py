@@ -1,0 +1,462 @@
+"""Frame synthesis: a :class:`~perception.synth.scene.Scene` seen by the AI-deck camera.
+
+:func:`render_frame` = :func:`render_scene` (true-colour BGR, every quad drawn with one
+``cv2.warpPerspective`` into its bounding box, mip-mapped textures, painter's order) followed
+by :func:`apply_sensor` (motion blur along the image-space motion, Bayer mosaic, per-channel
+sensor gains = green cast, illuminant colour, vignetting, exposure, brightness gradient,
+contrast, shot and read noise). The raw frame is 244 x 324 uint8 Bayer; OpenCV's
+``COLOR_BayerBG2BGR`` turns it back into colour (red at even rows and even columns, blue at odd
+rows and odd columns, green elsewhere).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from perception.synth.camera_model import CameraModel, CameraPose, world_to_optical
+from perception.synth.scene import PalletSpec, Quad, Scene, SceneLight
+
+NEAR_M = 0.02
+
+
+class BlockBox(NamedTuple):
+    """Ground-truth box of a visible support block face, in pixels of the frame.
+
+    ``visible`` is the fraction of the projected box inside the image (occlusion by other
+    objects is not accounted for); ``block`` is 0, 1, 2 left to right seen from the front.
+    """
+
+    x1: float
+    y1: float
+    x2: float
+    y2: float
+    visible: float
+    block: int
+    identity: str
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Per-frame light and exposure: overall gain, contrast about mid-grey, a linear
+    brightness gradient (fractional change from the centre to the image edge, direction in
+    the image), and the exposure time used for motion blur."""
+
+    exposure: float = 1.0
+    contrast: float = 1.0
+    gradient: float = 0.0
+    gradient_angle_rad: float = 0.0
+    exposure_time_s: float = 0.02
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Raw sensor response: per-channel gains (B, G, R; green strongest = the green cast of
+    the raw AI-deck image), vignetting (corner fall-off), black level, read noise (DN) and
+    shot noise (variance per DN)."""
+
+    channel_gain_bgr: tuple[float, float, float] = (0.78, 1.0, 0.70)
+    vignetting: float = 0.25
+    black_level: float = 3.0
+    read_noise: float = 1.8
+    shot_noise: float = 0.18
+
+
+def illuminant_bgr(kelvin: float) -> tuple[float, float, float]:
+    """Relative (B, G, R) of a light of colour temperature ``kelvin`` (green = 1; 5500 K
+    neutral); a mild blackbody approximation (warm light: more red, less blue)."""
+    t = math.log(max(kelvin, 1000.0) / 5500.0)
+    return (float(np.clip(1.0 + 0.55 * t, 0.4, 1.6)), 1.0, float(np.clip(1.0 - 0.35 * t, 0.6, 1.6)))
+
+
+# ---------------------------------------------------------------------------- scene drawing
+def _clip_near(pc: np.ndarray) -> np.ndarray:
+    """Sutherland-Hodgman clip of a polygon (N, 3, optical frame) to z >= NEAR_M."""
+    out = []
+    n = len(pc)
+    for i in range(n):
+        a, b = pc[i], pc[(i + 1) % n]
+        ina, inb = a[2] >= NEAR_M, b[2] >= NEAR_M
+        if ina:
+            out.append(a)
+        if ina != inb:
+            s = (NEAR_M - a[2]) / (b[2] - a[2])
+            out.append(a + s * (b - a))
+    return np.array(out)
+
+
+def _horizon_row(K: np.ndarray, R: np.ndarray, width: int) -> float | None:
+    """Lowest image row of the horizon (vanishing line of horizontal planes), or None if the
+    camera is not upright enough for "below the horizon = floor in front" to hold."""
+    line = np.linalg.inv(K).T @ (R @ np.array([0.0, 0.0, 1.0]))
+    if line[1] >= -1e-6 or R[1, 2] > -0.2:  # image "up" must point roughly along world z
+        return None
+    vs = [-(line[0] * u + line[2]) / line[1] for u in (0.0, width - 1.0)]
+    return max(vs)
+
+
+def _mip_level(quad: Quad, scale: float) -> int:
+    """Pyramid level whose texels are closest to one pixel at linear ``scale`` (px/texel)."""
+    if scale <= 0.0:
+        return 0
+    return min(max(int(math.floor(-math.log2(scale) + 0.5)), 0), len(quad.levels) - 1)
+
+
+def _draw_quad(
+    canvas: np.ndarray,
+    quad: Quad,
+    K: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    cam_pos: np.ndarray,
+    horizon: float | None = None,
+    pc: np.ndarray | None = None,
+) -> float | None:
+    """Draw one quad; returns its mean depth if anything was drawn.
+
+    One ``warpPerspective`` into the quad's bounding box with a transparent border (pixels
+    outside the texture stay untouched). A quad crossing the camera plane is clipped: the
+    floor is then drawn only below the horizon (every such pixel sees the floor in front of
+    the camera), anything else through a polygon mask. ``pc``: the corners already in the
+    optical frame (skips the back-face test, done by the caller).
+    """
+    if pc is None:
+        if float(quad.normal @ (cam_pos - quad.centre)) <= 1e-4:
+            return None  # back face, or the camera lies in the quad's plane
+        pc = quad.corners @ R.T + t
+    zs = pc[:, 2].tolist()
+    if max(zs) < NEAR_M:
+        return None
+    clipped = min(zs) < NEAR_M
+    poly = _clip_near(pc) if clipped else pc
+    uv = (poly @ K.T)[:, :2] / poly[:, 2:3]
+    us, vs = uv[:, 0].tolist(), uv[:, 1].tolist()
+    hgt, wid = canvas.shape[:2]
+    x0, y0 = max(int(math.floor(min(us))), 0), max(int(math.floor(min(vs))), 0)
+    x1, y1 = min(int(math.ceil(max(us))) + 1, wid), min(int(math.ceil(max(vs))) + 1, hgt)
+    use_mask = False
+    if clipped and quad.kind == "floor" and horizon is not None:
+        y0 = max(y0, int(math.floor(horizon)) + 1)
+    elif clipped:
+        use_mask = True
+    if x1 <= x0 or y1 <= y0:
+        return None
+    levels = quad.levels
+    th, tw = levels[0].shape[:2]
+    c = quad.corners
+    U, V = (c[1] - c[0]) / tw, (c[3] - c[0]) / th
+    M = np.column_stack([U, V, c[0] + 0.5 * U + 0.5 * V])
+    A = R @ M
+    A[:, 2] += t
+    H0 = K @ A
+    if not clipped:  # linear scale from the projected area (shoelace) over the texture area
+        area = 0.5 * abs(sum(us[k] * vs[k - 1] - us[k - 1] * vs[k] for k in range(4)))
+        scale = math.sqrt(area / (tw * th))
+    else:  # local scale at the middle of the drawn part: det(H0) * p_z^3, p = H0^-1 (u, v, 1)
+        try:
+            p = np.linalg.solve(H0, np.array([(x0 + x1) / 2, (y0 + y1) / 2, 1.0]))
+        except np.linalg.LinAlgError:
+            return None
+        scale = math.sqrt(abs(float(np.linalg.det(H0)) * float(p[2]) ** 3))
+    level = _mip_level(quad, scale)
+    sc = float(2**level)
+    Hroi = H0 @ np.array([[sc, 0.0, (sc - 1) / 2], [0.0, sc, (sc - 1) / 2], [0.0, 0.0, 1.0]])
+    Hroi[0] -= x0 * Hroi[2]
+    Hroi[1] -= y0 * Hroi[2]
+    roi = canvas[y0:y1, x0:x1]
+    tex = levels[level]
+    if not use_mask:
+        cv2.warpPerspective(
+            tex,
+            Hroi,
+            (x1 - x0, y1 - y0),
+            dst=roi,
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_TRANSPARENT,
+        )
+    else:
+        warped = cv2.warpPerspective(tex, Hroi, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR)
+        mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        pts = np.round((uv - (x0, y0)) * 16).astype(np.int32)
+        cv2.fillConvexPoly(mask, pts, 1, cv2.LINE_8, 4)
+        np.copyto(roi, warped, where=mask.astype(bool)[..., None])
+    return sum(zs) / 4.0
+
+
+def render_scene(
+    camera: CameraModel,
+    pose: CameraPose,
+    scene: Scene,
+    background: tuple[int, int, int] = (92, 94, 96),
+) -> tuple[np.ndarray, float]:
+    """True-colour BGR image (uint8) of the scene, and the depth of the nearest object drawn
+    (m, inf if none) for motion blur.
+
+    Floor and walls are drawn at half resolution and upscaled (they are far and smooth);
+    objects (pallets, stands) at full resolution, far to near.
+    """
+    R, t = world_to_optical(camera, pose)
+    K = camera.K()
+    cam = pose.position
+    hw, hh = camera.width // 2, camera.height // 2
+    small = np.empty((hh, hw, 3), np.uint8)
+    small[:] = background
+    Kh = K.copy()
+    Kh[0, 0], Kh[1, 1] = K[0, 0] * hw / camera.width, K[1, 1] * hh / camera.height
+    Kh[0, 2], Kh[1, 2] = (
+        (K[0, 2] + 0.5) * hw / camera.width - 0.5,
+        (K[1, 2] + 0.5) * hh / camera.height - 0.5,
+    )
+    horizon = _horizon_row(Kh, R, hw)
+    for q in scene.background:
+        _draw_quad(small, q, Kh, R, t, cam, horizon)
+    canvas = cv2.resize(small, (camera.width, camera.height), interpolation=cv2.INTER_LINEAR)
+    nearest = math.inf
+    objects = scene.objects
+    if objects:
+        # Vectorised culling: back faces, quads behind the camera or outside the image.
+        rel = cam - scene.object_centres
+        front = np.einsum("ij,ij->i", scene.object_normals, rel) > 0.0
+        pc = scene.object_corners @ R.T + t
+        z = pc[..., 2]
+        ahead = z > NEAR_M
+        uv = (pc[..., :2] * K[0, 0]) / np.where(ahead, z, 1.0)[..., None] + K[:2, 2]
+        outside = ahead.all(axis=1) & (
+            (uv[..., 0].max(axis=1) < 0)
+            | (uv[..., 0].min(axis=1) > camera.width)
+            | (uv[..., 1].max(axis=1) < 0)
+            | (uv[..., 1].min(axis=1) > camera.height)
+        )
+        keep = front & ahead.any(axis=1) & ~outside
+        idx = np.flatnonzero(keep)
+        d2 = np.sum(rel[idx] ** 2, axis=1)
+        for i in idx[np.argsort(-d2, kind="stable")]:
+            depth = _draw_quad(canvas, objects[i], K, R, t, cam, pc=pc[i])
+            if depth is not None:
+                nearest = min(nearest, depth)
+    return canvas, nearest
+
+
+def block_boxes(camera: CameraModel, pose: CameraPose, scene: Scene) -> list[BlockBox]:
+    """Boxes of every support-block face that faces the camera and is at least partly in view."""
+    R, t = world_to_optical(camera, pose)
+    K = camera.K()
+    cam = pose.position
+    W, H = camera.width, camera.height
+    out = []
+    for q in scene.quads:
+        if not q.blocks or float(q.normal @ (cam - q.centre)) <= 0.0:
+            continue
+        for k, identity, corners in q.blocks:
+            pc = corners @ R.T + t
+            if (pc[:, 2] < NEAR_M).any():
+                continue
+            uv = (pc @ K.T)[:, :2] / pc[:, 2:3]
+            bx1, by1 = float(uv[:, 0].min()), float(uv[:, 1].min())
+            bx2, by2 = float(uv[:, 0].max()), float(uv[:, 1].max())
+            area = (bx2 - bx1) * (by2 - by1)
+            cx1, cy1 = max(bx1, -0.5), max(by1, -0.5)
+            cx2, cy2 = min(bx2, W - 0.5), min(by2, H - 0.5)
+            if cx2 <= cx1 or cy2 <= cy1 or area <= 0:
+                continue
+            vis = (cx2 - cx1) * (cy2 - cy1) / area
+            out.append(BlockBox(cx1 + 0.5, cy1 + 0.5, cx2 + 0.5, cy2 + 0.5, vis, k, identity))
+    return out
+
+
+# ---------------------------------------------------------------------------- sensor stage
+@lru_cache(maxsize=8)
+def _cfa(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flat gather indices of the BayerBG mosaic (R at even/even) and per-pixel channel."""
+    rows, cols = np.mgrid[0:height, 0:width]
+    ch = np.ones((height, width), np.int64)  # green
+    ch[(rows % 2 == 0) & (cols % 2 == 0)] = 2  # red
+    ch[(rows % 2 == 1) & (cols % 2 == 1)] = 0  # blue
+    idx = (rows * width + cols) * 3 + ch
+    return idx.ravel(), ch
+
+
+@lru_cache(maxsize=16)
+def _static_gain(
+    width: int, height: int, sensor: SensorModel, illuminant: tuple[float, float, float]
+) -> np.ndarray:
+    _, ch = _cfa(width, height)
+    gains = np.asarray(sensor.channel_gain_bgr) * np.asarray(illuminant)
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float64)
+    r2 = ((xx - (width - 1) / 2) ** 2 + (yy - (height - 1) / 2) ** 2) / (
+        (width / 2) ** 2 + (height / 2) ** 2
+    )
+    vignette = 1.0 - sensor.vignetting * r2
+    return (gains[ch] * vignette).astype(np.float32)
+
+
+@lru_cache(maxsize=4)
+def _grids(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
+    return (xx - (width - 1) / 2) / (width / 2), (yy - (height - 1) / 2) / (height / 2)
+
+
+@lru_cache(maxsize=4)
+def _noise_bank(n: int) -> np.ndarray:
+    return np.random.default_rng(20240611).standard_normal(4 * n).astype(np.float32)
+
+
+def motion_kernel(du: float, dv: float) -> np.ndarray | None:
+    """Linear blur kernel for an image-space smear (du, dv) in pixels (None if < 1 px)."""
+    length = math.hypot(du, dv)
+    if length < 1.0:
+        return None
+    n = int(math.ceil(length)) | 1
+    k = np.zeros((n, n), np.float32)
+    c = n // 2
+    cv2.line(
+        k,
+        (int(round(c - du / 2)), int(round(c - dv / 2))),
+        (int(round(c + du / 2)), int(round(c + dv / 2))),
+        1.0,
+        1,
+        cv2.LINE_AA,
+    )
+    return k / k.sum()
+
+
+def image_motion(
+    camera: CameraModel,
+    pose: CameraPose,
+    velocity: tuple[float, float, float],
+    yaw_rate: float,
+    depth_m: float,
+    exposure_time_s: float,
+) -> tuple[float, float]:
+    """Smear (du, dv) in pixels at the image centre over one exposure: translation at
+    ``depth_m`` plus the yaw rotation (rad/s)."""
+    R, _ = world_to_optical(camera, pose)
+    vc = R @ np.asarray(velocity, float)
+    f = camera.fx
+    depth = max(depth_m, 0.05) if math.isfinite(depth_m) else 5.0
+    du = -f * vc[0] / depth + f * yaw_rate
+    dv = -f * vc[1] / depth
+    return du * exposure_time_s, dv * exposure_time_s
+
+
+def apply_sensor(
+    bgr: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    lighting: Lighting = Lighting(),
+    sensor: SensorModel = SensorModel(),
+    illuminant: tuple[float, float, float] = (1.0, 1.0, 1.0),
+    blur: tuple[float, float] = (0.0, 0.0),
+) -> np.ndarray:
+    """True-colour BGR uint8 -> raw BayerBG uint8 (blur, mosaic, gains, noise, clipping)."""
+    h, w = bgr.shape[:2]
+    k = motion_kernel(*blur)
+    if k is not None:
+        bgr = cv2.filter2D(bgr, -1, k, borderType=cv2.BORDER_REPLICATE)
+    raw8 = np.empty((h, w), np.uint8)  # BayerBG as OpenCV reads it: R at (even, even)
+    raw8[0::2, 0::2] = bgr[0::2, 0::2, 2]
+    raw8[0::2, 1::2] = bgr[0::2, 1::2, 1]
+    raw8[1::2, 0::2] = bgr[1::2, 0::2, 1]
+    raw8[1::2, 1::2] = bgr[1::2, 1::2, 0]
+    gain = _gain_map(
+        w,
+        h,
+        sensor,
+        tuple(float(v) for v in illuminant),
+        lighting.exposure,
+        lighting.gradient,
+        lighting.gradient_angle_rad,
+    )
+    raw = cv2.multiply(raw8, gain, dtype=cv2.CV_32F)
+    if lighting.contrast != 1.0:
+        raw -= 100.0
+        raw *= lighting.contrast
+        raw += 100.0
+    sigma = cv2.LUT(cv2.convertScaleAbs(raw), _sigma_lut(sensor.shot_noise, sensor.read_noise))
+    bank = _noise_bank(h * w)
+    off = int(rng.integers(0, bank.size - h * w))
+    raw += cv2.multiply(sigma, bank[off : off + h * w].reshape(h, w))
+    # |x + black| saturated to uint8: values below -black (rare noise) fold back up.
+    return cv2.convertScaleAbs(raw, alpha=1.0, beta=sensor.black_level)
+
+
+@lru_cache(maxsize=8)
+def _sigma_lut(shot: float, read: float) -> np.ndarray:
+    """Noise standard deviation per signal level 0..255: sqrt(shot * x + read^2)."""
+    return np.sqrt(np.arange(256, dtype=np.float32) * shot + read * read).astype(np.float32)
+
+
+@lru_cache(maxsize=64)
+def _gain_map(
+    w: int,
+    h: int,
+    sensor: SensorModel,
+    illuminant: tuple[float, float, float],
+    exposure: float,
+    gradient: float,
+    angle: float,
+) -> np.ndarray:
+    """Per-pixel gain: Bayer channel gain x illuminant x vignetting x exposure x gradient."""
+    gain = _static_gain(w, h, sensor, illuminant) * np.float32(exposure)
+    if gradient:
+        gx, gy = _grids(w, h)
+        gain = gain * (1.0 + gradient * math.cos(angle) * gx + gradient * math.sin(angle) * gy)
+    return gain.astype(np.float32)
+
+
+def render_frame(
+    camera: CameraModel,
+    pose: CameraPose,
+    scene: Scene,
+    rng: np.random.Generator,
+    *,
+    velocity: tuple[float, float, float] | None = None,
+    yaw_rate: float = 0.0,
+    lighting: Lighting = Lighting(),
+    sensor: SensorModel = SensorModel(),
+    colour_temperature_k: float | None = None,
+    return_boxes: bool = False,
+) -> np.ndarray | tuple[np.ndarray, list[BlockBox]]:
+    """Raw 244 x 324 uint8 BayerBG frame of ``scene`` from ``pose`` (and, if asked, the
+    ground-truth :class:`BlockBox` list). ``velocity`` (m/s, world) and ``yaw_rate`` (rad/s)
+    add motion blur; ``rng`` drives the sensor noise; ``colour_temperature_k`` overrides
+    the scene light's colour."""
+    bgr, nearest = render_scene(camera, pose, scene)
+    blur = (0.0, 0.0)
+    if velocity is not None or yaw_rate:
+        blur = image_motion(
+            camera, pose, velocity or (0.0, 0.0, 0.0), yaw_rate, nearest, lighting.exposure_time_s
+        )
+    raw = apply_sensor(
+        bgr,
+        rng,
+        lighting=lighting,
+        sensor=sensor,
+        illuminant=illuminant_bgr(colour_temperature_k or scene.light.colour_temperature_k),
+        blur=blur,
+    )
+    if return_boxes:
+        return raw, block_boxes(camera, pose, scene)
+    return raw
+
+
+__all__ = [
+    "BlockBox",
+    "Lighting",
+    "PalletSpec",
+    "Scene",
+    "SceneLight",
+    "SensorModel",
+    "apply_sensor",
+    "block_boxes",
+    "illuminant_bgr",
+    "image_motion",
+    "motion_kernel",
+    "render_frame",
+    "render_scene",
+]
