@@ -52,7 +52,12 @@ def _fault(doc: str, **params: Field) -> Field:
 RIG_SCHEMA = _m(
     {
         "name": _f("str", "sim", "rig name (shown in logs)"),
-        "link": _f("choice", "sim", "link kind: sim (in-process simulator)", choices=("sim",)),
+        "link": _f(
+            "choice",
+            "sim",
+            "link kind: sim (in-process simulator) or crazyflie (cflib: radio, usb, udp)",
+            choices=("sim", "crazyflie"),
+        ),
         "world": _m(
             {
                 "path": _f(
@@ -100,7 +105,17 @@ RIG_SCHEMA = _m(
                     "float", 0.5, "position mode: reference lead (s) to cancel lag", min=0.0
                 ),
                 "velocity_kp": _f(
-                    "float", 2.0, "velocity mode: position error gain (1/s)", min=0.0
+                    "float", 2.5, "velocity mode: position error gain (1/s)", min=0.0
+                ),
+                "velocity_lead_s": _f(
+                    "float",
+                    0.25,
+                    "feed-forward v_ref + lead * a_ref (x, y): firmware velocity-loop lag (s)",
+                    min=0.0,
+                    max=2.0,
+                ),
+                "velocity_lead_z_s": _f(
+                    "float", 0.2, "feed-forward v_ref + lead * a_ref (z) (s)", min=0.0, max=2.0
                 ),
                 "yaw_kp": _f("float", 3.0, "velocity mode: yaw error gain (1/s)", min=0.0),
                 "pose_source": _f(
@@ -132,6 +147,112 @@ RIG_SCHEMA = _m(
                     "float", 0.0, "probability of losing one packet", min=0.0, max=1.0
                 ),
             }
+        ),
+        "crazyflie": _m(
+            {
+                "uri": _f(
+                    "str", "radio://0/80/2M/E7E7E7E7E7", "cflib URI (radio://, usb://, udp://)"
+                ),
+                "sitl": _f("bool", False, "start the CRTP emulator in-process (uri ignored)"),
+                "sitl_world": _f("bool", True, "sitl: the simulated drone collides with the world"),
+                "pose_source": _f(
+                    "choice",
+                    "mocap",
+                    "pose forwarded to the drone: mocap (drivers/mocap.py), sitl, none",
+                    choices=("mocap", "sitl", "none"),
+                ),
+                "params": Field(
+                    "dict",
+                    {
+                        "stabilizer.estimator": 2.0,
+                        "stabilizer.controller": 1.0,
+                        "locSrv.extPosStdDev": 0.01,
+                        "locSrv.extQuatStdDev": 4.5e-3,
+                    },
+                    "firmware parameters written after connecting",
+                    item=Field("float"),
+                ),
+                "log": _m(
+                    {
+                        "pose_rate_hz": _f(
+                            "float", 100.0, "stateEstimate pose+velocity", min=1.0, max=100.0
+                        ),
+                        "status_rate_hz": _f(
+                            "float", 50.0, "quaternion, battery, supervisor", min=1.0, max=100.0
+                        ),
+                        "imu_rate_hz": _f("float", 0.0, "gyro+acc (0: off)", min=0.0, max=100.0),
+                    }
+                ),
+                "link_timeout_s": _f("float", 0.5, "link lost after this silence", min=0.05),
+                "connect_timeout_s": _f("float", 10.0, "give up connecting after", min=0.5),
+                "shutdown_max_s": _f(
+                    "float", 15.0, "at shutdown, wait at most this to land", min=0.0
+                ),
+                "toc_cache_dir": _f(
+                    "str", None, "cflib TOC cache (null: a temp folder)", nullable=True
+                ),
+            }
+        ),
+        "mocap": _m(
+            {
+                "type": _f(
+                    "choice",
+                    "vicon",
+                    "motioncapture system (drivers/mocap.py; mock: static test poses)",
+                    choices=("vicon", "optitrack", "qualisys", "vrpn", "mock"),
+                ),
+                "host": _f("str", "127.0.0.1", "mocap server host name or address"),
+                "rigid_body": _f("str", "cf", "rigid-body name of the drone (x axis = front)"),
+                "rate_hz": _f("float", 100.0, "nominal frame rate (drop accounting)", min=1.0),
+                "stale_s": _f("float", 0.1, "driver reports stale after this silence", min=0.0),
+                "up_axis": _f(
+                    "choice",
+                    "z",
+                    "up axis the server streams (y: converted to z-up)",
+                    choices=("z", "y"),
+                ),
+                "freeze_detect": _f("bool", True, "bit-identical repeated frames are stale"),
+                "params": Field(
+                    "dict", {}, "extra motioncapture.connect parameters", item=Field("str")
+                ),
+            },
+            "real motion capture (link: crazyflie with crazyflie.pose_source: mocap)",
+        ),
+        "aideck": _m(
+            {
+                "enabled": _f(
+                    "bool", False, "stream the AI-deck camera (drivers/aideck_stream.py)"
+                ),
+                "host": _f("str", "127.0.0.1", "deck address (its own access point: 192.168.4.1)"),
+                "port": _f("int", 5000, "deck TCP port", min=1, max=65535),
+                "format": _f(
+                    "choice",
+                    "raw",
+                    "what the deck firmware (or emulator) sends; both decode",
+                    choices=("raw", "jpeg"),
+                ),
+                "output": _f(
+                    "choice",
+                    "bayer",
+                    "frame image: bayer (as the sim camera) or bgr",
+                    choices=("bayer", "bgr"),
+                ),
+                "white_balance": _f(
+                    "vec",
+                    None,
+                    "B, G, R factors for bgr (null: sensors.camera.white_balance)",
+                    length=3,
+                    nullable=True,
+                ),
+                "reconnect_initial_s": _f("float", 0.25, "first reconnect back-off", min=0.01),
+                "reconnect_max_s": _f("float", 5.0, "back-off doubles up to this", min=0.01),
+                "connect_timeout_s": _f("float", 2.0, "TCP connect time-out", min=0.1),
+                "idle_timeout_s": _f("float", 3.0, "reconnect after this silence", min=0.1),
+                "emulator": _f(
+                    "bool", False, "start drivers/sim/aideck_emulator on 127.0.0.1 (port 0: free)"
+                ),
+            },
+            "AI-deck camera over WiFi (CPX over TCP)",
         ),
         "sensors": _m(
             {
@@ -170,6 +291,12 @@ RIG_SCHEMA = _m(
                         "rate_hz": _f("float", 15.0, "frame rate (AI-deck: 12-17 fps)", min=0.1),
                         "latency_s": _f("float", 0.05, "capture-to-delivery latency", min=0.0),
                         "renderer": _f("str", "none", "registered renderer name, or none"),
+                        "fov_deg": _f(
+                            "float", 87.0, "horizontal field of view (approx.)", min=10.0, max=170.0
+                        ),
+                        "white_balance": _f(
+                            "vec", [1.0, 1.0, 1.0], "B, G, R white-balance factors", length=3
+                        ),
                     }
                 ),
             }
@@ -211,6 +338,58 @@ RIG_SCHEMA = _m(
 )
 
 
+def _policy(action: str, grace_s: float, hold_s: float, doc: str) -> Field:
+    from drivers.safety import ACTIONS
+
+    return _m(
+        {
+            "action": _f("choice", action, "what the supervisor does", choices=tuple(ACTIONS)),
+            "grace_s": _f("float", grace_s, "the tree keeps control this long first", min=0.0),
+            "hold_s": _f("float", hold_s, "hold time before landing (hold actions)", min=0.0),
+        },
+        doc,
+    )
+
+
+SAFETY_SCHEMA = _m(
+    {
+        "enabled": _f("bool", True, "check faults every tick (off: only land at the end)"),
+        "land_speed_mps": _f("float", 0.3, "descent speed of a supervisor landing", min=0.05),
+        "return_speed_mps": _f("float", 0.5, "speed of return flights", min=0.05),
+        "max_recovery_s": _f(
+            "float", 30.0, "recovery flight limit; then the motors are cut", min=1.0
+        ),
+        "battery_low_v": _f("float", 3.3, "battery_low below this filtered voltage", min=0.0),
+        "battery_critical_v": _f(
+            "float", 3.1, "battery_critical below this filtered voltage", min=0.0
+        ),
+        "geofence": _m(
+            {
+                "enabled": _f("bool", True, "check the geofence box"),
+                "min_m": _f("vec", [-1.5, -3.0, -0.5], "box corner x;y;z min (m)", length=3),
+                "max_m": _f("vec", [9.2, 3.0, 2.5], "box corner x;y;z max (m)", length=3),
+                "margin_m": _f("float", 0.3, "return this far inside the box", min=0.0),
+            }
+        ),
+        "policies": _m(
+            {
+                "crash": _policy("motors_off", 0.0, 0.0, "crash or motors stopped"),
+                "battery_critical": _policy("land", 0.0, 0.0, "battery critical"),
+                "link_lost": _policy("hold_then_land", 0.0, 1.0, "no telemetry"),
+                "geofence": _policy("return_inside_and_land", 0.0, 0.5, "geofence breach"),
+                "mocap_lost": _policy("hold_then_land", 1.0, 0.5, "mocap stale or dropped"),
+                "battery_low": _policy("return_and_land", 2.0, 0.0, "battery low"),
+                "camera_stalled": _policy("report", 0.0, 0.0, "camera stalled"),
+                "operator_interrupt": _policy("land", 0.0, 0.0, "SIGINT / SIGTERM"),
+                "leaf_exception": _policy("land", 0.0, 0.0, "exception in a leaf"),
+            }
+        ),
+    },
+    "the safety supervisor (docs/safety.md)",
+)
+RIG_SCHEMA.children["safety"] = SAFETY_SCHEMA
+
+
 def apply_overrides(config: dict, overrides: dict[str, str] | None) -> dict:
     """Apply ``--set dotted.key=value`` overrides to validated rig data (type-checked).
 
@@ -250,6 +429,10 @@ class Rig:
             from drivers.sim.platform import SimPlatform
 
             return SimPlatform.from_rig(self, clock, seed)
+        if self.kind == "crazyflie":
+            from drivers.crazyflie_platform import CrazyfliePlatform
+
+            return CrazyfliePlatform.from_rig(self, clock, seed)
         raise ConfigError([f"{self.path}:1:1: link '{self.kind}' is not available"])
 
 

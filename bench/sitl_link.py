@@ -1,0 +1,110 @@
+"""SITL link figures: the real cflib driver against the CRTP emulator on 127.0.0.1.
+
+1. connect-to-ready: ``CrazyflieLink.open()`` (link, TOCs, every parameter read, the rig's
+   parameters written and confirmed, log blocks started, first sample) - median of N.
+2. pose log rate at 100 Hz: ``stateEstimate`` pose blocks received per second over a hover,
+   gaps counted from the firmware timestamps (a gap = a missing 10 ms period).
+3. control loop jitter at 100 Hz through the link: ``CrazyfliePlatform``'s control thread
+   flying a hover; intervals between control steps (sender) and between set-points arriving
+   at the emulator (receiver), p50/p99/max.
+
+    .venv/bin/python bench/sitl_link.py [--connects 5] [--hover-s 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+from bt_engine.clock import WallClock
+from drivers.crazyflie_link import CrazyflieLink, CrazyflieLinkConfig
+from drivers.rig import REPO_ROOT, load_rig
+from drivers.sim.sitl import SitlSession
+
+
+def pct(values: list[float], q: float) -> float:
+    """The q-quantile (0..1) of ``values``."""
+    s = sorted(values)
+    return s[min(len(s) - 1, int(q * (len(s) - 1) + 0.5))]
+
+
+def connect_times(n: int) -> list[float]:
+    """Seconds from ``open()`` to ready, ``n`` fresh emulators."""
+    data = load_rig().data
+    out = []
+    for i in range(n):
+        with SitlSession(data, i) as s:
+            link = CrazyflieLink(CrazyflieLinkConfig(uri=s.uri, imu_rate_hz=20.0))
+            t0 = time.perf_counter()
+            link.open()
+            out.append(time.perf_counter() - t0)
+            link.close()
+    return out
+
+
+def hover(hover_s: float) -> dict:
+    """Fly take-off + hover on rigs/sitl.yaml; measure log rate, gaps and control jitter."""
+    rig = load_rig(f"{REPO_ROOT}/rigs/sitl.yaml")
+    clock = WallClock(1.0)
+    platform = rig.make_platform(clock, 0)
+    em = platform.sitl.emulator
+    arrivals: list[float] = []
+    apply = em.setpoints._apply
+
+    def record(mode, values):  # the emulator thread: arrival time of each set-point
+        arrivals.append(time.monotonic())
+        apply(mode, values)
+
+    em.setpoints._apply = record
+    v = platform.vehicle
+    p = v.takeoff(0.5)
+    end = time.monotonic() + 10.0
+    while not p.settled and time.monotonic() < end:
+        time.sleep(0.02)
+    link = platform.link
+    s0, g0, t0 = link.pose_samples, link.pose_gaps, time.monotonic()
+    arrivals.clear()
+    platform.step_times.clear()
+    time.sleep(hover_s)
+    s1, g1, t1 = link.pose_samples, link.pose_gaps, time.monotonic()
+    sender = platform.control_periods_s()
+    recv = [b - a for a, b in zip(arrivals, arrivals[1:], strict=False)]
+    platform.shutdown("bench done")
+    return {
+        "pose_rate_hz": (s1 - s0) / (t1 - t0),
+        "pose_gaps": g1 - g0,
+        "pose_samples": s1 - s0,
+        "sender": sender,
+        "receiver": recv,
+        "landed": platform.summary()["landed"],
+    }
+
+
+def main() -> None:
+    """Print the figures."""
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--connects", type=int, default=5)
+    ap.add_argument("--hover-s", type=float, default=10.0)
+    args = ap.parse_args()
+    ct = connect_times(args.connects)
+    print(
+        f"connect-to-ready: median {1000 * statistics.median(ct):.0f} ms, "
+        f"max {1000 * max(ct):.0f} ms (n={len(ct)})"
+    )
+    h = hover(args.hover_s)
+    print(
+        f"pose log at 100 Hz: {h['pose_rate_hz']:.1f} Hz over {args.hover_s:g} s, "
+        f"{h['pose_gaps']} gaps in {h['pose_samples']} samples"
+    )
+    for name in ("sender", "receiver"):
+        d = [1000 * x for x in h[name]]
+        print(
+            f"control 100 Hz {name}: p50 {pct(d, 0.5):.2f} ms, p99 {pct(d, 0.99):.2f} ms, "
+            f"max {max(d):.2f} ms (n={len(d)})"
+        )
+    print(f"landed after shutdown: {h['landed']}")
+
+
+if __name__ == "__main__":
+    main()

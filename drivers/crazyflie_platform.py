@@ -1,0 +1,286 @@
+"""The platform for a real (or SITL) Crazyflie: cflib link + mocap + Vehicle, in real time.
+
+Unlike the lock-step simulator, the drone does not wait for the tree. A control thread runs
+:meth:`Vehicle.control_step` at ``control.rate_hz`` on the (wall) mission clock, so
+set-points leave at a steady rate whatever the tick rate and whoever else steps the platform
+(the safety supervisor's recovery loop calls ``before_tick`` on its own). The Vehicle is not
+thread-safe, so :attr:`CrazyfliePlatform.vehicle` is a :class:`LockedVehicle`: every method
+call and attribute read of the tree, the supervisor or a script takes the same lock as each
+control step. If the process hangs, set-points stop and the firmware's watchdog levels the
+drone after 0.5 s and stops the motors after 2 s: the safe failure.
+
+``shutdown`` lands (bounded by ``crazyflie.shutdown_max_s``), cuts the motors if the drone
+is still flying and the link is up, then sends a stop set-point + ``notify_setpoint_stop``
+and closes the link (then stops the SITL emulator, after taking its ground truth).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+from drivers.crazyflie_link import CrazyflieLink, CrazyflieLinkConfig
+from drivers.faults import FaultInjector
+from drivers.link import PoseSource
+from drivers.types import FlightState
+from drivers.vehicle import Vehicle
+from drivers.vehicle_config import VehicleConfig
+
+
+class LockedVehicle:
+    """A :class:`Vehicle` whose every attribute read and method call holds ``lock``."""
+
+    def __init__(self, vehicle: Vehicle, lock: threading.RLock) -> None:
+        object.__setattr__(self, "_v", vehicle)
+        object.__setattr__(self, "_lock", lock)
+
+    def __getattr__(self, name: str) -> Any:
+        with self._lock:
+            attr = getattr(self._v, name)
+        if not callable(attr):
+            return attr
+        lock = self._lock
+
+        def call(*args: Any, **kw: Any) -> Any:
+            with lock:
+                return attr(*args, **kw)
+
+        return call
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        with self._lock:
+            setattr(self._v, name, value)
+
+
+class CrazyfliePlatform:
+    """Implements :class:`drivers.platform.Platform` over a :class:`CrazyflieLink`."""
+
+    def __init__(
+        self,
+        link: CrazyflieLink,
+        config: VehicleConfig,
+        pose_source: PoseSource | None,
+        clock: Any,
+        shutdown_max_s: float = 15.0,
+        truth: Callable[[], dict] | None = None,
+        on_close: list[Callable[[], None]] | None = None,
+        faults: FaultInjector | None = None,
+        sitl: Any = None,
+    ) -> None:
+        self.link, self.clock, self.config = link, clock, config
+        self.sitl = sitl  # the in-process SitlSession, if any (tests, benches)
+        self._lock = threading.RLock()
+        self.raw_vehicle = Vehicle(link, config, pose_source, None)
+        self.vehicle: Any = LockedVehicle(self.raw_vehicle, self._lock)
+        self.faults = faults or FaultInjector()
+        self.shutdown_max_s = shutdown_max_s
+        self._truth, self._on_close = truth, list(on_close or [])
+        self.final_truth: dict | None = None
+        self.shutdown_reason: str | None = None
+        self.max_tracking_error_m = 0.0
+        self.step_times: deque[float] = deque(maxlen=20_000)  # wall time of each control step
+        self._stop = threading.Event()
+        self._closed = False
+        self._thread = threading.Thread(target=self._loop, name="cf-control", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_rig(
+        cls, rig: Any, clock: Any, seed: int, pose_source: PoseSource | None = None
+    ) -> CrazyfliePlatform:
+        """Build from a :class:`drivers.rig.Rig` with ``link: crazyflie``.
+
+        ``crazyflie.sitl: true`` starts the CRTP emulator in-process on a free loopback port
+        (:mod:`drivers.sim.sitl`) and, with ``pose_source: sitl``, uses its simulated mocap.
+        ``pose_source: mocap`` asks :mod:`drivers.mocap` for a ``MocapSource``; pass
+        ``pose_source`` to use any other :class:`PoseSource`.
+        """
+        from drivers.config_schema import ConfigError
+
+        data = rig.data
+        section = data["crazyflie"]
+        if getattr(clock, "is_simulated", True) or rig.realtime_factor not in (None, 1.0):
+            raise ConfigError(
+                [
+                    f"{rig.path}:1:1: link 'crazyflie' flies in real time: set clock.mode: "
+                    "realtime and clock.realtime_factor: 1"
+                ]
+            )
+        faults = FaultInjector()
+        on_close: list[Callable[[], None]] = []
+        truth = None
+        uri = None
+        sitl = None
+        if section["sitl"]:
+            from drivers.sim.sitl import SitlSession
+            from drivers.sim.world import load_world
+
+            world = load_world(rig.world_path) if section["sitl_world"] else None
+            sitl = SitlSession(data, seed, world).start()
+            sitl.register_faults(faults)
+            on_close.append(sitl.stop)
+            truth, uri = sitl.truth, sitl.uri
+        kind = section["pose_source"]
+        if pose_source is None and kind == "sitl":
+            if sitl is None or sitl.mocap is None:
+                raise ConfigError([f"{rig.path}:1:1: pose_source 'sitl' needs crazyflie.sitl"])
+            pose_source = sitl.mocap
+        elif pose_source is None and kind == "mocap":
+            from drivers import mocap as mocap_mod  # written for the lab's motion capture
+
+            pose_source = mocap_mod.MocapSource.from_rig(data)
+            stop = getattr(pose_source, "close", None) or getattr(pose_source, "stop", None)
+            if stop is not None:
+                on_close.append(stop)
+        link = CrazyflieLink(CrazyflieLinkConfig.from_rig(section, uri))
+        try:
+            link.open()
+        except Exception:
+            for fn in on_close:
+                fn()
+            raise
+        for name, spec in data["faults"].items():
+            if spec.get("at_s") is not None and name in faults.handlers:
+                params = {k: v for k, v in spec.items() if k != "at_s" and v is not None}
+                faults.schedule(name, spec["at_s"], **params)
+        return cls(
+            link,
+            VehicleConfig.from_dict(data["control"]),
+            pose_source,
+            clock,
+            section["shutdown_max_s"],
+            truth,
+            on_close,
+            faults,
+            sitl,
+        )
+
+    # ------------------------------------------------------------------ control thread
+    def _loop(self) -> None:
+        period = self.config.period_s
+        clock = self.clock
+        next_t = clock.now()
+        while not self._stop.is_set():
+            next_t += period
+            delay = next_t - clock.now()
+            if delay > 0:
+                if self._stop.wait(delay):
+                    break
+            elif delay < -5 * period:  # stalled (e.g. a long tick): resynchronise
+                next_t = clock.now()
+            with self._lock:
+                if self._stop.is_set():
+                    break
+                self.step_times.append(time.monotonic())
+                self._control(clock.now())
+
+    def _control(self, t_s: float) -> None:
+        v = self.raw_vehicle
+        v.control_step(t_s)
+        ref = v.reference
+        if ref is not None and v.is_flying:
+            err = math.dist(v.position, ref.position)
+            self.max_tracking_error_m = max(self.max_tracking_error_m, err)
+
+    # ------------------------------------------------------------------ Platform protocol
+    def before_tick(self, t_s: float) -> None:
+        """Fire scheduled faults (the control thread runs the Vehicle on its own)."""
+        if not self._closed:
+            with self._lock:
+                self.faults.update(t_s)
+
+    def after_tick(self, t_s: float) -> None:
+        """Nothing: set-points go out from the control thread."""
+
+    def shutdown(self, reason: str) -> None:
+        """Land if flying (bounded), stop the motors, close the link (idempotent)."""
+        if self._closed:
+            return
+        self.shutdown_reason = reason
+        v = self.vehicle
+        with self._lock:
+            if v.is_flying and v.flight_state != FlightState.LANDING:
+                v.land(0.5)
+        end = time.monotonic() + self.shutdown_max_s
+        while v.is_flying and time.monotonic() < end and self.link.connected:
+            time.sleep(0.02)
+        with self._lock:
+            if v.is_flying and self.link.connected:
+                v.emergency_stop()
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        self._closed = True
+        try:
+            self.link.close()
+        finally:
+            if self._truth is not None:
+                time.sleep(0.05)  # let the emulator apply the stop set-point
+                self.final_truth = self._truth()
+            for fn in self._on_close:
+                fn()
+
+    def control_periods_s(self) -> list[float]:
+        """Wall-clock intervals between control steps (for jitter figures)."""
+        t = list(self.step_times)
+        return [b - a for a, b in zip(t, t[1:], strict=False)]
+
+    def summary(self) -> dict:
+        """End state: vehicle view, link health, SITL ground truth (if any)."""
+        v = self.vehicle
+        periods = sorted(self.control_periods_s())
+        out: dict[str, Any] = {
+            "state": v.flight_state.value,
+            "landed": v.is_landed,
+            "crashed": v.is_crashed,
+            "armed": v.is_armed,
+            "battery": {
+                "voltage_v": round(v.battery.voltage_v, 3),
+                "percent_reported": round(v.battery.percent, 1),
+            },
+            "link": self.link.health(),
+            "control": {
+                "steps": len(self.step_times),
+                "period_p99_ms": round(1000 * periods[int(0.99 * (len(periods) - 1))], 3)
+                if periods
+                else None,
+            },
+            "faults": self.faults.summary(),
+            "shutdown_reason": self.shutdown_reason,
+        }
+        truth = self.final_truth
+        if truth is None and self._truth is not None and not self._closed:
+            truth = self._truth()
+        if truth is not None:
+            out["sitl"] = truth
+            out["landed"] = truth["landed"]
+            out["crashed"] = truth["crashed"]
+            out["max_tracking_error_m"] = round(self.max_tracking_error_m, 4)
+        return out
+
+    def telemetry_row(self) -> dict:
+        """Vehicle state for the per-tick log."""
+        v = self.vehicle
+        p = v.pose
+        r = v.reference
+        row = {
+            "x": round(p.x_m, 4),
+            "y": round(p.y_m, 4),
+            "z": round(p.z_m, 4),
+            "yaw": round(p.yaw_rad, 4),
+            "state": v.flight_state.value,
+            "vbat": round(v.battery.voltage_v, 3),
+            "link": self.link.connected,
+        }
+        if r is not None:
+            row.update(
+                ref_x=round(r.x_m, 4),
+                ref_y=round(r.y_m, 4),
+                ref_z=round(r.z_m, 4),
+                ref_yaw=round(r.yaw_rad, 4),
+            )
+        return row

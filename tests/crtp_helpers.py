@@ -1,0 +1,53 @@
+"""Shared helpers of the CRTP emulator / cflib link tests (real sockets on 127.0.0.1 only)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from drivers.rig import load_rig
+from drivers.sim.sitl import SitlSession
+
+
+def wait_for(cond: Callable[[], bool], timeout_s: float, step_s: float = 0.005) -> bool:
+    """Poll ``cond`` until it holds (True) or ``timeout_s`` passes (False)."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(step_s)
+    return bool(cond())
+
+
+@contextmanager
+def sitl_session(seed: int = 0, **rig_over: str) -> Iterator[SitlSession]:
+    """A started emulator (default sim rig data, no world), stopped afterwards."""
+    s = SitlSession(load_rig(None, rig_over or None).data, seed).start()
+    try:
+        yield s
+    finally:
+        s.stop()
+
+
+@contextmanager
+def sync_cf(uri: str, timeout_s: float = 5.0) -> Iterator[Any]:
+    """cflib ``SyncCrazyflie`` connected and with parameters read (every wait bounded)."""
+    from cflib.crazyflie import Crazyflie
+    from cflib.crazyflie.syncCrazyflie import SyncCrazyflie
+
+    from drivers.crazyflie_link import init_drivers
+
+    init_drivers()
+    scf = SyncCrazyflie(uri, cf=Crazyflie())
+    th = threading.Thread(target=scf.open_link, daemon=True)
+    th.start()
+    th.join(timeout_s)
+    assert not th.is_alive() and scf.is_link_open(), "SyncCrazyflie.open_link did not finish"
+    try:
+        assert wait_for(scf.is_params_updated, timeout_s), "parameters not read"
+        yield scf
+    finally:
+        scf.close_link()

@@ -1,0 +1,163 @@
+"""drivers/crazyflie_link.py (the real cflib driver) against the emulator on 127.0.0.1."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+from crtp_helpers import sitl_session, wait_for
+from helpers import REPO
+
+from drivers.crazyflie_link import (
+    IMU_VARS,
+    POSE_VARS,
+    STATUS_VARS,
+    CrazyflieLink,
+    CrazyflieLinkConfig,
+    plan_log_blocks,
+)
+
+
+def open_link(uri: str, **kw) -> CrazyflieLink:
+    kw.setdefault("link_timeout_s", 0.3)
+    kw.setdefault("connect_timeout_s", 5.0)
+    kw.setdefault("imu_rate_hz", 20.0)
+    return CrazyflieLink(CrazyflieLinkConfig(uri=uri, **kw)).open()
+
+
+def test_log_blocks_fit_26_bytes() -> None:
+    types = {n: "float" for n in POSE_VARS + STATUS_VARS + IMU_VARS}
+    types["supervisor.info"] = "uint16_t"
+    for names in (POSE_VARS, STATUS_VARS, IMU_VARS):
+        blocks, missing = plan_log_blocks(names, types.get)
+        assert len(blocks) == 1 and not missing
+    blocks, missing = plan_log_blocks(POSE_VARS + STATUS_VARS + ["nope.x"], types.get)
+    assert [len(b) for b in blocks] == [6, 6] and missing == ["nope.x"]
+
+
+def test_connect_sets_params_and_telemetry_follows_the_drone() -> None:
+    with sitl_session() as s:
+        link = open_link(s.uri, params={"stabilizer.estimator": 2, "locSrv.extPosStdDev": 0.02})
+        try:
+            assert link.connected and link.protocol_version == 12
+            assert link.connect_time_s < 3.0
+            assert s.emulator.param.values["stabilizer.estimator"] == 2
+            assert s.emulator.param.values["locSrv.extPosStdDev"] == pytest.approx(0.02)
+            with s.emulator.lock:
+                s.cf.drone.body.x = 0.6
+            assert wait_for(lambda: any(abs(t.x_m - 0.6) < 0.05 for t in link.poll(1.0)), 1.0)
+            tel = []
+            assert wait_for(lambda: tel.extend(link.poll(2.0)) or len(tel) > 10, 1.0)
+            assert tel[-1].t_s == 2.0 and 3.5 < tel[-1].battery_v < 4.3
+            assert not tel[-1].armed and not tel[-1].motors_running
+            assert link.imu and "gyro.x" in link.imu and link.imu["acc.z"] == pytest.approx(1, 0.1)
+        finally:
+            link.close()
+        assert not link.connected
+
+
+def test_extpose_and_setpoints_fly_the_simulated_drone() -> None:
+    with sitl_session() as s:
+        link = open_link(s.uri)
+        try:
+            assert link.arm(True)
+            assert wait_for(lambda: s.cf.drone.firmware.armed, 1.0)
+            q = (0.0, 0.0, math.sin(0.1), math.cos(0.1))
+            end = time.monotonic() + 1.2
+            while time.monotonic() < end:
+                b = s.cf.drone.body
+                link.send_external_pose(b.x, b.y, b.z, q)
+                link.send_velocity_setpoint(0.0, 0.0, 0.5, 0.0)
+                time.sleep(0.01)
+            assert s.cf.drone.body.z > 0.3
+            assert s.cf.last_extpose is not None and s.cf.last_extpose[5] == pytest.approx(q[2])
+            assert s.cf.drone.estimator.last_extpos_s > s.cf.t_s - 0.1
+            assert any(t.motors_running and t.armed for t in link.poll(3.0))
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                link.send_position_setpoint(0.3, 0.0, 0.5, math.radians(20))
+                time.sleep(0.01)
+            assert s.cf.drone.body.x > 0.1
+        finally:
+            link.close()  # stop set-point + notify stop + close
+        assert wait_for(lambda: not s.cf.drone.firmware.motors_running, 0.5)
+        assert s.cf.notify_stop_count >= 1
+
+
+def test_silent_link_is_detected_within_the_timeout_and_recovers() -> None:
+    with sitl_session() as s:
+        link = open_link(s.uri, link_timeout_s=0.3)
+        try:
+            assert link.connected
+            s.emulator.set_dropping(True)
+            t0 = time.monotonic()
+            assert wait_for(lambda: not link.connected, 1.0, 0.002)
+            assert time.monotonic() - t0 < 0.3 + 0.1
+            assert "silent" in link.health()["lost_reason"]
+            s.emulator.set_dropping(False)
+            assert wait_for(lambda: link.connected, 1.0)
+        finally:
+            link.close()
+
+
+def test_stopped_emulator_is_detected_within_the_timeout() -> None:
+    with sitl_session() as s:
+        link = open_link(s.uri, link_timeout_s=0.3)
+        try:
+            s.emulator.stop()
+            t0 = time.monotonic()
+            assert wait_for(lambda: not link.connected, 1.0, 0.002)
+            assert time.monotonic() - t0 < 0.3 + 0.1
+            link.send_velocity_setpoint(0, 0, 0, 0)  # must not raise on a dead link
+        finally:
+            link.close()
+
+
+def test_connect_to_a_silent_peer_times_out() -> None:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))  # swallows everything, answers nothing
+    try:
+        uri = f"udp://127.0.0.1:{sock.getsockname()[1]}"
+        t0 = time.monotonic()
+        with pytest.raises(ConnectionError, match="no answer"):
+            open_link(uri, connect_timeout_s=0.5)
+        assert time.monotonic() - t0 < 3.0  # + cflib closing its UDP thread (1 s recv timeout)
+    finally:
+        sock.close()
+
+
+HOP = """<?xml version="1.0" encoding="UTF-8"?>
+<root BTCPP_format="4" main_tree_to_execute="Hop">
+  <BehaviorTree ID="Hop">
+    <Sequence name="hop">
+      <TakeOff name="takeoff" height="0.5" speed="0.5"/>
+      <GoTo name="goto" pose="0.5;0;0.5" max_speed="0.5" yaw_mode="FIXED_YAW" yaw_angle="0"/>
+      <Land name="land" speed="0.5"/>
+    </Sequence>
+  </BehaviorTree>
+</root>
+"""
+
+
+def test_mission_flies_through_the_sitl_rig(tmp_path) -> None:
+    mission = tmp_path / "hop.xml"
+    mission.write_text(HOP)
+    out = tmp_path / "run"
+    btrun = os.path.join(os.path.dirname(sys.executable), "btrun")
+    cmd = [btrun, str(mission), "--rig", os.path.join(REPO, "rigs", "sitl.yaml")]
+    cmd += ["--out", str(out), "--quiet", "--no-report", "--max-time", "30"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert res.returncode == 0, res.stdout + res.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "SUCCESS"
+    v = summary["vehicle"]
+    assert v["sitl"]["landed"] and not v["sitl"]["crashed"]
+    assert abs(v["sitl"]["final_pose"]["x_m"] - 0.5) < 0.1
+    assert v["link"]["protocol_version"] == 12 and v["link"]["params_set"]
+    assert v["sitl"]["setpoints"] > 300 and v["sitl"]["extposes"] > 300

@@ -1,0 +1,183 @@
+"""The CRTP emulator answers the REAL cflib client over UDP on 127.0.0.1."""
+
+from __future__ import annotations
+
+import math
+import random
+import socket
+import struct
+import time
+
+from crtp_helpers import sitl_session, sync_cf, wait_for
+
+from drivers.sim.crtp_emulator.crtp import Packet, decode
+
+LOG_NEEDED = [
+    f"stateEstimate.{a}" for a in ("x", "y", "z", "vx", "vy", "vz", "qx", "qy", "qz", "qw")
+]
+LOG_NEEDED += ["stabilizer.roll", "stabilizer.pitch", "stabilizer.yaw", "pm.vbat"]
+LOG_NEEDED += [f"{g}.{a}" for g in ("gyro", "acc") for a in "xyz"] + ["supervisor.info"]
+PARAM_NEEDED = [
+    "stabilizer.estimator",
+    "stabilizer.controller",
+    "locSrv.extPosStdDev",
+    "locSrv.extQuatStdDev",
+    "commander.enHighLevel",
+]
+
+
+def test_sync_crazyflie_connects_and_reads_tocs() -> None:
+    with sitl_session() as s, sync_cf(s.uri) as scf:
+        cf = scf.cf
+        assert cf.platform.get_protocol_version() == 12
+        for name in LOG_NEEDED:
+            assert cf.log.toc.get_element_by_complete_name(name) is not None, name
+        for name in PARAM_NEEDED:
+            assert cf.param.toc.get_element_by_complete_name(name) is not None, name
+        assert float(cf.param.get_value("locSrv.extPosStdDev")) == pytest_approx(0.01)
+        assert s.emulator.stats.errors == 0
+
+
+def pytest_approx(v: float):  # small local helper keeps the imports minimal
+    import pytest
+
+    return pytest.approx(v, rel=1e-5)
+
+
+def test_log_blocks_follow_the_simulated_pose() -> None:
+    from cflib.crazyflie.log import LogConfig
+
+    with sitl_session() as s, sync_cf(s.uri) as scf:
+        with s.emulator.lock:
+            s.cf.drone.body.x, s.cf.drone.body.y = 0.7, -0.3
+        conf = LogConfig("pose", period_in_ms=10)
+        for v in ("x", "y", "z"):
+            conf.add_variable(f"stateEstimate.{v}")
+        conf.add_variable("supervisor.info")
+        got: list[tuple[int, dict]] = []
+        conf.data_received_cb.add_callback(lambda ts, d, _c: got.append((ts, d)))
+        scf.cf.log.add_config(conf)
+        conf.start()
+        assert wait_for(lambda: len(got) >= 30, 2.0)
+        conf.stop()
+        ts, d = got[-1]
+        assert abs(d["stateEstimate.x"] - 0.7) < 0.05 and abs(d["stateEstimate.y"] + 0.3) < 0.05
+        assert d["supervisor.info"] & 1  # can be armed
+        stamps = [t for t, _ in got[5:]]
+        periods = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
+        assert 9 <= sorted(periods)[len(periods) // 2] <= 11  # 100 Hz in firmware ms
+
+
+def test_oversized_block_is_refused_with_e2big() -> None:
+    with sitl_session() as s:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.settimeout(1.0)
+        try:
+            sock.sendto(Packet(5, 1, bytes((5,))).encode(), ("127.0.0.1", s.emulator.port))
+            assert decode(sock.recv(64)) == Packet(5, 1, bytes((5, 0, 0)))
+            items = b"".join(bytes((7, i, 0)) for i in range(7))  # 7 floats = 28 bytes
+            sock.sendto(
+                Packet(5, 1, bytes((6, 1)) + items).encode(), ("127.0.0.1", s.emulator.port)
+            )
+            assert decode(sock.recv(64)) == Packet(5, 1, bytes((6, 1, 7)))
+        finally:
+            sock.close()
+
+
+def test_parameter_writes_change_the_simulated_drone() -> None:
+    with sitl_session() as s, sync_cf(s.uri) as scf:
+        with s.emulator.lock:
+            s.cf.drone.estimator.ex = 0.4
+        scf.cf.param.set_value("posCtlPid.zKp", 3.25)
+        scf.cf.param.set_value("kalman.resetEstimation", 1)
+        scf.cf.param.set_value("stabilizer.estimator", 2)
+        assert wait_for(lambda: s.cf.drone.params["pos_z_kp"] == 3.25, 1.0)
+        assert wait_for(lambda: s.cf.drone.estimator.ex == 0.0, 1.0)
+        assert wait_for(lambda: s.emulator.param.values["stabilizer.estimator"] == 2, 1.0)
+
+
+def test_supervisor_arming_and_watchdog_stops_motors_after_2_s() -> None:
+    with sitl_session() as s, sync_cf(s.uri) as scf:
+        cf, fw = scf.cf, s.cf.drone.firmware
+        cf.supervisor.send_arming_request(True)
+        assert wait_for(lambda: fw.armed, 1.0)
+        assert cf.supervisor.read_bitfield() & 0b10  # is armed
+        end = time.monotonic() + 0.6
+        while time.monotonic() < end:  # climb at 0.5 m/s
+            cf.commander.send_velocity_world_setpoint(0.0, 0.0, 0.5, 0.0)
+            time.sleep(0.01)
+        assert fw.motors_running and s.cf.drone.body.z > 0.05
+        last = time.monotonic()
+        assert wait_for(lambda: not fw.motors_running, 3.0, 0.01)
+        silent = time.monotonic() - last
+        assert 1.8 < silent < 2.4, silent
+        cf.supervisor.send_arming_request(False)
+        assert wait_for(lambda: not fw.armed, 1.0)
+
+
+def test_position_setpoints_and_extpose_reach_the_firmware() -> None:
+    with sitl_session() as s, sync_cf(s.uri) as scf:
+        cf = scf.cf
+        cf.supervisor.send_arming_request(True)
+        assert wait_for(lambda: s.cf.drone.firmware.armed, 1.0)
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:
+            b = s.cf.drone.body
+            cf.extpos.send_extpose(b.x, b.y, b.z, 0.0, 0.0, 0.0, 1.0)
+            cf.commander.send_position_setpoint(0.0, 0.0, 0.4, 30.0)
+            time.sleep(0.01)
+        assert s.cf.last_setpoint is not None and s.cf.last_setpoint[0] == "position"
+        assert s.cf.last_setpoint[1][3] == pytest_approx(math.radians(30.0))
+        assert s.cf.drone.body.z > 0.25
+        assert s.cf.extpose_count > 100 and s.cf.last_extpose[6] == 1.0
+        cf.commander.send_stop_setpoint()
+        assert wait_for(lambda: not s.cf.drone.firmware.motors_running, 0.5)
+
+
+def test_garbage_datagrams_never_crash_the_emulator() -> None:
+    rng = random.Random(7)
+    with sitl_session() as s:
+        addr = ("127.0.0.1", s.emulator.port)
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            junk = [b"", b"\xff" * 200, bytes(range(32))]
+            junk += [
+                bytes(rng.randrange(256) for _ in range(rng.randrange(1, 40))) for _ in range(3000)
+            ]
+            for port in range(16):  # every port, every channel, truncated payloads
+                for ch in range(4):
+                    for n in range(0, 31, 3):
+                        junk.append(
+                            Packet(port, ch, bytes(rng.randrange(256) for _ in range(n))).encode()
+                        )
+            junk.append(
+                Packet(7, 0, bytes((8,)) + struct.pack("<ffff", math.nan, 0, 0, 0)).encode()
+            )
+            for j in junk:
+                sock.sendto(j, addr)
+            time.sleep(0.2)
+            assert s.emulator.running
+            assert s.emulator.stats.malformed >= 2
+            with s.emulator.lock:
+                assert all(math.isfinite(v) for v in (s.cf.drone.body.x, s.cf.drone.body.z))
+            sock.settimeout(1.0)
+            sock.sendto(Packet(15, 0, b"ping").encode(), addr)
+            while True:  # replies to the junk may still be queued: find our echo
+                pk = decode(sock.recv(64))
+                if pk == Packet(15, 0, b"ping"):
+                    break
+        finally:
+            sock.close()
+        with sync_cf(s.uri) as scf:  # and a real client still connects
+            assert scf.cf.platform.get_protocol_version() == 12
+
+
+def test_scan_probe_is_answered() -> None:
+    with sitl_session() as s:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.settimeout(1.0)
+        try:
+            sock.sendto(b"\xff", ("127.0.0.1", s.emulator.port))
+            assert sock.recv(64)
+        finally:
+            sock.close()

@@ -1,0 +1,182 @@
+"""The motion-capture driver on ``motioncapture``'s mock system (no network)."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import motioncapture
+import pytest
+
+from drivers.link import PoseSample
+from drivers.mocap import MocapSource, convert_pose
+from drivers.rig import load_rig
+
+
+def wait_for(cond: Callable[[], bool], timeout_s: float = 5.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.01)
+    return cond()
+
+
+def _mock_body(name: str, xyz: tuple[float, float, float], yaw_deg: float) -> str:
+    h = math.radians(yaw_deg) / 2.0
+    return f"{name}({xyz[0]},{xyz[1]},{xyz[2]},{math.cos(h)},0,0,{math.sin(h)})"
+
+
+def test_convert_pose_z_up_and_y_up() -> None:
+    h = math.radians(30.0) / 2
+    pos, q, yaw = convert_pose((1.0, 2.0, 3.0), math.cos(h), 0.0, 0.0, math.sin(h))
+    assert pos == (1.0, 2.0, 3.0) and q[3] == pytest.approx(math.cos(h))  # (qx, qy, qz, qw)
+    assert yaw == pytest.approx(math.radians(30.0))
+    # y-up: "up" (0, 1, 0) becomes z; a turn about the y-up vertical is a yaw about z
+    pos, q, yaw = convert_pose((0.5, 1.5, -2.0), math.cos(h), 0.0, math.sin(h), 0.0, "y")
+    assert pos == (0.5, 2.0, 1.5)
+    assert yaw == pytest.approx(math.radians(30.0)) and q[2] == pytest.approx(math.sin(h))
+
+
+def test_mock_poses_timestamps_and_rate() -> None:
+    body = _mock_body("cf", (0.5, -1.25, 0.75), 30.0)
+    with MocapSource("mock", rigid_body="cf", params={"rigid_bodies": body}) as src:
+        assert src.expected_rate_hz() == 100.0
+        assert wait_for(lambda: src.stats().samples >= 40)
+        samples: list[PoseSample] = src.poll(1000.0)
+    assert len(samples) >= 40
+    s = samples[-1]
+    assert (s.x_m, s.y_m, s.z_m) == pytest.approx((0.5, -1.25, 0.75), abs=1e-6)
+    assert s.yaw_rad == pytest.approx(math.radians(30.0), abs=1e-6)
+    qx, qy, qz, qw = s.quaternion
+    assert qz == pytest.approx(math.sin(math.radians(15.0)), abs=1e-6)
+    times = [p.t_s for p in samples]
+    assert all(b > a for a, b in zip(times, times[1:], strict=False))
+    assert 999.5 < times[-1] <= 1000.0
+    dt = (times[-1] - times[0]) / (len(times) - 1)
+    assert 0.008 < dt < 0.02  # ~100 Hz (loose: loaded CI machines)
+    seqs = [p.seq for p in samples]
+    assert all(b > a for a, b in zip(seqs, seqs[1:], strict=False))
+
+
+class GatedMock:
+    """Wraps a real ``motioncapture`` mock; frames stop while ``gate`` is clear."""
+
+    def __init__(self, real: Any) -> None:
+        self.real, self.gate = real, threading.Event()
+        self.gate.set()
+
+    @property
+    def rigidBodies(self) -> Any:  # noqa: N802  (motioncapture's name)
+        return self.real.rigidBodies
+
+    def waitForNextFrame(self) -> None:  # noqa: N802
+        while not self.gate.wait(0.05):
+            pass
+        self.real.waitForNextFrame()
+
+
+def test_staleness_and_dropouts_when_frames_stop() -> None:
+    holder: dict[str, GatedMock] = {}
+
+    def connect(kind: str, params: dict[str, str]) -> GatedMock:
+        holder["m"] = GatedMock(motioncapture.connect(kind, params))
+        return holder["m"]
+
+    with MocapSource("mock", rigid_body="cf", stale_s=0.1, connect=connect) as src:
+        assert wait_for(lambda: src.stats().samples >= 10)
+        assert not src.stats().stale and src.connected
+        before = src.stats().dropouts
+        holder["m"].gate.clear()  # the mocap goes silent
+        assert wait_for(lambda: src.stats().stale, 2.0)
+        src.poll(0.0)
+        time.sleep(0.3)
+        assert src.poll(0.0) == []
+        seq0 = src.stats().samples
+        holder["m"].gate.set()
+        assert wait_for(lambda: src.stats().samples >= seq0 + 3)
+        st = src.stats()
+        assert not st.stale
+        assert st.dropouts - before >= 30  # ~0.4 s of silence at 100 Hz counts as lost frames
+        samples = src.poll(0.0)
+        assert samples and samples[0].seq > seq0 + 30  # the Vehicle sees a seq gap too
+
+
+def test_missing_body_counts_dropouts() -> None:
+    params = {"rigid_bodies": _mock_body("other", (0, 0, 0), 0)}
+    with MocapSource("mock", rigid_body="cf", params=params) as src:
+        assert wait_for(lambda: src.stats().frames >= 10)
+        st = src.stats()
+        assert st.samples == 0 and st.body_missing >= 10 and st.dropouts >= 10 and st.stale
+        assert src.poll(0.0) == []
+
+
+def test_frozen_server_repeats_are_not_fresh() -> None:
+    # A "vicon" that repeats a bit-identical pose: same seq every frame -> stale to the Vehicle.
+    params = {"rigid_bodies": _mock_body("cf", (1, 2, 3), 0), "frequency": "100"}
+
+    def connect(kind: str, p: dict[str, str]) -> Any:
+        return motioncapture.connect("mock", p)  # never a real Vicon: its connect holds the GIL
+
+    with MocapSource("vicon", rigid_body="cf", params=params, connect=connect, probe_s=0) as src:
+        assert wait_for(lambda: src.stats().frames >= 15)
+        st = src.stats()
+        assert st.repeats >= 10 and st.stale
+        assert len({p.seq for p in src.poll(0.0)}) == 1
+
+
+def test_connect_errors_retry_without_crashing() -> None:
+    calls = []
+
+    def connect(kind: str, params: dict[str, str]) -> Any:
+        calls.append(params)
+        raise RuntimeError("no server")
+
+    # optitrack (NatNet over UDP) is not probed, so connect is called (and fails) directly
+    with MocapSource("optitrack", host="127.0.0.1", connect=connect, reconnect_s=0.05) as src:
+        assert wait_for(lambda: len(calls) >= 3, 3.0)
+        assert "no server" in src.stats().last_error and not src.connected
+    assert calls[0] == {"hostname": "127.0.0.1"}
+
+
+def test_from_rig_and_validation() -> None:
+    rig = load_rig(None, {"mocap.type": "mock", "mocap.rigid_body": "cf2", "mocap.rate_hz": "120"})
+    src = MocapSource.from_rig(rig.data, autostart=False)
+    assert (src.system_type, src.rigid_body, src.rate_hz, src.up_axis) == ("mock", "cf2", 120, "z")
+    assert src.connection_params() == {"rigid_bodies": "cf2(0,0,0,1,0,0,0)", "frequency": "120"}
+    with pytest.raises(ValueError):
+        MocapSource("kinect", autostart=False)
+
+
+def test_unreachable_server_is_probed_not_connected() -> None:
+    """Vicon's connect blocks holding the GIL if nobody answers: probe the port first."""
+    import socket
+
+    calls: list[dict[str, str]] = []
+
+    def connect(kind: str, params: dict[str, str]) -> Any:
+        calls.append(params)
+        raise RuntimeError("stop here")
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    closed_port = s.getsockname()[1]
+    s.close()
+    host = f"127.0.0.1:{closed_port}"
+    with MocapSource("vicon", host=host, connect=connect, reconnect_s=0.05) as src:
+        assert wait_for(lambda: src.stats().last_error.startswith("unreachable"), 3.0)
+        time.sleep(0.2)
+        assert calls == []
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    host = f"127.0.0.1:{srv.getsockname()[1]}"
+    try:
+        with MocapSource("vicon", host=host, connect=connect, reconnect_s=0.05):
+            assert wait_for(lambda: len(calls) >= 1, 3.0)
+        assert calls[0] == {"hostname": host}
+    finally:
+        srv.close()
