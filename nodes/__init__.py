@@ -31,3 +31,27 @@ def write_report(run_dir, trace, summary, mission):
     except ImportError:  # pragma: no cover - report module not installed
         return None
     return _write(run_dir, trace, summary, mission)
+
+
+def add_commands():
+    """Subcommands this plug-in adds to ``btrun``: ``btrun sim serve crazyflie|aideck ...``."""
+    import argparse
+
+    def setup(p: argparse.ArgumentParser) -> None:
+        sub = p.add_subparsers(dest="sim_command", metavar="SUBCOMMAND", required=True)
+        serve = sub.add_parser(
+            "serve",
+            help="run a software Crazyflie (CRTP over UDP) or AI-deck (CPX over TCP) on "
+            "loopback, for cfclient or the AI-deck viewers",
+        )
+        serve.add_argument("device", choices=("crazyflie", "aideck"))
+        serve.add_argument("args", nargs=argparse.REMAINDER, help="options of the emulator (--help)")
+
+    def run(args) -> int:
+        if args.device == "crazyflie":
+            from drivers.sim.crtp_emulator.__main__ import main as serve
+        else:
+            from drivers.sim.aideck_emulator import main as serve
+        return int(serve(list(args.args)) or 0)
+
+    return {"sim": ("simulator tools (btrun sim serve crazyflie|aideck)", setup, run)}
