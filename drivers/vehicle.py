@@ -172,6 +172,27 @@ class Vehicle:
         """Progress of the current motion request (None if none was made)."""
         return self._motion
 
+    def telemetry_row(self) -> dict:
+        """Vehicle state for the per-tick log (reported pose, reference, battery, state)."""
+        p = self.pose
+        r = self.reference
+        row = {
+            "x": round(p.x_m, 4),
+            "y": round(p.y_m, 4),
+            "z": round(p.z_m, 4),
+            "yaw": round(p.yaw_rad, 4),
+            "state": self.flight_state.value,
+            "vbat": round(self.battery.voltage_v, 3),
+        }
+        if r is not None:
+            row.update(
+                ref_x=round(r.x_m, 4),
+                ref_y=round(r.y_m, 4),
+                ref_z=round(r.z_m, 4),
+                ref_yaw=round(r.yaw_rad, 4),
+            )
+        return row
+
     # ------------------------------------------------------------------ asking
     def arm(self) -> bool:
         """Arm the motors. Returns True if the request was sent."""

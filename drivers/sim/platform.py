@@ -292,22 +292,4 @@ class SimPlatform:
 
     def telemetry_row(self) -> dict:
         """Vehicle state for the per-tick log (reported pose, reference, battery, state)."""
-        v = self.vehicle
-        p = v.pose
-        r = v.reference
-        row = {
-            "x": round(p.x_m, 4),
-            "y": round(p.y_m, 4),
-            "z": round(p.z_m, 4),
-            "yaw": round(p.yaw_rad, 4),
-            "state": v.flight_state.value,
-            "vbat": round(v.battery.voltage_v, 3),
-        }
-        if r is not None:
-            row.update(
-                ref_x=round(r.x_m, 4),
-                ref_y=round(r.y_m, 4),
-                ref_z=round(r.z_m, 4),
-                ref_yaw=round(r.yaw_rad, 4),
-            )
-        return row
+        return self.vehicle.telemetry_row()
