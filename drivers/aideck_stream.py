@@ -27,7 +27,6 @@ import math
 import socket
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -35,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from drivers.cpx import AssembledImage, FrameAssembler, StreamParser, Target
+from drivers.health import RateWindow
 from drivers.types import CameraFrame, Pose
 
 log = logging.getLogger(__name__)
@@ -153,7 +153,7 @@ class AIDeckStream:
         self._connects = 0
         self._connected = False
         self._last_error = ""
-        self._times: deque[float] = deque()
+        self._rate = RateWindow(1.0)
         self._lat_sum, self._lat_max = 0.0, 0.0
         self._thread: threading.Thread | None = None
         if autostart:
@@ -236,13 +236,12 @@ class AIDeckStream:
         """A snapshot of the counters."""
         with self._lock:
             now = time.monotonic()
-            while self._times and self._times[0] < now - 1.0:
-                self._times.popleft()
+            rate = self._rate.rate_hz(now)
             c = self._asm.counters
             return StreamStats(
                 connected=self._connected,
                 frames=self._frames,
-                fps=float(len(self._times)),
+                fps=rate,
                 dropped=c.dropped,
                 corrupt=self._corrupt,
                 drop_reasons=dict(c.reasons),
@@ -361,7 +360,7 @@ class AIDeckStream:
             meta["deck_quat_compressed"] = h.quat_compressed
         with self._lock:
             self._frames += 1
-            self._times.append(img.complete_time)
+            self._rate.add(img.complete_time)
             self._lat_sum += latency
             self._lat_max = max(self._lat_max, latency)
             if self._latest is not None:

@@ -8,6 +8,25 @@ from collections import deque
 from drivers.types import SourceHealth
 
 
+class RateWindow:
+    """Sample times over the last ``window_s`` seconds: the measured rate of a stream."""
+
+    def __init__(self, window_s: float = 1.0) -> None:
+        self.window_s = window_s
+        self._times: deque[float] = deque()
+
+    def add(self, t_s: float) -> None:
+        """Record a sample at time ``t_s`` (any monotonic clock, used consistently)."""
+        self._times.append(t_s)
+
+    def rate_hz(self, now_s: float) -> float:
+        """Samples per second over the window ending at ``now_s``."""
+        times = self._times
+        while times and times[0] < now_s - self.window_s:
+            times.popleft()
+        return len(times) / self.window_s
+
+
 class HealthTracker:
     """Track when samples of one source arrive.
 
@@ -23,12 +42,12 @@ class HealthTracker:
         self.last_new_s = -math.inf
         self.samples = 0
         self.drops = 0
-        self._times: deque[float] = deque()
+        self._rate = RateWindow(window_s)
 
     def sample(self, t_s: float, changed: bool = True) -> None:
         """Record a sample received at mission time ``t_s``."""
         self.samples += 1
-        self._times.append(t_s)
+        self._rate.add(t_s)
         if changed:
             self.last_new_s = t_s
 
@@ -38,15 +57,12 @@ class HealthTracker:
 
     def report(self, now_s: float) -> SourceHealth:
         """Health at mission time ``now_s``."""
-        times = self._times
-        while times and times[0] < now_s - self.window_s:
-            times.popleft()
         age = now_s - self.last_new_s if self.last_new_s > -math.inf else math.inf
         return SourceHealth(
             name=self.name,
             connected=self.connected,
             age_s=age,
-            rate_hz=len(times) / self.window_s,
+            rate_hz=self._rate.rate_hz(now_s),
             drops=self.drops,
             samples=self.samples,
             healthy=self.connected and age <= self.stale_after_s,

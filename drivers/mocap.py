@@ -56,6 +56,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from drivers.health import RateWindow
 from drivers.link import PoseSample
 from drivers.yaw import yaw_from_quaternion
 
@@ -139,7 +140,7 @@ class MocapSource:
         self._last_arrival: float | None = None
         self._last_new = -math.inf
         self._last_key: tuple | None = None
-        self._times: deque[float] = deque()
+        self._rate = RateWindow(1.0)
         self._last_error = ""
         if autostart:
             self.start()
@@ -220,12 +221,11 @@ class MocapSource:
         """A snapshot of the counters."""
         with self._lock:
             now = time.monotonic()
-            while self._times and self._times[0] < now - 1.0:
-                self._times.popleft()
+            rate = self._rate.rate_hz(now)
             age = now - self._last_new
             return MocapStats(
                 self._connected, self._frames, self._samples, self._dropouts, self._missing,
-                self._repeats, float(len(self._times)), age, age > self.stale_s,
+                self._repeats, rate, age, age > self.stale_s,
                 self._connects, self._last_error,
             )  # fmt: skip
 
@@ -296,7 +296,7 @@ class MocapSource:
             else:
                 self._seq = self._slot
                 self._last_new = t
-                self._times.append(t)
+                self._rate.add(t)
             self._last_key = key
             self._samples += 1
             self._queue.append((t, PoseSample(0.0, *pos, q, yaw, self._seq)))

@@ -52,18 +52,11 @@ def finished(rec: dict) -> dict:
     return out
 
 
-def test_mission_inputs_can_be_overridden(tmp_path):
+def test_mission_inputs_can_be_overridden(tmp_path, monkeypatch):
     out = tmp_path / "run"
+    monkeypatch.chdir(REPO)
     rc = main(["missions/square.xml", "--out", str(out), "-q", "--set", "height=0.6",
-               "--set", "speed=1.0", "--seed", "3"]) if os.getcwd() == REPO else None
-    if rc is None:
-        cwd = os.getcwd()
-        os.chdir(REPO)
-        try:
-            rc = main(["missions/square.xml", "--out", str(out), "-q", "--set", "height=0.6",
-                       "--set", "speed=1.0", "--seed", "3"])
-        finally:
-            os.chdir(cwd)
+               "--set", "speed=1.0", "--seed", "3"])
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["blackboard"]["height"] == 0.6
