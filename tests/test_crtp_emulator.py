@@ -190,3 +190,70 @@ def test_scan_probe_is_answered() -> None:
             assert sock.recv(64)
         finally:
             sock.close()
+
+
+def _fly(scf, s, seconds: float, each=None) -> None:
+    """Forward the true pose as extpose at 100 Hz for ``seconds`` (calls ``each()`` too)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        b = s.cf.drone.body
+        scf.cf.extpos.send_extpose(b.x, b.y, b.z, 0.0, 0.0, 0.0, 1.0)
+        if each is not None:
+            each()
+        time.sleep(0.01)
+
+
+def test_high_level_commander_takes_off_goes_to_and_lands() -> None:
+    from drivers.sim.crtp_emulator import high_level as hl
+
+    with sitl_session() as s, sync_cf(s.uri) as scf:
+        cf, fw, port = scf.cf, s.cf.drone.firmware, s.emulator.high_level
+        cf.supervisor.send_arming_request(True)
+        assert wait_for(lambda: fw.armed, 1.0)
+        hlc = cf.high_level_commander
+        hlc.takeoff(0.5, 1.5)
+        assert wait_for(lambda: port.state == hl.FLYING, 1.0)
+        _fly(scf, s, 2.0)
+        b = s.cf.drone.body
+        assert abs(b.z - 0.5) < 0.05 and fw.motors_running, b.z
+        hlc.takeoff(1.0, 1.0)  # refused while flying (the planner is not idle)
+        assert wait_for(lambda: port.refused == 1, 1.0)
+        hlc.go_to(0.4, -0.2, 0.6, math.radians(90.0), 2.0)  # cflib sends GO_TO_2
+        _fly(scf, s, 3.0)
+        assert port.commands.get(hl.CMD_GO_TO_2) == 1
+        assert math.dist((b.x, b.y, b.z), (0.4, -0.2, 0.6)) < 0.06, (b.x, b.y, b.z)
+        assert abs(math.degrees(math.remainder(b.yaw - math.radians(90.0), math.tau))) < 8.0
+        hlc.land(0.0, 2.0)
+        _fly(scf, s, 3.0)
+        assert port.state == hl.IDLE and not fw.motors_running and b.on_ground
+        assert not s.cf.drone.crashed
+        # a low-level set-point pre-empts the planner; stop makes it idle again
+        cf.commander.send_velocity_world_setpoint(0.0, 0.0, 0.0, 0.0)
+        assert wait_for(lambda: port.state == hl.DISABLED, 1.0)
+        hlc.stop()
+        assert wait_for(lambda: port.state == hl.IDLE, 1.0)
+
+
+def test_yaw_rate_sign_matches_the_firmware() -> None:
+    """Velocity-world (type 8) yaw rate is counter-clockwise positive (firmware
+    ``velocityDecoder``; cflib ``MotionCommander.start_turn_left`` sends +rate); the legacy
+    type 1 is negated by the firmware (``legacyVelocityDecoder``)."""
+    with sitl_session() as s, sync_cf(s.uri) as scf:
+        cf, fw = scf.cf, s.cf.drone.firmware
+        cf.supervisor.send_arming_request(True)
+        assert wait_for(lambda: fw.armed, 1.0)
+        _fly(scf, s, 1.0, lambda: cf.commander.send_velocity_world_setpoint(0, 0, 0.4, 0))
+        yaw0 = s.cf.drone.body.yaw
+        _fly(scf, s, 1.0, lambda: cf.commander.send_velocity_world_setpoint(0, 0, 0, 45.0))
+        turned = math.degrees(math.remainder(s.cf.drone.body.yaw - yaw0, math.tau))
+        assert 25.0 < turned < 60.0, turned  # counter-clockwise, about 45 deg
+        legacy = Packet(7, 0, bytes((1,)) + struct.pack("<ffff", 0, 0, 0, 45.0)).encode()
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            yaw1 = s.cf.drone.body.yaw
+            _fly(scf, s, 1.0, lambda: sock.sendto(legacy, ("127.0.0.1", s.emulator.port)))
+        finally:
+            sock.close()
+        turned = math.degrees(math.remainder(s.cf.drone.body.yaw - yaw1, math.tau))
+        assert -60.0 < turned < -25.0, turned  # clockwise
+        cf.commander.send_stop_setpoint()

@@ -1,9 +1,9 @@
 """A protocol-faithful software Crazyflie answering CRTP over UDP (cflib ``udp://`` links).
 
 One module per CRTP port, like cflib: :mod:`.link` (15), :mod:`.platform` (13), :mod:`.log`
-(5), :mod:`.param` (2), :mod:`.mem` (4), :mod:`.setpoints` (7 and 3), :mod:`.localization`
-(6), :mod:`.supervisor` (9); :mod:`.server` is the UDP server stepping the simulated drone
-(:mod:`drivers.sim.drone`) in real time. Run it alone with
+(5), :mod:`.param` (2), :mod:`.mem` (4), :mod:`.setpoints` (7 and 3), :mod:`.high_level`
+(8), :mod:`.localization` (6), :mod:`.supervisor` (9); :mod:`.server` is the UDP server
+stepping the simulated drone (:mod:`drivers.sim.drone`) in real time. Run it alone with
 ``python -m drivers.sim.crtp_emulator --port 19850``; see docs/hardware.md.
 """
 

@@ -25,6 +25,7 @@ import threading
 import time
 
 from drivers.sim.crtp_emulator.crtp import COMMANDER, Packet, PortHandler, decode
+from drivers.sim.crtp_emulator.high_level import HighLevelPort
 from drivers.sim.crtp_emulator.link import LinkPort, LinkStats
 from drivers.sim.crtp_emulator.localization import LocalizationPort
 from drivers.sim.crtp_emulator.log import LogPort
@@ -54,7 +55,8 @@ class CrtpEmulator:
         self.stats = LinkStats()
         self.log = LogPort(cf)
         self.param = ParamPort(cf)
-        self.setpoints = SetpointPort(cf)
+        self.high_level = HighLevelPort(cf)
+        self.setpoints = SetpointPort(cf, self.high_level)
         self.supervisor = SupervisorPort(cf)
         self.localization = LocalizationPort(cf)
         handlers: list[PortHandler] = [
@@ -66,6 +68,7 @@ class CrtpEmulator:
             self.setpoints,
             self.localization,
             self.supervisor,
+            self.high_level,
         ]
         self.handlers: dict[int, PortHandler] = {h.port: h for h in handlers}
         self.handlers[COMMANDER] = self.setpoints
@@ -138,6 +141,7 @@ class CrtpEmulator:
     def _advance(self) -> None:
         t = self.now_s()
         cf = self.cf
+        self.high_level.update(cf.t_s)
         cf.step_to(t)
         if self.mocap is not None:
             self.mocap.tick(cf.t_s, cf.drone.body)

@@ -1,9 +1,13 @@
 """Port 7 (generic commander) and port 3 (legacy RPYT commander) -> the sim firmware.
 
 Port 7 ch 0 (no reply): type 7 position ``<ffff`` (x, y, z m, yaw deg), type 8 velocity world
-``<ffff`` (vx, vy, vz m/s, yaw rate deg/s, counter-clockwise positive, as cflib's
-``MotionCommander`` sends it), type 1 the pre-protocol-9 velocity world, type 0 stop.
-Port 7 ch 1 type 0 ``notify_setpoint_stop`` (``<BI``) is counted. Port 3 ``<fffH`` with zero
+``<ffff`` (vx, vy, vz m/s, yaw rate deg/s, counter-clockwise positive: the firmware's
+``velocityDecoder`` takes it as is, and cflib's ``MotionCommander.start_turn_left`` sends a
+positive rate), type 1 the pre-protocol-9 velocity world (``legacyVelocityDecoder`` negates
+the rate: clockwise positive; cflib negates it when it talks to firmware <= 8), type 0 stop.
+Port 7 ch 1 type 0 ``notify_setpoint_stop`` (``<BI``, remain-valid ms) is counted and hands
+the commander back to the high-level commander (:mod:`.high_level`), which every low-level
+set-point pre-empts. Port 3 ``<fffH`` with zero
 thrust (what ``Crazyflie.close_link`` sends) stops the motors; attitude flight is not modelled.
 Every set-point feeds the firmware's commander watchdog (level after 0.5 s, off after 2 s).
 """
@@ -14,6 +18,7 @@ import math
 import struct
 
 from drivers.sim.crtp_emulator.crtp import COMMANDER, COMMANDER_GENERIC, Packet
+from drivers.sim.crtp_emulator.high_level import HighLevelPort
 from drivers.sim.crtp_emulator.state import EmulatedCrazyflie
 from drivers.sim.firmware import POSITION, STOP, VELOCITY
 
@@ -25,8 +30,9 @@ class SetpointPort:
 
     port = COMMANDER_GENERIC
 
-    def __init__(self, cf: EmulatedCrazyflie) -> None:
+    def __init__(self, cf: EmulatedCrazyflie, high_level: HighLevelPort | None = None) -> None:
         self.cf = cf
+        self.high_level = high_level
         self.unsupported_types: dict[int, int] = {}
 
     def _apply(self, mode: str, values: tuple[float, float, float, float]) -> None:
@@ -36,6 +42,8 @@ class SetpointPort:
             return
         cf.setpoint_count += 1
         cf.last_setpoint = (mode, values)
+        if self.high_level is not None:
+            self.high_level.lowlevel_setpoint(cf.t_s)
         cf.drone.firmware.setpoint(cf.t_s, mode, values)
 
     def handle(self, pk: Packet) -> list[Packet]:
@@ -52,6 +60,9 @@ class SetpointPort:
         if pk.channel == 1:
             if d[0] == 0:
                 self.cf.notify_stop_count += 1
+                remain_ms = struct.unpack("<I", d[1:5])[0] if len(d) >= 5 else 0
+                if self.high_level is not None:
+                    self.high_level.notify_setpoint_stop(self.cf.t_s, remain_ms)
             return []
         if pk.channel != 0:
             return []
@@ -63,6 +74,8 @@ class SetpointPort:
             self._apply(POSITION, (x, y, z, math.radians(yaw_deg)))
         elif kind in (TYPE_VELOCITY_WORLD, TYPE_VELOCITY_WORLD_LEGACY):
             vx, vy, vz, rate_dps = struct.unpack("<ffff", d[1:17])
+            if kind == TYPE_VELOCITY_WORLD_LEGACY:
+                rate_dps = -rate_dps  # legacyVelocityDecoder: clockwise positive
             self._apply(VELOCITY, (vx, vy, vz, math.radians(rate_dps)))
         else:
             self.unsupported_types[kind] = self.unsupported_types.get(kind, 0) + 1
