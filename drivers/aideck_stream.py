@@ -15,9 +15,11 @@ corrupt frame as far as the protocol can tell (CPX has no checksum: TCP's must d
 Frames: with ``output="bayer"`` (default, like the simulated camera) ``CameraFrame.image`` is
 the 244 x 324 uint8 Bayer mosaic as sent (a JPEG from the deck is the same mosaic, lossy);
 with ``output="bgr"`` it is demosaiced (``COLOR_BayerBG2BGR``) and white-balanced with the
-rig's per-channel factors (B, G, R). ``meta`` carries the exact ``payload`` bytes, the
-header fields, ``latency_s`` (header arrival -> last chunk) and the deck timestamp if the
-firmware sends the extended header.
+rig's per-channel factors (B, G, R). ``meta["format"]`` says which (``bayer_bg`` or ``bgr``,
+as :class:`drivers.sim.camera.SimCamera` marks its frames); ``meta`` also carries the exact
+``payload`` bytes, ``wire_format`` (``raw`` or ``jpeg``), the header fields, ``latency_s``
+(header arrival -> last chunk) and the deck timestamp if the firmware sends the extended
+header.
 """
 
 from __future__ import annotations
@@ -345,7 +347,8 @@ class AIDeckStream:
         latency = img.complete_time - img.header_time
         meta: dict[str, Any] = {
             "payload": img.payload,
-            "format": "jpeg" if h.format == 1 else "raw",
+            "format": "bgr" if image.ndim == 3 else "bayer_bg",  # as the simulated camera's
+            "wire_format": "jpeg" if h.format == 1 else "raw",
             "width": h.width,
             "height": h.height,
             "depth": h.depth,

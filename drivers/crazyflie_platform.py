@@ -9,9 +9,20 @@ call and attribute read of the tree, the supervisor or a script takes the same l
 control step. If the process hangs, set-points stop and the firmware's watchdog levels the
 drone after 0.5 s and stops the motors after 2 s: the safe failure.
 
+Camera: with ``aideck.enabled`` the AI-deck stream (:class:`drivers.aideck_stream.
+AIDeckStream`) is the Vehicle's camera source: ``vehicle.camera_frame()`` returns its newest
+frame, stamped with the mission time its header arrived and the Vehicle's pose at that time
+(interpolated in :meth:`CrazyfliePlatform.pose_at`), and ``health.camera`` tracks it; while
+the TCP stream is down the camera counts as disconnected (unhealthy at once, which the safety
+supervisor reports as ``camera_stalled``), and a connected stream that stops sending goes
+stale after ``control.camera_stale_s``. With ``crazyflie.sitl: true`` (or
+``aideck.emulator: true``) the AI-deck emulator is started in-process on a free loopback
+port; in SITL it renders the simulated drone's true pose.
+
 ``shutdown`` lands (bounded by ``crazyflie.shutdown_max_s``), cuts the motors if the drone
 is still flying and the link is up, then sends a stop set-point + ``notify_setpoint_stop``
-and closes the link (then stops the SITL emulator, after taking its ground truth).
+and closes the link (then stops the camera stream and the SITL emulators, after taking the
+ground truth).
 """
 
 from __future__ import annotations
@@ -26,7 +37,7 @@ from typing import Any
 from drivers.crazyflie_link import CrazyflieLink, CrazyflieLinkConfig
 from drivers.faults import FaultInjector
 from drivers.link import PoseSource
-from drivers.types import FlightState
+from drivers.types import FlightState, Pose
 from drivers.vehicle import Vehicle
 from drivers.vehicle_config import VehicleConfig
 
@@ -70,11 +81,20 @@ class CrazyfliePlatform:
         on_close: list[Callable[[], None]] | None = None,
         faults: FaultInjector | None = None,
         sitl: Any = None,
+        camera: Any = None,
+        camera_emulator: Any = None,
     ) -> None:
         self.link, self.clock, self.config = link, clock, config
         self.sitl = sitl  # the in-process SitlSession, if any (tests, benches)
+        self.camera = camera  # the AIDeckStream, if any
+        self.camera_emulator = camera_emulator  # the in-process AIDeckEmulator, if any
+        self.created_monotonic_s = time.monotonic()
+        self.connect_started_monotonic_s = self.created_monotonic_s  # from_rig: link.open()
+        self.camera_ready_s: float | None = None  # creation -> first frame at the Vehicle
+        self.camera_ready_monotonic_s: float | None = None
+        self._poses: deque[Pose] = deque(maxlen=300)  # recent Vehicle poses for pose_at()
         self._lock = threading.RLock()
-        self.raw_vehicle = Vehicle(link, config, pose_source, None)
+        self.raw_vehicle = Vehicle(link, config, pose_source, camera)
         self.vehicle: Any = LockedVehicle(self.raw_vehicle, self._lock)
         self.faults = faults or FaultInjector()
         self.shutdown_max_s = shutdown_max_s
@@ -87,6 +107,12 @@ class CrazyfliePlatform:
         self._closed = False
         self._thread = threading.Thread(target=self._loop, name="cf-control", daemon=True)
         self._thread.start()
+        if camera is not None:
+            if getattr(camera, "pose_fn", None) is None:
+                camera.pose_fn = self.pose_at
+            start = getattr(camera, "start", None)
+            if start is not None:
+                start()
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -122,9 +148,16 @@ class CrazyfliePlatform:
 
             world = load_world(rig.world_path) if section["sitl_world"] else None
             sitl = SitlSession(data, seed, world).start()
-            sitl.register_faults(faults)
             on_close.append(sitl.stop)
             truth, uri = sitl.truth, sitl.uri
+        try:
+            camera, camera_emu = _make_camera(rig, data, seed, sitl, on_close)
+        except Exception:
+            for fn in on_close:
+                fn()
+            raise
+        if sitl is not None:
+            sitl.register_faults(faults)
         kind = section["pose_source"]
         if pose_source is None and kind == "sitl":
             if sitl is None or sitl.mocap is None:
@@ -138,6 +171,7 @@ class CrazyfliePlatform:
             if stop is not None:
                 on_close.append(stop)
         link = CrazyflieLink(CrazyflieLinkConfig.from_rig(section, uri))
+        connect_start = time.monotonic()
         try:
             link.open()
         except Exception:
@@ -148,7 +182,7 @@ class CrazyfliePlatform:
             if spec.get("at_s") is not None and name in faults.handlers:
                 params = {k: v for k, v in spec.items() if k != "at_s" and v is not None}
                 faults.schedule(name, spec["at_s"], **params)
-        return cls(
+        platform = cls(
             link,
             VehicleConfig.from_dict(data["control"]),
             pose_source,
@@ -158,7 +192,11 @@ class CrazyfliePlatform:
             on_close,
             faults,
             sitl,
+            camera,
+            camera_emu,
         )
+        platform.connect_started_monotonic_s = connect_start
+        return platform
 
     # ------------------------------------------------------------------ control thread
     def _loop(self) -> None:
@@ -181,11 +219,50 @@ class CrazyfliePlatform:
 
     def _control(self, t_s: float) -> None:
         v = self.raw_vehicle
+        cam = self.camera
+        if cam is not None:
+            v.camera_health.connected = bool(getattr(cam, "connected", True))
         v.control_step(t_s)
+        pose = v.pose
+        if not self._poses or pose.t_s > self._poses[-1].t_s:
+            self._poses.append(pose)
+        if self.camera_ready_s is None and v.camera_health.samples > 0:
+            self.camera_ready_monotonic_s = time.monotonic()
+            self.camera_ready_s = self.camera_ready_monotonic_s - self.created_monotonic_s
         ref = v.reference
         if ref is not None and v.is_flying:
             err = math.dist(v.position, ref.position)
             self.max_tracking_error_m = max(self.max_tracking_error_m, err)
+
+    def pose_at(self, t_s: float) -> Pose:
+        """The Vehicle's pose at mission time ``t_s``: interpolated between the poses of the
+        last 3 s (position linearly, yaw the short way); the newest pose if ``t_s`` is later,
+        the oldest if earlier. Called by the camera stream under the Vehicle lock."""
+        cur = self.raw_vehicle.pose
+        hist = self._poses
+        if not hist or t_s >= hist[-1].t_s:
+            a = b = cur if not hist or cur.t_s >= hist[-1].t_s else hist[-1]
+        elif t_s <= hist[0].t_s:
+            a = b = hist[0]
+        else:
+            i = len(hist) - 1
+            while i > 0 and hist[i - 1].t_s > t_s:
+                i -= 1
+            a, b = hist[i - 1], hist[i]
+        if a is b or b.t_s <= a.t_s:
+            return Pose(a.x_m, a.y_m, a.z_m, a.yaw_rad, a.quaternion, t_s, a.source)
+        f = (t_s - a.t_s) / (b.t_s - a.t_s)
+        yaw = a.yaw_rad + f * math.remainder(b.yaw_rad - a.yaw_rad, 2.0 * math.pi)
+        near = a if f < 0.5 else b
+        return Pose(
+            a.x_m + f * (b.x_m - a.x_m),
+            a.y_m + f * (b.y_m - a.y_m),
+            a.z_m + f * (b.z_m - a.z_m),
+            math.remainder(yaw, 2.0 * math.pi),
+            near.quaternion,
+            t_s,
+            near.source,
+        )
 
     # ------------------------------------------------------------------ Platform protocol
     def before_tick(self, t_s: float) -> None:
@@ -252,6 +329,8 @@ class CrazyfliePlatform:
             "faults": self.faults.summary(),
             "shutdown_reason": self.shutdown_reason,
         }
+        if self.camera is not None:
+            out["camera"] = self.camera_summary()
         truth = self.final_truth
         if truth is None and self._truth is not None and not self._closed:
             truth = self._truth()
@@ -267,3 +346,82 @@ class CrazyfliePlatform:
         row = self.vehicle.telemetry_row()
         row["link"] = self.link.connected
         return row
+
+    def connect_to_ready_s(self) -> float | None:
+        """Seconds from ``link.open()`` to ready: link up (TOCs, parameters, logs) and, with a
+        camera, its first frame at the Vehicle; None while the camera has sent nothing."""
+        if self.camera is None:
+            return self.link.connect_time_s
+        if self.camera_ready_monotonic_s is None:
+            return None
+        return self.camera_ready_monotonic_s - self.connect_started_monotonic_s
+
+    def camera_summary(self) -> dict[str, Any]:
+        """Camera stream figures: frames, rate, drops, reconnects, latency, health."""
+        st = self.camera.stats()
+        h = self.vehicle.health.camera
+        out: dict[str, Any] = {
+            "frames": st.frames,
+            "fps": round(st.fps, 2),
+            "dropped": st.dropped,
+            "corrupt": st.corrupt,
+            "skipped_before_poll": st.skipped,
+            "reconnects": st.reconnects,
+            "latency_mean_ms": None
+            if math.isnan(st.latency_mean_s)
+            else round(1000 * st.latency_mean_s, 2),
+            "last_error": st.last_error,
+            "frames_at_vehicle": h.samples,
+            "connect_to_ready_s": None if (r := self.connect_to_ready_s()) is None else round(r, 3),
+        }
+        emu = self.camera_emulator
+        if emu is not None:
+            out["emulator"] = {
+                "frames_sent": emu.frames_sent,
+                "slots_skipped": emu.slots_skipped,
+                "render_ms_mean": round(1000 * emu.render_s_mean, 2),
+                "render_ms_max": round(1000 * emu.render_s_max, 2),
+            }
+        return out
+
+
+def _make_camera(
+    rig: Any, data: dict, seed: int, sitl: Any, on_close: list[Callable[[], None]]
+) -> tuple[Any, Any]:
+    """The AI-deck stream (not started) and the in-process emulator serving it, if any.
+
+    ``aideck.enabled: false`` -> (None, None). In SITL the emulator renders the simulated
+    drone's true pose; with ``aideck.emulator`` alone (a real drone, no deck) it serves
+    ``sensors.camera.renderer`` (or a test pattern) from a fixed pose before the scan pallet.
+    """
+    a = data["aideck"]
+    if not a["enabled"]:
+        return None, None
+    from drivers.aideck_stream import AIDeckStream
+
+    emu = None
+    if sitl is not None:
+        world = sitl.cf.drone.world
+        if world is None:  # the drone flies through nothing, but the camera sees the world
+            from drivers.sim.world import load_world
+
+            world = load_world(rig.world_path)
+        emu = sitl.start_camera(data, seed, world)  # closed by sitl.stop
+    elif a["emulator"]:
+        from drivers.sim.aideck_emulator import AIDeckEmulator, default_pose, make_frame_source
+        from drivers.sim.world import load_world
+
+        world = load_world(rig.world_path)
+        name = data["sensors"]["camera"]["renderer"]
+        source = make_frame_source("pattern" if name in (None, "none") else name, seed, world)
+        emu = AIDeckEmulator(
+            "127.0.0.1", 0, data["sensors"]["camera"]["rate_hz"], a["format"],
+            renderer=source, pose=default_pose(world), seed=seed,
+        ).start()  # fmt: skip
+        on_close.append(emu.close)
+    kw: dict[str, Any] = {"autostart": False}
+    if emu is not None:
+        kw.update(host="127.0.0.1", port=emu.port)
+    stream = AIDeckStream.from_rig(data, **kw)
+    on_close.insert(0, stream.close)  # the client goes before the emulators
+    return stream, emu

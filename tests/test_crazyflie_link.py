@@ -161,3 +161,8 @@ def test_mission_flies_through_the_sitl_rig(tmp_path) -> None:
     assert abs(v["sitl"]["final_pose"]["x_m"] - 0.5) < 0.1
     assert v["link"]["protocol_version"] == 12 and v["link"]["params_set"]
     assert v["sitl"]["setpoints"] > 300 and v["sitl"]["extposes"] > 300
+    # the AI-deck stream ran through the flight (rigs/sitl.yaml enables it)
+    cam = v["camera"]
+    assert cam["frames_at_vehicle"] > 30 and cam["dropped"] == 0 and cam["corrupt"] == 0
+    assert cam["frames"] >= cam["emulator"]["frames_sent"] - 1  # at most the one in flight
+    assert v["control"]["period_p99_ms"] < 40.0  # 100 Hz; generous: CI machines are shared

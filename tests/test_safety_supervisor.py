@@ -204,7 +204,7 @@ def test_crash_cuts_motors() -> None:
 
 def test_camera_stall_is_reported_only() -> None:
     m, runner, platform, sup = flown(overrides={"faults.camera_stall.at_s": "3.0"})
-    platform.camera.set_renderer(lambda pose, t_s: b"frame")
+    platform.camera.set_renderer(lambda pose, t_s, previous=None: b"frame")
     runner.run_until(lambda mm: mm.blackboard["safety_fault"] == "camera_stalled", 300)
     assert m.blackboard["safety_state"] == "fault"
     res = runner.run(60)

@@ -80,10 +80,18 @@ def test_faults_scheduled_from_the_rig_fire_at_their_time():
 def test_schedule_from_python_and_camera_stall():
     h = SimHarness.create(seed=3)
     h.platform.faults.schedule("camera_stall", at_s=0.5, duration_s=0.5)
-    h.run_for(1.2)
+    seen: list[tuple[float, float]] = []  # (now, newest frame time) every tick
+
+    def look() -> None:
+        f = h.vehicle.camera_frame()
+        seen.append((h.clock.now(), f.t_s if f is not None else -1.0))
+
+    h.run_for(1.5, on_tick=look)
     assert [f["name"] for f in h.platform.faults.summary()] == ["camera_stall"]
     assert h.platform.faults.active() == []
-    assert h.vehicle.camera_frame() is None  # no renderer registered yet
+    stalled = [frame_t for now, frame_t in seen if 0.6 <= now < 1.0]
+    assert stalled and max(stalled) <= 0.5 + 1e-9  # no new frame while stalled
+    assert seen[-1][1] > 1.0  # frames again once the fault cleared
 
 
 def test_gust_pushes_the_drone():

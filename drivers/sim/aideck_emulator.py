@@ -10,7 +10,13 @@ deterministic test pattern; ``pallet``: the simulated world through
 
 A client that vanishes, stops reading (2 s send timeout) or resets the connection is dropped
 and the next one is accepted. Tests inject faults on the wire with :meth:`AIDeckEmulator.inject`:
-``garbage``, ``truncate``, ``oversize``, ``bad_route``, ``bad_jpeg``, ``disconnect``.
+``garbage``, ``truncate``, ``oversize``, ``bad_route``, ``bad_jpeg``, ``disconnect``; and
+on the deck itself: :meth:`AIDeckEmulator.set_stalled` (connected, no frames: a hung camera)
+and :meth:`AIDeckEmulator.set_online` (off: the client is dropped and new connections are
+closed at once, like a deck out of WiFi range or rebooting).
+
+In software in the loop (:mod:`drivers.sim.sitl`) ``pose_fn`` gives the simulated drone's
+true pose at each frame, so the stream shows what the drone's camera sees in real time.
 
 Standalone, for bitcraze's viewers (``opencv-viewer.py -n 127.0.0.1 -p 5000``; the newer
 viewer expects the 25-byte header: add ``--header extended``)::
@@ -53,7 +59,7 @@ def pattern_renderer(seed: int = 0) -> FrameFn:
     rng = np.random.default_rng(seed)
     count = [0]
 
-    def render(pose: Pose, t_s: float) -> np.ndarray:
+    def render(pose: Pose, t_s: float, previous: Any = None) -> np.ndarray:
         i = count[0]
         count[0] += 1
         img = np.roll(base, i, axis=1) + rng.integers(0, 8, base.shape, dtype=np.uint8)
@@ -103,6 +109,8 @@ class AIDeckEmulator:
         seed: int = 0,
         record: int = 256,
         send_timeout_s: float = 2.0,
+        pose_fn: Callable[[], Pose] | None = None,
+        warm_up: bool = False,
     ) -> None:
         if fmt not in ("raw", "jpeg") or header not in ("basic", "extended"):
             raise ValueError("fmt is raw|jpeg, header is basic|extended")
@@ -112,6 +120,15 @@ class AIDeckEmulator:
         self.jpeg_quality, self.chunk_sizes = jpeg_quality, chunk_sizes
         self.rng = random.Random(seed)
         self.send_timeout_s = send_timeout_s
+        self.pose_fn = pose_fn  # pose of each frame (its t_s is the renderer's time), or fixed
+        self.warm_up = warm_up  # render one frame (discarded) before serving: first-call costs
+        self.stalled = False
+        self.online = True
+        self.render_s_max = 0.0
+        self.slots_skipped = 0  # frame times skipped because rendering/sending fell behind
+        self._render_s_sum = 0.0
+        self._renders = 0
+        self._previous: tuple[float, Pose] | None = None
         self.sent: deque[SentFrame] = deque(maxlen=record)
         self.frames_sent = 0
         self.frames_faulted = 0
@@ -159,6 +176,21 @@ class AIDeckEmulator:
         with self._lock:
             self._faults.append((kind, params))
 
+    def set_stalled(self, stalled: bool = True) -> None:
+        """Stop (True) or resume sending frames; the connection stays open."""
+        self.stalled = stalled
+
+    def set_online(self, online: bool = True) -> None:
+        """Offline: drop the client and close new connections at once; online: serve again."""
+        self.online = online
+        if not online:
+            self.drop_client()
+
+    @property
+    def render_s_mean(self) -> float:
+        """Mean time to render one frame (s)."""
+        return self._render_s_sum / self._renders if self._renders else 0.0
+
     def drop_client(self) -> None:
         """Close the current client's connection (like the deck rebooting its WiFi)."""
         c = self._client
@@ -171,8 +203,22 @@ class AIDeckEmulator:
     # -- frames -------------------------------------------------------------------------
 
     def render(self, t_s: float) -> tuple[ImageHeader, bytes]:
-        """Render and encode the next frame: (header, payload)."""
-        img = np.ascontiguousarray(self.renderer(self.pose, t_s), dtype=np.uint8)
+        """Render and encode the next frame: (header, payload).
+
+        With ``pose_fn`` the pose (and the renderer's time, its ``t_s``) come from it, and
+        the previous frame's (time, pose) is passed on for motion blur."""
+        t0 = time.perf_counter()
+        if self.pose_fn is not None:
+            self.pose = self.pose_fn()
+            t_s = self.pose.t_s
+        img = np.ascontiguousarray(
+            self.renderer(self.pose, t_s, previous=self._previous), dtype=np.uint8
+        )
+        self._previous = (t_s, self.pose)
+        dt = time.perf_counter() - t0
+        self._render_s_sum += dt
+        self._renders += 1
+        self.render_s_max = max(self.render_s_max, dt)
         h, w = img.shape[:2]
         depth = 1 if img.ndim == 2 else img.shape[2]
         if self.fmt == "jpeg":
@@ -220,10 +266,16 @@ class AIDeckEmulator:
     # -- server loop --------------------------------------------------------------------
 
     def _run(self) -> None:
+        if self.warm_up:  # a renderer's first frame can take 0.5 s (caches): not on the wire
+            pose = self.pose_fn() if self.pose_fn is not None else self.pose
+            self.renderer(pose, pose.t_s)
         while not self._stop.is_set():
             try:
                 client, _ = self._srv.accept()
             except (TimeoutError, OSError):
+                continue
+            if not self.online:
+                client.close()  # the deck is away: the connection is refused at once
                 continue
             self.clients += 1
             self._client = client
@@ -259,8 +311,12 @@ class AIDeckEmulator:
             delay = next_t - time.monotonic()
             if delay > 0 and self._stop.wait(delay):
                 return
-            if self._peer_gone(client):
+            if self._peer_gone(client) or not self.online:
                 return
+            if self.stalled:
+                self._previous = None
+                next_t = time.monotonic() + period
+                continue
             now = time.monotonic()
             hdr, payload = self.render(now - t0)
             packets, intact, action = self._packets(hdr, payload)
@@ -276,7 +332,9 @@ class AIDeckEmulator:
             if action == "disconnect":
                 return
             next_t += period
-            if time.monotonic() - next_t > period:  # fell behind: skip, like a camera
+            behind = time.monotonic() - next_t
+            if behind > period:  # fell behind: skip, like a camera
+                self.slots_skipped += int(behind / period)
                 next_t = time.monotonic()
 
 

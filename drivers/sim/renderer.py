@@ -93,8 +93,16 @@ class PalletRenderer:
         self.frames = 0
         self._last: tuple[float, CameraPose, float] | None = None
 
-    def _motion(self, pose: Pose, cam: CameraPose, t_s: float) -> tuple[tuple, float] | None:
+    def _motion(
+        self,
+        pose: Pose,
+        cam: CameraPose,
+        t_s: float,
+        previous: tuple[float, Pose] | None = None,
+    ) -> tuple[tuple, float] | None:
         last = self._last
+        if previous is not None:
+            last = (previous[0], camera_pose(previous[1]), previous[1].yaw_rad)
         self._last = (t_s, cam, pose.yaw_rad)
         if last is None or t_s <= last[0]:
             return None
@@ -103,10 +111,13 @@ class PalletRenderer:
         yaw_rate = math.remainder(pose.yaw_rad - last[2], 2.0 * math.pi) / dt
         return v, yaw_rate
 
-    def __call__(self, pose: Pose, t_s: float) -> np.ndarray:
-        """The raw frame seen from ``pose`` at mission time ``t_s``."""
+    def __call__(
+        self, pose: Pose, t_s: float, previous: tuple[float, Pose] | None = None
+    ) -> np.ndarray:
+        """The raw frame seen from ``pose`` at mission time ``t_s``; motion blur from the
+        ``previous`` frame's ``(t_s, pose)`` if given, else from the last rendered frame."""
         cam = camera_pose(pose)
-        motion = self._motion(pose, cam, t_s)
+        motion = self._motion(pose, cam, t_s, previous)
         velocity, yaw_rate = motion if motion is not None else (None, 0.0)
         lighting = Lighting(
             exposure=self.exposure, gradient=self.gradient, gradient_angle_rad=self.gradient_angle

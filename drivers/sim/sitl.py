@@ -1,9 +1,12 @@
-"""Software in the loop: the CRTP emulator (and later the AI-deck emulator) in-process.
+"""Software in the loop: the CRTP emulator and the AI-deck emulator, in-process.
 
 :class:`SitlSession` builds the simulated Crazyflie from a rig's ``sim``/``sensors``/``wind``/
 ``battery`` sections (the same drone the lock-step simulator flies), serves it over CRTP/UDP
 on 127.0.0.1 at a free port (or the one given) and offers its simulated mocap as a
 :class:`drivers.link.PoseSource`. The real cflib driver then connects to :attr:`uri`.
+:meth:`SitlSession.start_camera` also serves the AI-deck stream (CPX over TCP, a free port on
+127.0.0.1) rendered from the drone's true pose at the camera rate, in real time; the real
+stream client (:class:`drivers.aideck_stream.AIDeckStream`) connects to :attr:`camera_port`.
 
     with SitlSession.from_rig_data(load_rig().data, seed=0) as sitl:
         link = CrazyflieLink(CrazyflieLinkConfig(uri=sitl.uri)).open()
@@ -24,6 +27,8 @@ from drivers.sim.crtp_emulator import (
 from drivers.sim.drone import make_rng
 from drivers.sim.sensors import SimMocap
 from drivers.sim.world import World
+from drivers.types import Pose
+from drivers.yaw import quaternion_from_euler
 
 LOOPBACK = "127.0.0.1"
 
@@ -54,6 +59,7 @@ class SitlSession:
                 )
             )
         self.emulator = CrtpEmulator(self.cf, host, port, self.mocap)
+        self.camera: Any = None  # the AIDeckEmulator once start_camera() ran
 
     @classmethod
     def from_rig_data(cls, rig_data: dict[str, Any], seed: int = 0, **kw: Any) -> SitlSession:
@@ -71,8 +77,54 @@ class SitlSession:
         return self
 
     def stop(self) -> None:
-        """Stop serving (idempotent)."""
+        """Stop serving, the camera stream too (idempotent)."""
+        if self.camera is not None:
+            self.camera.close()
         self.emulator.stop()
+
+    @property
+    def camera_port(self) -> int | None:
+        """TCP port of the AI-deck emulator on 127.0.0.1 (None before :meth:`start_camera`)."""
+        return self.camera.port if self.camera is not None else None
+
+    def true_pose(self) -> Pose:
+        """The simulated drone's true pose (``t_s``: the emulator's firmware time)."""
+        with self.emulator.lock:
+            d = self.cf.drone
+            b = d.body
+            q = quaternion_from_euler(b.roll, b.pitch, b.yaw)
+            return Pose(b.x, b.y, b.z, b.yaw, q, d.t_s, "truth")
+
+    def start_camera(
+        self, rig_data: dict[str, Any], seed: int = 0, world: World | None = None
+    ) -> Any:
+        """Serve the AI-deck stream of the drone's camera; returns the ``AIDeckEmulator``.
+
+        Frames: ``sensors.camera.renderer`` (``pallet`` if that is ``none``) with the rig's
+        camera settings and the simulator's random stream (``make_rng(seed, "cam")``), at
+        ``sensors.camera.rate_hz``, sent as ``aideck.format`` (raw BayerBG or JPEG). The
+        renderer's textures are made here, before serving (about 1.5 s for the warehouse):
+        made lazily in flight they would stall the stream for up to 0.7 s as new pallets
+        come into view (like a real deck, the simulated one is ready before you connect).
+        """
+        from drivers.sim.aideck_emulator import AIDeckEmulator
+        from drivers.sim.camera import make_renderer
+
+        cam = rig_data["sensors"]["camera"]
+        name = cam["renderer"] if cam["renderer"] not in (None, "none") else "pallet"
+        renderer = make_renderer(name, world=world, camera=cam, rng=make_rng(seed, "cam"))
+        prewarm_renderer(renderer)
+        self.camera = AIDeckEmulator(
+            LOOPBACK,
+            0,
+            cam["rate_hz"],
+            rig_data["aideck"]["format"],
+            renderer=renderer,
+            seed=seed,
+            pose_fn=self.true_pose,
+            warm_up=True,
+        ).start()
+        return self.camera
 
     def __enter__(self) -> SitlSession:
         return self.start()
@@ -106,8 +158,26 @@ class SitlSession:
             }
 
     def register_faults(self, faults: FaultInjector) -> None:
-        """Register ``link_drop`` (both ways) and the mocap faults on ``faults``."""
-        em, mocap = self.emulator, self.mocap
+        """Register ``link_drop`` (both ways), the mocap faults and, with the camera,
+        ``camera_stall`` (connected, no frames) and ``camera_disconnect`` (deck offline)."""
+        em, mocap, cam = self.emulator, self.mocap, self.camera
+        if cam is not None:
+            faults.register(
+                "camera_stall",
+                FaultHandler(
+                    lambda: cam.set_stalled(True),
+                    lambda: cam.set_stalled(False),
+                    "AI-deck connected but sends no frames",
+                ),
+            )
+            faults.register(
+                "camera_disconnect",
+                FaultHandler(
+                    lambda: cam.set_online(False),
+                    lambda: cam.set_online(True),
+                    "AI-deck stream disconnected (deck offline)",
+                ),
+            )
         faults.register(
             "link_drop",
             FaultHandler(
@@ -138,3 +208,9 @@ class SitlSession:
                     {"probability": 1.0},
                 ),
             )
+
+
+def prewarm_renderer(renderer: Any) -> None:
+    """Make every lazily built texture of a scene renderer now (no-op for other renderers)."""
+    for quad in getattr(getattr(renderer, "scene", None), "quads", ()):
+        _ = quad.levels
