@@ -1,0 +1,505 @@
+"""Train and evaluate the block detector (:mod:`perception.detector`) on synthetic renders.
+
+Commands (figures in ``docs/detector.md``)::
+
+    python -m perception.train_detector train --out perception/weights/detector.pt --seed 0
+    python -m perception.train_detector evaluate --weights perception/weights/detector.pt \\
+        --n 300 --seed 12345
+    python -m perception.train_detector train --smoke --out /tmp/smoke.pt   # CI: seconds
+
+Training frames come from :func:`perception.synth.dataset.render_detection_sample` for the
+identities ``t0001A``... (``identity_names(ids, "t")``), rendered once before training (one
+process; consecutive frames share an identity so the renderer's scene cache hits), white
+balanced, shrunk to the network input and kept in memory. Evaluation renders other
+identities (prefix ``e``: other textures) with another seed. A ground-truth block less than
+half inside the frame (``visible < 0.5``) is "don't care": no loss on the cells around it in
+training; a detection on it is neither a true nor a false positive in evaluation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from perception.detector import (
+    FORMAT,
+    FORMAT_VERSION,
+    BlockDetector,
+    BlockNet,
+    DetectorConfig,
+    box_iou,
+    config_to_dict,
+    decode,
+    nms,
+    to_input,
+)
+from perception.synth.dataset import _wb_factors, identity_names, render_detection_sample
+from perception.synth.render import SensorModel
+from perception.white_balance import preprocess
+
+Log = Callable[[str], None]
+#: ground-truth blocks less visible than this are "don't care"
+MIN_VISIBLE = 0.5
+#: ground-truth blocks narrower than this (frame pixels) are "don't care"
+MIN_WIDTH_PX = 4.0
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that determines a training run (with the seed)."""
+
+    frames: int = 6000
+    identities: int = 300
+    wide_fraction: float = 0.1  # frames with a larger lateral offset: few or no blocks
+    steps: int = 3000
+    batch: int = 32
+    lr: float = 3e-3
+    weight_decay: float = 5e-4
+    warmup: int = 150
+    ema: float = 0.998
+    eval_frames: int = 300
+
+
+SMOKE = TrainConfig(frames=16, identities=4, steps=3, batch=4, warmup=1, eval_frames=6)
+
+
+# ----------------------------------------------------------------------------- data
+@dataclass
+class FrameSet:
+    """Frames at the network input size and their boxes in frame pixels.
+
+    ``images``: uint8 (N, h, w, 3); ``full``: the frames at full size (evaluation only, else
+    None); ``boxes[i]``: float32 (k, 5) rows x1, y1, x2, y2, visible.
+    """
+
+    images: np.ndarray
+    boxes: list[np.ndarray]
+    full: list[np.ndarray] | None = None
+
+
+def render_set(
+    names: list[str],
+    n: int,
+    seed: int,
+    config: DetectorConfig,
+    *,
+    wide_fraction: float = 0.0,
+    keep_full: bool = False,
+    log: Log | None = None,
+) -> FrameSet:
+    """``n`` white-balanced renders, consecutive frames per identity (scene cache hits),
+    deterministic in ``seed`` and ``names``."""
+    rng = np.random.default_rng(seed)
+    factors = _wb_factors(SensorModel())
+    h, w = config.input_hw
+    images = np.empty((n, h, w, 3), np.uint8)
+    boxes: list[np.ndarray] = []
+    full: list[np.ndarray] = []
+    per_id = max(1, math.ceil(n / len(names)))
+    t0 = time.perf_counter()
+    for i in range(n):
+        name = names[(i // per_id) % len(names)]
+        lateral = 1.4 if rng.random() < wide_fraction else 0.7
+        raw, bb = render_detection_sample(rng, [name], lateral_m=lateral)
+        bgr = preprocess(raw, factors)
+        images[i] = cv2.resize(bgr, (w, h), interpolation=cv2.INTER_AREA)
+        if keep_full:
+            full.append(bgr)
+        rows = [(b.x1, b.y1, b.x2, b.y2, b.visible) for b in bb]
+        boxes.append(np.asarray(rows, np.float32).reshape(-1, 5))
+        if log and ((i + 1) % 1000 == 0 or i + 1 == n):
+            log(f"  rendered {i + 1}/{n} frames ({time.perf_counter() - t0:.0f} s)")
+    return FrameSet(images, boxes, full if keep_full else None)
+
+
+def augment(
+    img: np.ndarray, boxes: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Random horizontal flip, scale (0.85..1.15) and shift (+-8 %) of an input-size image;
+    boxes (input pixels, with visible) follow, clipped, their visible fraction reduced."""
+    h, w = img.shape[:2]
+    b = boxes.copy()
+    if rng.random() < 0.5:
+        img = img[:, ::-1]
+        b[:, [0, 2]] = w - b[:, [2, 0]]
+    s = rng.uniform(0.85, 1.15)
+    tx = rng.uniform(-0.08, 0.08) * w + (1 - s) * w / 2
+    ty = rng.uniform(-0.08, 0.08) * h + (1 - s) * h / 2
+    m = np.array([[s, 0, tx], [0, s, ty]], np.float32)
+    fill = tuple(float(v) for v in img.reshape(-1, 3).mean(0))
+    img = cv2.warpAffine(
+        np.ascontiguousarray(img), m, (w, h), flags=cv2.INTER_LINEAR, borderValue=fill
+    )
+    if len(b):
+        b[:, [0, 2]] = b[:, [0, 2]] * s + tx
+        b[:, [1, 3]] = b[:, [1, 3]] * s + ty
+        area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+        b[:, 0:4:2] = b[:, 0:4:2].clip(0, w)
+        b[:, 1:4:2] = b[:, 1:4:2].clip(0, h)
+        clipped = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+        b[:, 4] *= np.where(area > 0, clipped / np.maximum(area, 1e-6), 0.0)
+    return img, b
+
+
+def build_targets(
+    boxes: list[np.ndarray], config: DetectorConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-cell training targets for a batch; boxes in input pixels (x1, y1, x2, y2, vis).
+
+    A cared-for block makes positive the cells whose centres lie within ``r`` cells of its
+    centre on each axis (``r`` 0.5..1.25 cells, growing with its size; the closest block
+    wins a shared cell). The same region around a "don't care" block is ignored.
+
+    Returns:
+        obj (N, cells) float 0/1, weight (N, cells) float 0 (ignored) / 1, and target boxes
+        (N, cells, 4) x1, y1, x2, y2 in input pixels (valid where obj is 1).
+    """
+    gh, gw = config.grid_hw
+    st = config.stride
+    n = len(boxes)
+    obj = np.zeros((n, gh, gw), np.float32)
+    weight = np.ones((n, gh, gw), np.float32)
+    tbox = np.zeros((n, gh, gw, 4), np.float32)
+    dist = np.full((n, gh, gw), np.inf, np.float32)
+    ccx = (np.arange(gw, dtype=np.float32) + 0.5) * st
+    ccy = (np.arange(gh, dtype=np.float32) + 0.5) * st
+    scale = config.input_hw[1] / config.frame_hw[1]
+    for i, bb in enumerate(boxes):
+        for x1, y1, x2, y2, vis in bb:
+            bw, bh = x2 - x1, y2 - y1
+            if bw <= 0 or bh <= 0:
+                continue
+            cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
+            rx = float(np.clip(0.25 * bw / st, 0.5, 1.25))
+            ry = float(np.clip(0.25 * bh / st, 0.5, 1.25))
+            dx = np.abs(ccx - cx) / st
+            dy = np.abs(ccy - cy) / st
+            region = (dy[:, None] < ry) & (dx[None, :] < rx)
+            if not region.any():  # centre cell always
+                gy, gx = min(int(cy // st), gh - 1), min(int(cx // st), gw - 1)
+                region[gy, gx] = True
+            care = vis >= MIN_VISIBLE and bw >= MIN_WIDTH_PX * scale
+            if not care:
+                weight[i][region & (obj[i] == 0)] = 0.0
+                continue
+            d = dy[:, None] ** 2 + dx[None, :] ** 2
+            take = region & (d < dist[i])
+            dist[i][take] = d[take]
+            obj[i][take] = 1.0
+            weight[i][take] = 1.0
+            tbox[i][take] = (x1, y1, x2, y2)
+    return obj.reshape(n, -1), weight.reshape(n, -1), tbox.reshape(n, -1, 4)
+
+
+def giou(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """IoU and generalised IoU of matching rows of two (M, 4) box tensors."""
+    ix = (torch.minimum(a[:, 2], b[:, 2]) - torch.maximum(a[:, 0], b[:, 0])).clamp(min=0)
+    iy = (torch.minimum(a[:, 3], b[:, 3]) - torch.maximum(a[:, 1], b[:, 1])).clamp(min=0)
+    inter = ix * iy
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area_a + area_b - inter + 1e-7
+    iou = inter / union
+    cw = torch.maximum(a[:, 2], b[:, 2]) - torch.minimum(a[:, 0], b[:, 0])
+    ch = torch.maximum(a[:, 3], b[:, 3]) - torch.minimum(a[:, 1], b[:, 1])
+    hull = cw * ch + 1e-7
+    return iou, iou - (hull - union) / hull
+
+
+def detection_loss(
+    out: torch.Tensor, obj: torch.Tensor, weight: torch.Tensor, tbox: torch.Tensor, stride: int
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """Objectness BCE (per positive) + 2 x (1 - GIoU) + L1 of centre / log size (in cells)."""
+    boxes, logits = decode(out, stride)
+    npos = max(1.0, float(obj.sum()))
+    l_obj = (F.binary_cross_entropy_with_logits(logits, obj, reduction="none") * weight).sum()
+    l_obj = l_obj / npos
+    pos = obj > 0.5
+    if pos.any():
+        p, t = boxes[pos], tbox[pos]
+        _, g = giou(p, t)
+        l_giou = (1.0 - g).mean()
+        pc = torch.stack(((p[:, 0] + p[:, 2]) / 2, (p[:, 1] + p[:, 3]) / 2), 1) / stride
+        tc = torch.stack(((t[:, 0] + t[:, 2]) / 2, (t[:, 1] + t[:, 3]) / 2), 1) / stride
+        pwh = torch.log((p[:, 2:] - p[:, :2]).clamp(min=1e-3))
+        twh = torch.log((t[:, 2:] - t[:, :2]).clamp(min=1e-3))
+        l_l1 = (pc - tc).abs().mean() + (pwh - twh).abs().mean()
+    else:
+        l_giou = l_l1 = boxes.sum() * 0.0
+    loss = l_obj + 2.0 * l_giou + l_l1
+    return loss, {"obj": l_obj.item(), "giou": l_giou.item(), "l1": l_l1.item()}
+
+
+# ------------------------------------------------------------------------------ train
+def train(
+    cfg: TrainConfig, seed: int, log: Log, det_config: DetectorConfig | None = None
+) -> tuple[BlockNet, dict]:
+    """Render the training set, train a :class:`BlockNet` (EMA weights returned)."""
+    det_config = det_config or DetectorConfig()
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed + 1)
+    t0 = time.perf_counter()
+    names = identity_names(cfg.identities, "t")
+    data = render_set(names, cfg.frames, seed, det_config, wide_fraction=cfg.wide_fraction, log=log)
+    render_s = time.perf_counter() - t0
+    log(f"rendered {cfg.frames} training frames of {len(names)} identities in {render_s:.0f} s")
+    sx = det_config.input_hw[1] / det_config.frame_hw[1]
+    sy = det_config.input_hw[0] / det_config.frame_hw[0]
+    in_scale = np.array([sx, sy, sx, sy, 1.0], np.float32)
+    model = BlockNet(det_config)
+    ema = BlockNet(det_config)
+    ema.load_state_dict(model.state_dict())
+    ema.eval()
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+
+    def lr_at(step: int) -> float:
+        if step < cfg.warmup:
+            return cfg.lr * (step + 1) / cfg.warmup
+        frac = (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup)
+        return cfg.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * frac)))
+
+    t1 = time.perf_counter()
+    running: dict[str, float] = {}
+    n = len(data.images)
+    for step in range(cfg.steps):
+        idx = rng.integers(n, size=cfg.batch)
+        imgs, bxs = [], []
+        for j in idx:
+            im, b = augment(data.images[j], data.boxes[j] * in_scale, rng)
+            imgs.append(im)
+            bxs.append(b)
+        obj, weight, tbox = build_targets(bxs, det_config)
+        x = to_input(imgs, det_config.input_hw)
+        model.train()
+        out = model(x)
+        loss, parts = detection_loss(
+            out,
+            torch.from_numpy(obj),
+            torch.from_numpy(weight),
+            torch.from_numpy(tbox),
+            det_config.stride,
+        )
+        for g in opt.param_groups:
+            g["lr"] = lr_at(step)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+        opt.step()
+        decay = min(cfg.ema, (1 + step) / (10 + step))
+        with torch.no_grad():
+            for pe, pm in zip(ema.state_dict().values(), model.state_dict().values(), strict=True):
+                if pe.dtype.is_floating_point:
+                    pe.mul_(decay).add_(pm.detach(), alpha=1 - decay)
+                else:
+                    pe.copy_(pm)
+        for k, v in {"loss": loss.item(), **parts}.items():
+            running[k] = 0.95 * running.get(k, v) + 0.05 * v
+        if (step + 1) % 100 == 0 or step + 1 == cfg.steps:
+            el = time.perf_counter() - t1
+            log(
+                f"step {step + 1}/{cfg.steps} loss {running['loss']:.3f} "
+                f"(obj {running['obj']:.3f} giou {running['giou']:.3f} l1 {running['l1']:.3f}) "
+                f"lr {lr_at(step):.2e} {el:.0f} s ({el / (step + 1):.2f} s/step)"
+            )
+    info = {
+        "render_seconds": round(render_s, 1),
+        "train_seconds": round(time.perf_counter() - t1, 1),
+        "frames": cfg.frames,
+        "identities": f"{names[0]}..{names[-1]}",
+        "batch": cfg.batch,
+    }
+    return ema, info
+
+
+# --------------------------------------------------------------------------- evaluate
+def average_precision(scores: np.ndarray, tp: np.ndarray, n_gt: int) -> float:
+    """All-point interpolated AP of detections (scores, 1/0 true positive) over n_gt."""
+    if n_gt == 0:
+        return float("nan")
+    order = np.argsort(-scores, kind="stable")
+    tp = tp[order].astype(np.float64)
+    ctp, cfp = np.cumsum(tp), np.cumsum(1 - tp)
+    recall = ctp / n_gt
+    precision = ctp / np.maximum(ctp + cfp, 1e-12)
+    r = np.concatenate(([0.0], recall, [recall[-1] if len(recall) else 0.0]))
+    p = np.concatenate(([1.0], precision, [0.0]))
+    p = np.maximum.accumulate(p[::-1])[::-1]
+    return float(np.sum((r[1:] - r[:-1]) * p[1:]))
+
+
+def match_frame(
+    det: np.ndarray, scores: np.ndarray, gt: np.ndarray, thr: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Greedy matching by score. Returns tp (0/1), ignore (detections on "don't care"
+    blocks only) per detection, and the IoU of each true positive (0 otherwise)."""
+    care = (gt[:, 4] >= MIN_VISIBLE) & (gt[:, 2] - gt[:, 0] >= MIN_WIDTH_PX)
+    g_care, g_dc = gt[care, :4], gt[~care, :4]
+    tp = np.zeros(len(det), np.int64)
+    ign = np.zeros(len(det), bool)
+    ious = np.zeros(len(det))
+    used = np.zeros(len(g_care), bool)
+    iou = box_iou(det, g_care) if len(g_care) else np.zeros((len(det), 0))
+    for i in np.argsort(-scores, kind="stable"):
+        if iou.shape[1]:
+            cand = np.where(used, -1.0, iou[i])
+            j = int(np.argmax(cand))
+            if cand[j] >= thr:
+                tp[i], used[j], ious[i] = 1, True, cand[j]
+                continue
+        if len(g_dc):
+            d = det[i]
+            ix = np.clip(np.minimum(d[2], g_dc[:, 2]) - np.maximum(d[0], g_dc[:, 0]), 0, None)
+            iy = np.clip(np.minimum(d[3], g_dc[:, 3]) - np.maximum(d[1], g_dc[:, 1]), 0, None)
+            area = max((d[2] - d[0]) * (d[3] - d[1]), 1e-6)
+            ign[i] = bool(((ix * iy) / area >= 0.5).any())
+    return tp, ign, ious
+
+
+def evaluate(detector: BlockDetector, n: int, seed: int, log: Log, min_score: float = 0.5) -> dict:
+    """Precision / recall at ``min_score``, AP@0.5, AP@0.5:0.95 and IoU figures on ``n``
+    held-out renders (identities ``e0001A``.., five frames each)."""
+    names = identity_names(max(1, math.ceil(n / 5)), "e")
+    t0 = time.perf_counter()
+    data = render_set(names, n, seed, detector.config, keep_full=True)
+    log(
+        f"rendered {n} held-out frames of {len(names)} identities in {time.perf_counter() - t0:.0f} s"
+    )
+    assert data.full is not None
+    dets, scores = [], []
+    t1 = time.perf_counter()
+    for frame in data.full:
+        b, s = detector.raw_boxes([frame])
+        sel = np.flatnonzero(s[0] >= 0.01)
+        keep = nms(b[0][sel], s[0][sel], detector.config.nms_iou, detector.config.max_detections)
+        dets.append(b[0][sel][keep])
+        scores.append(s[0][sel][keep])
+    infer_ms = (time.perf_counter() - t1) / n * 1000
+    n_gt = sum(
+        int(((g[:, 4] >= MIN_VISIBLE) & (g[:, 2] - g[:, 0] >= MIN_WIDTH_PX)).sum())
+        for g in data.boxes
+    )
+    out: dict = {"frames": n, "seed": seed, "blocks": n_gt, "min_score": min_score}
+    aps = []
+    for thr in np.arange(0.5, 0.951, 0.05):
+        all_s, all_tp, all_iou = [], [], []
+        for d, s, g in zip(dets, scores, data.boxes, strict=True):
+            tp, ign, ious = match_frame(d, s, g, float(thr))
+            all_s.append(s[~ign])
+            all_tp.append(tp[~ign])
+            all_iou.append(ious[~ign])
+        s_, tp_, iou_ = np.concatenate(all_s), np.concatenate(all_tp), np.concatenate(all_iou)
+        aps.append(average_precision(s_, tp_, n_gt))
+        if abs(thr - 0.5) < 1e-9:
+            kept = s_ >= min_score
+            n_tp = int(tp_[kept].sum())
+            out["precision"] = n_tp / max(1, int(kept.sum()))
+            out["recall"] = n_tp / max(1, n_gt)
+            out["false_positives"] = int(kept.sum()) - n_tp
+            matched = iou_[kept & (tp_ == 1)]
+            out["mean_iou"] = float(matched.mean()) if len(matched) else 0.0
+            out["iou_p10"] = float(np.percentile(matched, 10)) if len(matched) else 0.0
+            out["iou_over_0.8"] = float((matched > 0.8).mean()) if len(matched) else 0.0
+    out["ap50"] = aps[0]
+    out["ap75"] = aps[5]
+    out["ap50_95"] = float(np.mean(aps))
+    out["ms_per_frame"] = infer_ms
+    return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in out.items()}
+
+
+def format_metrics(m: dict) -> str:
+    """One readable line per figure group."""
+    return (
+        f"held-out: {m['frames']} frames, {m['blocks']} blocks (seed {m['seed']})\n"
+        f"  precision {m['precision']:.3f}  recall {m['recall']:.3f}  "
+        f"false positives {m['false_positives']}  (min_score {m['min_score']}, IoU >= 0.5)\n"
+        f"  AP@0.5 {m['ap50']:.3f}  AP@0.75 {m['ap75']:.3f}  AP@0.5:0.95 {m['ap50_95']:.3f}\n"
+        f"  matched IoU: mean {m['mean_iou']:.3f}  p10 {m['iou_p10']:.3f}  "
+        f"> 0.8: {100 * m['iou_over_0.8']:.1f} %\n"
+        f"  {m['ms_per_frame']:.2f} ms/frame (batch 1, {torch.get_num_threads()} thread(s))"
+    )
+
+
+# -------------------------------------------------------------------------------- CLI
+def cmd_train(args: argparse.Namespace, log: Log) -> int:
+    """Render, train, evaluate on held-out renders, write the checkpoint."""
+    cfg = SMOKE if args.smoke else TrainConfig()
+    overrides = {"steps": args.steps, "frames": args.frames}
+    cfg = replace(cfg, **{k: v for k, v in overrides.items() if v is not None})
+    t0 = time.perf_counter()
+    model, info = train(cfg, args.seed, log)
+    command = "python -m perception.train_detector " + " ".join(
+        sys.argv[1:] if args.argv is None else args.argv
+    )
+    blob = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "config": config_to_dict(model.config),
+        "state_dict": model.state_dict(),
+        "trained": {"seed": args.seed, "steps": cfg.steps, "command": command, **info},
+    }
+    torch.save(blob, args.out)
+    if cfg.eval_frames:
+        detector = BlockDetector.load(args.out)
+        metrics = evaluate(detector, cfg.eval_frames, 12345, log)
+        blob["trained"]["metrics"] = metrics
+        log(format_metrics(metrics))
+    blob["trained"]["wall_seconds"] = round(time.perf_counter() - t0, 1)
+    torch.save(blob, args.out)
+    log(f"wrote {args.out} ({blob['trained']['wall_seconds']:.0f} s)")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace, log: Log) -> int:
+    """Print the held-out figures of a checkpoint."""
+    detector = BlockDetector.load(args.weights)
+    metrics = evaluate(detector, args.n, args.seed, log, args.min_score)
+    print(f"{detector.model_version} ({detector.path})")
+    print(format_metrics(metrics))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point."""
+    ap = argparse.ArgumentParser(
+        prog="python -m perception.train_detector",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    tr = sub.add_parser("train", help="render, train, write a checkpoint")
+    tr.add_argument("--out", required=True)
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--steps", type=int, default=None)
+    tr.add_argument("--frames", type=int, default=None, help="training renders")
+    tr.add_argument("--smoke", action="store_true", help="tiny run for tests (seconds)")
+    ev = sub.add_parser("evaluate", help="held-out precision / recall / AP")
+    ev.add_argument("--weights", default=None)
+    ev.add_argument("--n", type=int, default=300)
+    ev.add_argument("--seed", type=int, default=12345)
+    ev.add_argument("--min-score", type=float, default=0.5)
+    for p in (tr, ev):
+        p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+        p.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    args.argv = argv
+    torch.set_num_threads(args.threads)
+    t0 = time.perf_counter()
+
+    def log(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:7.1f}s] {msg}", file=sys.stderr, flush=True)
+
+    return cmd_train(args, log) if args.cmd == "train" else cmd_evaluate(args, log)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

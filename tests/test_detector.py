@@ -1,0 +1,161 @@
+"""Block detector: the shipped weights find the blocks of held-out renders; clear errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from perception.detector import (
+    DEFAULT_WEIGHTS,
+    FORMAT,
+    BlockDetector,
+    box_iou,
+    nms,
+)
+from perception.errors import ModelError
+from perception.sequencer import Detection
+from perception.synth.dataset import _wb_factors, identity_names, render_detection_sample
+from perception.synth.render import SensorModel
+from perception.train_detector import main as train_main
+from perception.white_balance import preprocess
+
+
+@pytest.fixture(scope="module")
+def detector() -> BlockDetector:
+    return BlockDetector.load(threads=1)
+
+
+@pytest.fixture(scope="module")
+def frames() -> list[tuple[np.ndarray, list]]:
+    """Held-out renders (identities never trained on) with their ground-truth boxes."""
+    rng = np.random.default_rng(2024)
+    factors = _wb_factors(SensorModel())
+    names = identity_names(4, "x")
+    out = []
+    for i in range(12):
+        raw, boxes = render_detection_sample(rng, [names[i // 3]])
+        out.append((preprocess(raw, factors), boxes))
+    return out
+
+
+def test_shipped_weights_load(detector):
+    assert detector.model_version.startswith("blockdet-v1-")
+    assert len(detector.model_version) == len("blockdet-v1-") + 8
+    assert detector.path == DEFAULT_WEIGHTS
+    n_params = sum(p.numel() for p in detector.model.parameters())
+    assert n_params < 300_000
+
+
+def test_finds_visible_blocks_left_to_right(detector, frames):
+    found = total = 0
+    ious = []
+    for bgr, boxes in frames:
+        dets = detector.detect(bgr)
+        assert all(isinstance(d, Detection) for d in dets)
+        cxs = [d.cx for d in dets]
+        assert cxs == sorted(cxs)
+        full = [b for b in boxes if b.visible > 0.99 and b.x2 - b.x1 > 8]
+        for b in full:
+            total += 1
+            gt = np.array([[b.x1, b.y1, b.x2, b.y2]])
+            best = box_iou(np.array([[d.x1, d.y1, d.x2, d.y2] for d in dets]), gt).max(initial=0.0)
+            if best > 0.6:
+                found += 1
+                ious.append(best)
+        if len(full) == len(boxes) and full:
+            # every block fully in view -> the detections are exactly those, in order
+            gt_sorted = sorted(full, key=lambda b: b.x1 + b.x2)
+            assert len(dets) == len(gt_sorted)
+            for d, b in zip(dets, gt_sorted, strict=True):
+                assert abs(d.cx - 0.5 * (b.x1 + b.x2)) < 0.25 * (b.x2 - b.x1)
+    assert total >= 12
+    assert found >= total - 1
+    assert np.mean(ious) > 0.75
+
+
+def test_min_score_filters(detector, frames):
+    bgr = frames[0][0]
+    loose = detector.detect(bgr, min_score=0.05)
+    strict = detector.detect(bgr, min_score=0.5)
+    assert all(d.score >= 0.5 for d in strict)
+    assert all(d.score >= 0.05 for d in loose)
+    assert len(loose) >= len(strict)
+    assert detector.detect(bgr, min_score=1.01) == []
+
+
+def test_detect_batch_matches_detect(detector, frames):
+    imgs = [f[0] for f in frames[:3]]
+    batch = detector.detect_batch(imgs)
+    for img, dets in zip(imgs, batch, strict=True):
+        single = detector.detect(img)
+        assert len(single) == len(dets)
+        for a, b in zip(single, dets, strict=True):
+            assert abs(a.x1 - b.x1) < 0.5 and abs(a.score - b.score) < 1e-3
+    assert detector.detect_batch([]) == []
+
+
+def test_blank_frame_has_no_blocks(detector):
+    assert detector.detect(np.full((244, 324, 3), 128, np.uint8)) == []
+
+
+def test_nms_keeps_best_of_overlapping():
+    boxes = np.array([[0, 0, 10, 10], [1, 0, 11, 10], [20, 0, 30, 10]], np.float32)
+    keep = nms(boxes, np.array([0.6, 0.9, 0.5]), 0.45)
+    assert keep.tolist() == [1, 2]
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ("frame.png", "numpy array"),
+        (np.zeros((244, 324), np.uint8), "shape"),
+        (np.zeros((3, 244, 324), np.uint8), "shape"),
+        (np.zeros((240, 320, 3), np.uint8), "shape"),
+        (np.zeros((244, 324, 3), np.float32), "uint8"),
+    ],
+)
+def test_bad_input_raises_model_error(detector, bad, message):
+    with pytest.raises(ModelError, match=message):
+        detector.detect(bad)
+
+
+def test_missing_weights(tmp_path):
+    path = tmp_path / "nope.pt"
+    with pytest.raises(ModelError, match="no detector weights") as err:
+        BlockDetector.load(str(path))
+    assert str(path) in str(err.value)
+
+
+def test_corrupt_weights(tmp_path):
+    path = tmp_path / "random.pt"
+    path.write_bytes(np.random.default_rng(0).integers(0, 256, 4096, np.uint8).tobytes())
+    with pytest.raises(ModelError, match="corrupt or unreadable"):
+        BlockDetector.load(str(path))
+
+
+def test_wrong_format_dict(tmp_path):
+    path = tmp_path / "other.pt"
+    torch.save({"format": "btrun-pcb", "state_dict": {}}, path)
+    with pytest.raises(ModelError, match=f"not a {FORMAT} checkpoint"):
+        BlockDetector.load(str(path))
+    blob = torch.load(DEFAULT_WEIGHTS, map_location="cpu", weights_only=True)
+    torch.save({**blob, "format_version": 99}, path)
+    with pytest.raises(ModelError, match="format version 99"):
+        BlockDetector.load(str(path))
+    state = dict(blob["state_dict"])
+    state.pop(next(iter(state)))
+    torch.save({**blob, "state_dict": state}, path)
+    with pytest.raises(ModelError, match="do not fit"):
+        BlockDetector.load(str(path))
+
+
+def test_smoke_training_writes_loadable_checkpoint(tmp_path):
+    out = tmp_path / "smoke.pt"
+    assert train_main(["train", "--smoke", "--quiet", "--out", str(out), "--seed", "3"]) == 0
+    det = BlockDetector.load(str(out))
+    assert det.model_version.startswith("blockdet-v1-")
+    blob = torch.load(out, map_location="cpu", weights_only=True)
+    assert blob["format"] == FORMAT and blob["trained"]["seed"] == 3
+    assert "metrics" in blob["trained"]
+    assert isinstance(det.detect(np.zeros((244, 324, 3), np.uint8)), list)
