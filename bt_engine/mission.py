@@ -151,6 +151,7 @@ class Mission:
             self._by_name.setdefault(n.name, []).append(n)
         self.ticks = 0
         self.last_failure = ""
+        self._leaf_failure = ""
         self.finished: dict[str, str] = {}
         self._drained = True
         self.status: NodeStatus = self.root.bt_status
@@ -177,11 +178,14 @@ class Mission:
         while status is RUNNING and ctx.woken:
             ctx.woken = False
             status = self.root.execute_tick()
+        # The last leaf that failed, in this tick or an earlier one: a tree that handles a
+        # failure (a Fallback that flies home, then ForceFailure) still ends on its cause.
+        for node, _, st in reversed(self._changes):
+            if st is FAILURE and not node.children:
+                self._leaf_failure = f"{node.describe()} failed ({node.loc})"
+                break
         if status is FAILURE:
-            for node, _, st in reversed(self._changes):
-                if st is FAILURE and not node.children:
-                    self.last_failure = f"{node.describe()} failed ({node.loc})"
-                    break
+            self.last_failure = self._leaf_failure
         if status is not RUNNING and status is not SKIPPED:
             self.root.reset_status()
         self.ticks += 1

@@ -248,3 +248,16 @@ def test_changes_are_net_complete_and_bounded(tmp_path):
     for _ in range(20):
         m.tick()  # nobody drains
     assert len(m._changes) <= 3100  # one tick worth, not twenty
+
+
+def test_a_handled_failure_is_still_the_reason_when_the_tree_fails_later():
+    # the cause fails in one tick, the fallback's clean-up runs for two more, then the tree
+    # fails through a decorator: the reason names the leaf that caused it
+    m = xml_mission(wrap(
+        '<Fallback><AlwaysFailure name="cause"/>'
+        '<ForceFailure><Sequence><Delay delay_msec="20"><AlwaysSuccess/></Delay>'
+        '<AlwaysSuccess name="cleanup"/></Sequence></ForceFailure></Fallback>'))
+    run = Runner(m, rate_hz=100)
+    result = run.run(max_time_s=1.0)
+    assert result.status == "FAILURE" and m.ticks >= 3
+    assert m.last_failure.startswith("AlwaysFailure 'cause' failed")
