@@ -144,9 +144,8 @@ class CrazyfliePlatform:
         sitl = None
         if section["sitl"]:
             from drivers.sim.sitl import SitlSession
-            from drivers.sim.world import load_world
 
-            world = load_world(rig.world_path) if section["sitl_world"] else None
+            world = rig.load_world() if section["sitl_world"] else None
             sitl = SitlSession(data, seed, world).start()
             on_close.append(sitl.stop)
             truth, uri = sitl.truth, sitl.uri
@@ -403,15 +402,12 @@ def _make_camera(
     if sitl is not None:
         world = sitl.cf.drone.world
         if world is None:  # the drone flies through nothing, but the camera sees the world
-            from drivers.sim.world import load_world
-
-            world = load_world(rig.world_path)
+            world = rig.load_world()
         emu = sitl.start_camera(data, seed, world)  # closed by sitl.stop
     elif a["emulator"]:
         from drivers.sim.aideck_emulator import AIDeckEmulator, default_pose, make_frame_source
-        from drivers.sim.world import load_world
 
-        world = load_world(rig.world_path)
+        world = rig.load_world()
         name = data["sensors"]["camera"]["renderer"]
         source = make_frame_source("pattern" if name in (None, "none") else name, seed, world)
         emu = AIDeckEmulator(

@@ -411,6 +411,16 @@ class Rig:
         clock = self.data.get("clock", {})
         return float(clock.get("realtime_factor", 1.0)) if clock.get("mode") == "realtime" else None
 
+    def load_world(self) -> Any:
+        """The rig's world (:class:`drivers.sim.world.World`), with ``world.scan_pallet``
+        (which pallet side stands at the scan slot) applied."""
+        from drivers.sim.world import load_world
+
+        overrides = {}
+        if self.data["world"]["scan_pallet"] is not None:
+            overrides["scan_pallet"] = self.data["world"]["scan_pallet"]
+        return load_world(self.world_path, overrides)
+
     @property
     def world_path(self) -> str:
         """The world file, resolved relative to the rig file (then cwd, then the repo)."""
@@ -445,11 +455,6 @@ def load_rig(path: str | None = None, overrides: dict[str, str] | None = None) -
     data = load_yaml_file(path, RIG_SCHEMA)
     data = apply_overrides(data, overrides)
     rig = Rig(data, path)
-    from drivers.sim.world import load_world  # world checks need the sim's world schema
-
-    world_overrides = {}
-    if data["world"]["scan_pallet"] is not None:
-        world_overrides["scan_pallet"] = data["world"]["scan_pallet"]
     if rig.kind == "sim":
-        load_world(rig.world_path, world_overrides)
+        rig.load_world()  # world checks (and the scan pallet) before anything flies
     return rig

@@ -24,7 +24,7 @@ from drivers.sim.estimator import OnboardEstimator
 from drivers.sim.link import SimLink
 from drivers.sim.sensors import SimMocap
 from drivers.sim.wind import WindModel
-from drivers.sim.world import World, load_world
+from drivers.sim.world import World
 from drivers.types import FlightState, Pose
 from drivers.vehicle import Vehicle
 from drivers.vehicle_config import VehicleConfig
@@ -111,11 +111,7 @@ class SimPlatform:
     @classmethod
     def from_rig(cls, rig: Any, clock: Any, seed: int) -> SimPlatform:
         """Build from a :class:`drivers.rig.Rig`."""
-        overrides = {}
-        if rig.data["world"]["scan_pallet"] is not None:
-            overrides["scan_pallet"] = rig.data["world"]["scan_pallet"]
-        world = load_world(rig.world_path, overrides)
-        return cls(world, rig.data, seed, clock)
+        return cls(rig.load_world(), rig.data, seed, clock)
 
     # ------------------------------------------------------------------ faults
     def _register_faults(self) -> None:
