@@ -25,7 +25,6 @@ The shipped weights are ``perception/weights/detector.pt``, trained on synthetic
 
 from __future__ import annotations
 
-import hashlib
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, fields
@@ -35,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from perception.checkpoint import file_sha256
 from perception.errors import ModelError
 from perception.sequencer import Detection
 
@@ -190,15 +190,6 @@ def to_input(frames: Sequence[np.ndarray], input_hw: tuple[int, int]) -> torch.T
     x -= x.mean(axis=(1, 2), keepdims=True)
     x /= x.std(axis=(1, 2, 3), keepdims=True) + np.float32(STD_FLOOR)
     return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2)))
-
-
-def file_sha256(path: str) -> str:
-    """Hex SHA-256 of a file."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 class BlockDetector:

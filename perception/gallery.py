@@ -76,6 +76,7 @@ class Gallery:
         self.model_version, self.dim = model_version, dim
         self.thresholds = self._load_thresholds()
         self._cache: tuple[list[str], np.ndarray] | None = None
+        self._fast: tuple[np.ndarray, list[np.ndarray], np.ndarray] | None = None
 
     # -- opening -------------------------------------------------------------------------
     @classmethod
@@ -267,14 +268,22 @@ class Gallery:
         ids, g = self.matrix()
         if not ids:
             raise GalleryError(f"{self.path}: the gallery is empty: enrol pallets first")
-        per_block = block_distances(q, g)
-        means = per_block.mean(axis=1)
-        order = np.argsort(means, kind="stable")
+        # Screen every entry with one matrix-vector product per block (|g|^2 + |q|^2 - 2 g.q),
+        # then recompute the best candidates exactly, so reported distances are exact.
+        screen = self._screen(q, g)
+        k = min(len(ids), max(top_k, 2) + 16)
+        cand = np.argpartition(screen, k - 1)[:k] if k < len(ids) else np.arange(len(ids))
+        cand = np.sort(cand)
+        exact = block_distances(q, g[cand])
+        means = exact.mean(axis=1)
+        local = np.argsort(means, kind="stable")
+        order, per_block = cand[local], exact[local]
+        means = means[local]
         th = thresholds or self.thresholds
         best = int(order[0])
         second = int(order[1]) if len(order) > 1 else None
-        d1 = float(means[best])
-        d2 = float(means[second]) if second is not None else None
+        d1 = float(means[0])
+        d2 = float(means[1]) if second is not None else None
         margin = (d2 - d1) if d2 is not None else float("inf")
         reason = ""
         if d1 > th.max_distance:
@@ -282,7 +291,8 @@ class Gallery:
         elif margin < th.min_margin:
             reason = f"margin {margin:.3f} to {ids[second]} below the threshold {th.min_margin:.3f}"
         ranking = [
-            (ids[i], float(means[i]), tuple(float(x) for x in per_block[i])) for i in order[:top_k]
+            (ids[i], float(means[j]), tuple(float(x) for x in per_block[j]))
+            for j, i in enumerate(order[:top_k])
         ]
         return Match(
             pallet_id=ids[best] if not reason else "unknown",
@@ -295,6 +305,18 @@ class Gallery:
             reason=reason,
             ranking=ranking,
         )
+
+
+    def _screen(self, q: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """Approximate mean block distances to every entry (float32 dot products)."""
+        if self._fast is None or self._fast[0] is not g:
+            blocks = [np.ascontiguousarray(g[:, b]) for b in range(BLOCKS)]
+            sq = np.stack([np.einsum("nd,nd->n", x, x) for x in blocks], axis=1)
+            self._fast = (g, blocks, sq)
+        _, blocks, sq = self._fast
+        dots = np.stack([blocks[b] @ q[b] for b in range(BLOCKS)], axis=1)
+        d2 = sq + np.einsum("bd,bd->b", q, q)[None, :] - 2.0 * dots
+        return np.sqrt(np.maximum(d2, 0.0)).mean(axis=1)
 
 
 def block_distances(query: np.ndarray, gallery: np.ndarray) -> np.ndarray:

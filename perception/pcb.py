@@ -194,7 +194,16 @@ def load_checkpoint(model: PCB, path: str, ignore_classifier: bool = True) -> No
     state = blob.get("state_dict", blob) if isinstance(blob, dict) else None
     if not isinstance(state, dict):
         raise CheckpointError(f"{path}: not a state dict")
-    state = {k.removeprefix("module."): v for k, v in state.items()}
+    load_state(model, state, path, ignore_classifier)
+
+
+def load_state(
+    model: PCB, state: dict, source: str = "state dict", ignore_classifier: bool = True
+) -> None:
+    """Load an in-memory state dict (``module.`` prefixes stripped) with the checks of
+    :func:`load_checkpoint`; ``source`` names it in the :class:`CheckpointError`."""
+    path = source
+    state = {str(k).removeprefix("module."): v for k, v in state.items()}
     own = model.state_dict()
     if ignore_classifier:
         state = {k: v for k, v in state.items() if not k.startswith("classifier.")}
