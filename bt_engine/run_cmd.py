@@ -194,6 +194,9 @@ def run_command(args) -> int:
         )
     if supervisor is not None and hasattr(supervisor, "summary"):
         summary["safety"] = to_jsonable(supervisor.summary())
+    for name, res in mission.ctx.resources.items():  # plug-in objects that report on the run
+        if name not in summary and callable(getattr(res, "run_summary", None)):
+            summary[name] = to_jsonable(res.run_summary())
     if runner.error_traceback:
         with open(os.path.join(run_dir, "error.log"), "w") as f:
             f.write(runner.error_traceback)

@@ -5,7 +5,7 @@ flight actions and vehicle conditions, and it gives the CLI the rig loader (simu
 real drone), the safety supervisor and the flight report writer.
 """
 
-from nodes import conditions, flight, geometry, safety  # noqa: F401  (registration)
+from nodes import conditions, flight, geometry, perception, safety  # noqa: F401  (registration)
 
 
 def load_rig(path, overrides=None):
@@ -34,7 +34,8 @@ def write_report(run_dir, trace, summary, mission):
 
 
 def add_commands():
-    """Subcommands this plug-in adds to ``btrun``: ``btrun sim serve crazyflie|aideck ...``."""
+    """Subcommands this plug-in adds to ``btrun``: ``btrun sim serve crazyflie|aideck ...`` and
+    ``btrun gallery ...`` (:mod:`nodes.gallery_cli`)."""
     import argparse
 
     def setup(p: argparse.ArgumentParser) -> None:
@@ -54,4 +55,13 @@ def add_commands():
             from drivers.sim.aideck_emulator import main as serve
         return int(serve(list(args.args)) or 0)
 
-    return {"sim": ("simulator tools (btrun sim serve crazyflie|aideck)", setup, run)}
+    from nodes import gallery_cli
+
+    return {
+        "sim": ("simulator tools (btrun sim serve crazyflie|aideck)", setup, run),
+        "gallery": (
+            "enrolled pallets: btrun gallery list|enrol|remove|export|evaluate|demo",
+            gallery_cli.setup,
+            gallery_cli.run,
+        ),
+    }

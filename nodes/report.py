@@ -234,9 +234,14 @@ def write_report(run_dir: str, trace: Sequence[dict], summary: dict, mission: An
             plots.plot_timeline(run_dir, spans, short_labels([s[0] for s in spans])),
         ),
     ]
+    from nodes.report_perception import perception_section
+
+    extra = perception_section(run_dir, mission)
     path = os.path.join(run_dir, "report.html")
     with open(path, "w", encoding="utf-8") as f:
-        f.write(_html(summary or {}, mission, rows, [(c, n) for c, n in figures if n], trace))
+        f.write(
+            _html(summary or {}, mission, rows, [(c, n) for c, n in figures if n], trace, extra)
+        )
     return path
 
 
@@ -308,6 +313,7 @@ def _html(
     rows: list[dict],
     figures: list[tuple[str, str]],
     trace: Sequence[dict],
+    extra: str = "",
 ) -> str:
     esc = html.escape
     spec = getattr(mission, "spec", None)
@@ -354,6 +360,8 @@ def _html(
             else ""
         )
         out += ["<h2>Messages</h2>", f"<ul>{items}{more}</ul>"]
+    if extra:
+        out.append(extra)
     for caption, name in figures:
         out += [
             f"<h2>{esc(caption)}</h2>",

@@ -33,11 +33,13 @@ def sim_mission(xml_or_path: str, seed: int = 0, overrides: dict | None = None, 
     from drivers.rig import load_rig
 
     clock = SimClock()
-    platform = load_rig(None, overrides).make_platform(clock, seed)
+    rig = load_rig(None, overrides)
+    platform = rig.make_platform(clock, seed)
     if xml_or_path.lstrip().startswith("<"):
         spec = load_xml("inline.xml", text=xml_or_path)
     else:
         spec = load_spec(xml_or_path)
+    kw.setdefault("resources", {"rig": rig, "platform": platform, "seed": seed})
     mission = Mission(spec, clock=clock, vehicle=platform.vehicle, **kw)
     return mission, Runner(mission, rate_hz=rate_hz, hooks=[platform]), platform
 

@@ -1,0 +1,161 @@
+"""Enrolment scans without a flight, and the demo gallery built from them.
+
+An enrolment scan renders what the AI-deck camera sees while it moves along the world's scan
+line in front of one pallet side (the world's scan slot, with that side standing in it), and
+runs it through the same detector and block sequencer as a mission. The three committed
+crops are embedded and enrolled.
+
+The demo gallery holds every side of the world's pallets ("1A" .. "5B" in
+``worlds/warehouse.yaml``: the reference study's five pallets). It is built on first use,
+in about ten seconds, into a cache file whose name depends on the world file and both model
+versions (``$BTRUN_CACHE_DIR``, default ``~/.cache/btrun``), so a new model or world never
+reuses a stale gallery. The file is written under a temporary name and renamed, so an
+interrupted build leaves nothing half-made.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+
+ENROL_SPEED_MPS = 0.1  # camera speed along the scan line while enrolling
+ENROL_RATE_HZ = 15.0
+ENROL_VERSION = 1  # bump when the enrolment procedure changes (invalidates cached galleries)
+
+
+def cache_dir() -> str:
+    """Where btrun keeps generated files (``$BTRUN_CACHE_DIR`` or ``~/.cache/btrun``)."""
+    root = os.environ.get("BTRUN_CACHE_DIR")
+    if not root:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        root = os.path.join(base, "btrun")
+    return root
+
+
+def scan_frames(
+    world_path: str, identity: str, camera: dict | None, seed: int = 0
+) -> Iterator[tuple[np.ndarray, float]]:
+    """Raw frames (and their times) of a camera moving along the world's scan line with
+    ``identity`` standing in the scan slot; motion blur from the scan speed."""
+    from drivers.sim.renderer import PalletRenderer
+    from drivers.sim.world import load_world
+    from drivers.types import Pose
+
+    world = load_world(world_path, {"scan_pallet": identity})
+    line = world.data["scan_line"]
+    renderer = PalletRenderer(world, camera, np.random.default_rng(seed))
+    yaw = math.radians(line["yaw_deg"])
+    quaternion = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+    y0, y1 = line["y_from_m"], line["y_to_m"]
+    step = math.copysign(ENROL_SPEED_MPS / ENROL_RATE_HZ, y1 - y0)
+    n = int(abs(y1 - y0) / abs(step)) + 1
+    for k in range(n):
+        t = k / ENROL_RATE_HZ
+        pose = Pose(line["x_m"], y0 + k * step, line["z_m"], yaw, quaternion, t, "enrol")
+        yield renderer(pose, t), t
+
+
+def scan_blocks(
+    frames: Iterator[tuple[np.ndarray, float]],
+    detector: Any,
+    factors: tuple[float, float, float],
+    min_score: float = 0.5,
+) -> list[np.ndarray]:
+    """The crops the block sequencer commits over a stream of raw frames (stops at three)."""
+    from perception.sequencer import BlockSequencer
+    from perception.white_balance import preprocess
+
+    seq = BlockSequencer()
+    for raw, t in frames:
+        bgr = preprocess(raw, factors)
+        seq.update(bgr, detector.detect(bgr, min_score=min_score), t)
+        if seq.done:
+            break
+    return [b.crop for b in seq.blocks]
+
+
+def png_bytes(crop: np.ndarray) -> bytes:
+    """A crop as PNG bytes (what the gallery stores as the source crop)."""
+    import cv2
+
+    ok, buf = cv2.imencode(".png", crop)
+    return buf.tobytes() if ok else b""
+
+
+def demo_gallery_path(world_path: str, detector: Any, embedder: Any, camera: dict | None) -> str:
+    """The cache file of the demo gallery for this world, camera and pair of models."""
+    h = hashlib.sha256()
+    with open(world_path, "rb") as f:
+        h.update(f.read())
+    h.update(repr(sorted((camera or {}).items())).encode())
+    h.update(f"{detector.model_version}|{embedder.model_version}|{ENROL_VERSION}".encode())
+    return os.path.join(cache_dir(), "galleries", f"demo-{h.hexdigest()[:16]}.sqlite")
+
+
+def build_gallery(
+    path: str,
+    world_path: str,
+    identities: list[str],
+    detector: Any,
+    embedder: Any,
+    camera: dict | None,
+    log: Callable[[str], None] = print,
+) -> None:
+    """Enrol ``identities`` of the world from rendered scans into a new gallery at ``path``
+    (written to a temporary file first, then renamed over ``path``)."""
+    from perception.gallery import Gallery, GalleryError
+
+    factors = tuple(float(f) for f in (camera or {}).get("white_balance", (1.0, 1.0, 1.0)))
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=".sqlite", dir=os.path.dirname(os.path.abspath(path)))
+    os.close(fd)
+    os.unlink(tmp)
+    try:
+        with Gallery.create(tmp, embedder.model_version, embedder.dim) as g:
+            g.set_thresholds(embedder.thresholds)
+            for i, identity in enumerate(identities):
+                crops = scan_blocks(
+                    scan_frames(world_path, identity, camera, seed=1000 + i), detector, factors
+                )
+                if len(crops) < 3:
+                    raise GalleryError(
+                        f"enrolment scan of {identity} found {len(crops)} of 3 blocks"
+                    )
+                g.enrol(
+                    identity,
+                    embedder.embed(crops),
+                    [png_bytes(c) for c in crops],
+                    source=f"rendered scan of {os.path.basename(world_path)}",
+                )
+                log(f"  enrolled {identity} ({i + 1}/{len(identities)})")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def ensure_demo_gallery(
+    world_path: str,
+    detector: Any,
+    embedder: Any,
+    camera: dict | None,
+    log: Callable[[str], None] = print,
+) -> str:
+    """The demo gallery's path, building it first if it does not exist yet."""
+    from drivers.sim.world import load_world
+
+    path = demo_gallery_path(world_path, detector, embedder, camera)
+    if not os.path.exists(path):
+        identities = load_world(world_path).identities()
+        log(
+            f"building the demo gallery ({len(identities)} pallet sides of "
+            f"{os.path.basename(world_path)}) in {path}"
+        )
+        build_gallery(path, world_path, identities, detector, embedder, camera, log)
+    return path

@@ -1,0 +1,298 @@
+"""Perception leaves: PerceptionReady, DetectBlocks, BlockCount, IdentifyPallet, EnrollPallet.
+
+The pallet-scan mission runs ``DetectBlocks`` beside the scan flight (in a Parallel): each
+tick it takes the newest camera frame, detects the support blocks and feeds the block
+sequencer, and it succeeds once three blocks are committed. ``IdentifyPallet`` embeds the
+three crops (PCB) and matches them against the gallery; ``EnrollPallet`` adds them to it.
+``PerceptionReady`` loads the models and opens the gallery before take-off, so a missing
+weights file or a gallery of another model stops the mission on the ground.
+
+Problems (bad weights, gallery, frames, a stalled camera) end the leaf with FAILURE and a
+message in the run log; they never raise, so the tree (or the safety supervisor) lands.
+"""
+
+from __future__ import annotations
+
+from bt_engine.node import (
+    FAILURE,
+    RUNNING,
+    SUCCESS,
+    ConditionNode,
+    NodeStatus,
+    StatefulActionNode,
+    SyncActionNode,
+)
+from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
+from bt_engine.registry import REGISTRY
+from nodes.common import vehicle_of
+from nodes.perception_session import DEMO, BlockScan, PerceptionError, PerceptionSession
+from perception.errors import ModelError
+from perception.gallery import GalleryError
+
+CATEGORY_PERCEPTION = "perception"
+
+_DETECTOR = input_port("detector", STRING, "", "detector weights file (empty: the shipped model)")
+_EMBEDDER = input_port("embedder", STRING, "", "embedder weights file (empty: the shipped model)")
+_GALLERY = input_port(
+    "gallery", STRING, DEMO, "gallery file (.sqlite), or demo: the world's pallets 1A..5B"
+)
+
+
+def _fail(node, reason: str) -> NodeStatus:
+    node.ctx.log(f"{node.describe()} failed: {reason}")
+    node.failure_reason = reason
+    return FAILURE
+
+
+class PerceptionReady(SyncActionNode):
+    """Load the detector and the embedder and open the gallery (building the demo gallery on
+    first use); FAILURE with the reason if any of them cannot be used. Put it before the
+    take-off so nothing flies with a broken perception."""
+
+    bt_id = "PerceptionReady"
+    category = CATEGORY_PERCEPTION
+    ports = (
+        _DETECTOR,
+        _EMBEDDER,
+        _GALLERY,
+        input_port("enrol", BOOL, False, "true: the gallery may be new or empty (enrolment)"),
+        output_port("gallery_size", INT, "number of enrolled pallet sides"),
+    )
+
+    def tick_impl(self) -> NodeStatus:
+        session = PerceptionSession.of(self.ctx)
+        enrol = self.get_input("enrol")
+        try:
+            detector = session.detector(self.get_input("detector"))
+            embedder = session.embedder(self.get_input("embedder"))
+            g = session.gallery(self.get_input("gallery"), embedder, create=enrol, detector=detector)
+        except PerceptionError as exc:
+            return _fail(self, str(exc))
+        self.set_output("gallery_size", len(g))
+        if len(g) == 0 and not enrol:
+            return _fail(self, f"gallery {g.path} is empty: enrol pallets first")
+        return SUCCESS
+
+
+class DetectBlocks(StatefulActionNode):
+    """Consume camera frames as they arrive, detect the support blocks and commit one crop
+    per block, left to right (the block sequencer). RUNNING until ``blocks`` are committed,
+    then SUCCESS; run it in a Parallel beside the scan flight. ``count`` and ``scan`` are
+    written whenever a block is committed, so they hold what was found if the scan ends
+    first. FAILURE if the camera delivers no frame for ``stall_timeout``, on a frame of the
+    wrong size or format, or after ``timeout``."""
+
+    bt_id = "DetectBlocks"
+    category = CATEGORY_PERCEPTION
+    ports = (
+        _DETECTOR,
+        input_port("min_score", FLOAT, 0.5, "detection score threshold (0..1)"),
+        input_port("max_distance_left_px", FLOAT, 60.0, "keep crops this close left of centre"),
+        input_port("min_distance_right_px", FLOAT, 20.0, "commit once this far right of centre"),
+        input_port("blocks", INT, 3, "blocks to commit before SUCCESS"),
+        input_port("stall_timeout", DURATION, 1.0, "FAILURE after this long without a frame, s"),
+        input_port("timeout", DURATION, 120.0, "FAILURE if not done within this time, s"),
+        output_port("count", INT, "blocks committed so far"),
+        output_port("scan", ANY, "the committed crops (for IdentifyPallet / EnrollPallet)"),
+    )
+
+    def on_start(self) -> NodeStatus:
+        from perception.sequencer import BlockSequencer, SequencerParams
+
+        self.vehicle = vehicle_of(self)
+        self.session = PerceptionSession.of(self.ctx)
+        try:
+            self.detector = self.session.detector(self.get_input("detector"))
+        except PerceptionError as exc:
+            return _fail(self, str(exc))
+        params = SequencerParams(
+            max_distance_left_px=self.get_input("max_distance_left_px"),
+            min_distance_right_px=self.get_input("min_distance_right_px"),
+            blocks=self.get_input("blocks"),
+        )
+        self.sequencer = BlockSequencer(params)
+        self.min_score = self.get_input("min_score")
+        self.stall_s, self.timeout_s = self.get_input("stall_timeout"), self.get_input("timeout")
+        self.started_s = self.last_frame_s = self.now()
+        frame = self.vehicle.camera_frame()
+        self.last_index = frame.index if frame is not None else None  # only frames from now on
+        self.result = BlockScan()
+        self.camera_index: dict[int, int] = {}  # sequencer frame number -> camera frame index
+        self.session.scans.append(self.result)
+        self.session.recent.clear()
+        self.set_output("count", 0)
+        self.set_output("scan", self.result)
+        return self.on_running()
+
+    def on_running(self) -> NodeStatus:
+        now = self.now()
+        frame = self.vehicle.camera_frame()
+        if frame is not None and frame.index != self.last_index:
+            self.last_index, self.last_frame_s = frame.index, now
+            self.camera_index[self.sequencer.frames + 1] = frame.index
+            try:
+                new = self.session.process(frame, self.detector, self.sequencer, self.min_score)
+            except PerceptionError as exc:
+                return _fail(self, str(exc))
+            self.result.frames_seen += 1
+            for block in new:
+                r = self.result
+                r.crops.append(block.crop)
+                r.frames.append(self.camera_index.get(block.frame_index, frame.index))
+                r.times_s.append(block.t_s)
+                r.qualities.append(block.quality)
+            if new:
+                self.set_output("count", self.result.count)
+                self.set_output("scan", self.result)
+            if self.sequencer.done:
+                return SUCCESS
+        if now - self.last_frame_s >= self.stall_s - 1e-9:
+            return _fail(
+                self,
+                f"camera stalled: no frame for {now - self.last_frame_s:.2f} s "
+                f"({self.result.count} of {self.sequencer.params.blocks} blocks committed)",
+            )
+        if now - self.started_s >= self.timeout_s - 1e-9:
+            return _fail(
+                self,
+                f"time-out after {self.timeout_s:g} s with {self.result.count} of "
+                f"{self.sequencer.params.blocks} blocks",
+            )
+        return RUNNING
+
+
+class BlockCount(ConditionNode):
+    """SUCCESS if at least ``min`` blocks were committed (``count`` from DetectBlocks)."""
+
+    bt_id = "BlockCount"
+    category = CATEGORY_PERCEPTION
+    ports = (
+        input_port("count", INT, description="blocks committed (DetectBlocks' count)"),
+        input_port("min", INT, 3, "blocks needed"),
+    )
+
+    def check(self) -> bool:
+        return self.get_input("count") >= self.get_input("min")
+
+
+def _scan_crops(node, scan) -> list:
+    if not isinstance(scan, BlockScan):
+        raise PerceptionError(f"scan must be DetectBlocks' scan output, got {type(scan).__name__}")
+    if scan.count < 3:
+        raise PerceptionError(f"the scan committed {scan.count} of 3 blocks; need all three")
+    return scan.crops[:3]
+
+
+class IdentifyPallet(SyncActionNode):
+    """Embed the three block crops and match them against the gallery: ``pallet_id`` is the
+    closest enrolled side, or ``unknown`` when its mean block distance is above
+    ``max_distance`` or its margin to the runner-up is below ``min_margin`` (defaults: the
+    thresholds stored in the gallery, calibrated with the model). SUCCESS with an answer
+    (``unknown`` included); FAILURE if there are not three crops or the gallery cannot be
+    used."""
+
+    bt_id = "IdentifyPallet"
+    category = CATEGORY_PERCEPTION
+    ports = (
+        input_port("scan", ANY, description="DetectBlocks' scan output"),
+        _GALLERY,
+        _EMBEDDER,
+        input_port("max_distance", FLOAT, None, "unknown above this mean distance (default: gallery)"),
+        input_port("min_margin", FLOAT, None, "unknown below this margin (default: gallery)"),
+        input_port("top_k", INT, 5, "length of the ranking"),
+        output_port("pallet_id", STRING, "identity (e.g. 3A) or unknown"),
+        output_port("best_id", STRING, "closest identity, even when the answer is unknown"),
+        output_port("distance", FLOAT, "mean block distance to the closest identity"),
+        output_port("margin", FLOAT, "runner-up distance minus the best distance"),
+        output_port("ranking", ANY, "top_k [identity, mean distance] pairs, best first"),
+    )
+
+    def tick_impl(self) -> NodeStatus:
+        from perception.gallery import Thresholds
+
+        session = PerceptionSession.of(self.ctx)
+        try:
+            crops = _scan_crops(self, self.get_input("scan"))
+            embedder = session.embedder(self.get_input("embedder"))
+            g = session.gallery(self.get_input("gallery"), embedder)
+            th = g.thresholds
+            md, mm = self.get_input("max_distance"), self.get_input("min_margin")
+            th = Thresholds(
+                th.max_distance if md is None else md, th.min_margin if mm is None else mm
+            )
+            emb = embedder.embed(crops)
+            match = g.match(emb, top_k=self.get_input("top_k"), thresholds=th)
+        except (PerceptionError, GalleryError, ModelError) as exc:
+            return _fail(self, str(exc))
+        ranking = [[ident, round(d, 4)] for ident, d, _ in match.ranking]
+        session.identifications.append(
+            {
+                "t_s": self.now(),
+                "pallet_id": match.pallet_id,
+                "best_id": match.best_id,
+                "distance": match.distance,
+                "margin": match.margin,
+                "known": match.known,
+                "reason": match.reason,
+                "thresholds": [th.max_distance, th.min_margin],
+                "ranking": [[i, d, list(b)] for i, d, b in match.ranking],
+                "crops": crops,
+            }
+        )
+        self.set_output("pallet_id", match.pallet_id)
+        self.set_output("best_id", match.best_id)
+        self.set_output("distance", match.distance)
+        self.set_output("margin", match.margin)
+        self.set_output("ranking", ranking)
+        note = "" if match.known else f" ({match.reason}; closest {match.best_id})"
+        self.ctx.log(
+            f"pallet {match.pallet_id}: distance {match.distance:.3f}, margin {match.margin:.3f}{note}"
+        )
+        return SUCCESS
+
+
+class EnrollPallet(SyncActionNode):
+    """Add the scanned pallet side to the gallery as ``identity`` (e.g. 7A), with its three
+    crops; creates the gallery file if needed. FAILURE if there are not three crops, or the
+    identity is enrolled already and ``replace`` is false. (The port is not called ``name``:
+    that attribute is every node's instance name.)"""
+
+    bt_id = "EnrollPallet"
+    category = CATEGORY_PERCEPTION
+    ports = (
+        input_port("identity", STRING, description="pallet side to enrol, e.g. 7A"),
+        input_port("scan", ANY, description="DetectBlocks' scan output"),
+        input_port("gallery", STRING, "pallets.sqlite", "gallery file (.sqlite), created if missing"),
+        _EMBEDDER,
+        input_port("replace", BOOL, True, "replace an existing entry of the same name"),
+        output_port("gallery_size", INT, "number of enrolled pallet sides after enrolling"),
+    )
+
+    def tick_impl(self) -> NodeStatus:
+        from nodes.demo_gallery import png_bytes
+
+        session = PerceptionSession.of(self.ctx)
+        name = self.get_input("identity").strip()
+        try:
+            if self.get_input("gallery") == DEMO:
+                raise PerceptionError("the demo gallery is generated: enrol into your own file")
+            crops = _scan_crops(self, self.get_input("scan"))
+            embedder = session.embedder(self.get_input("embedder"))
+            g = session.gallery(self.get_input("gallery"), embedder, create=True)
+            g.enrol(
+                name,
+                embedder.embed(crops),
+                [png_bytes(c) for c in crops],
+                source=f"mission at t={self.now():.1f} s",
+                replace=self.get_input("replace"),
+            )
+        except (PerceptionError, GalleryError, ModelError) as exc:
+            return _fail(self, str(exc))
+        session.enrolments.append({"t_s": self.now(), "name": name, "gallery": g.path})
+        self.set_output("gallery_size", len(g))
+        self.ctx.log(f"enrolled {name} in {g.path} ({len(g)} sides)")
+        return SUCCESS
+
+
+for _cls in (PerceptionReady, DetectBlocks, BlockCount, IdentifyPallet, EnrollPallet):
+    REGISTRY.register(_cls)

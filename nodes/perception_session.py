@@ -1,0 +1,249 @@
+"""What the perception leaves share during one run: models, gallery, frames seen, answers.
+
+One :class:`PerceptionSession` per mission (``ctx.resources["perception"]``) loads the block
+detector and the PCB embedder once, opens the gallery once, turns camera frames into the
+white-balanced BGR images the models take, and keeps what the flight report shows: the
+frames with detections, the committed crops, every identification with its ranking, and the
+frame-to-decision latency.
+
+Every problem a user can cause (missing or corrupt weights, a gallery of another model, an
+empty gallery, a frame of the wrong size or format) becomes a :class:`PerceptionError` whose
+message says what was wrong and what was expected; the leaves turn it into a FAILURE with
+that message, so the tree lands the drone instead of guessing.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from perception.errors import ModelError
+
+FRAME_HW = (244, 324)  # the AI-deck camera: 324 x 244 pixels
+DEMO = "demo"  # gallery name of the built-in demo gallery (the world's pallets)
+
+
+#: torch threads for the mission's models. One: the detector does a frame in about 4 ms on
+#: one core, and two threads stall for hundreds of ms whenever the other core is busy (the
+#: SITL emulators, the control thread or any other process), which a 15 frames/s stream
+#: cannot afford.
+TORCH_THREADS = 1
+
+
+class PerceptionError(Exception):
+    """A perception problem with a message meant for the user (no traceback needed)."""
+
+
+@dataclass
+class BlockScan:
+    """The blocks one scan committed (left to right), as DetectBlocks outputs them."""
+
+    crops: list[np.ndarray] = field(default_factory=list)
+    frames: list[int] = field(default_factory=list)  # camera frame index of each crop
+    times_s: list[float] = field(default_factory=list)
+    qualities: list[float] = field(default_factory=list)
+    frames_seen: int = 0
+
+    @property
+    def count(self) -> int:
+        """Number of committed blocks."""
+        return len(self.crops)
+
+    def __repr__(self) -> str:  # the tick log shows this, not the pixels
+        sizes = ", ".join(f"{c.shape[1]}x{c.shape[0]}" for c in self.crops)
+        return f"BlockScan({self.count} blocks [{sizes}] from {self.frames_seen} frames)"
+
+
+@dataclass
+class KeyFrame:
+    """A frame worth showing in the report: the image and its detections."""
+
+    index: int
+    t_s: float
+    image: np.ndarray  # BGR
+    boxes: list[tuple[float, float, float, float, float]]  # x1, y1, x2, y2, score
+    committed: list[int] = field(default_factory=list)  # block numbers whose crop came from here
+    seq_frame: int = -1  # the sequencer's frame number (CommittedBlock.frame_index)
+    committed_boxes: list[tuple[float, float, float, float]] = field(default_factory=list)
+
+
+def frame_bgr(image: Any, fmt: str | None, factors: tuple[float, float, float]) -> np.ndarray:
+    """The white-balanced BGR image of a camera frame (raw Bayer BG or already BGR).
+
+    Raises :class:`PerceptionError` naming the offending shape and type when the frame is not
+    a 244 x 324 uint8 Bayer image or a 244 x 324 x 3 uint8 BGR image.
+    """
+    from perception.white_balance import preprocess
+
+    arr = np.asarray(image) if image is not None else None
+    h, w = FRAME_HW
+    expected = f"a {w}x{h} raw Bayer BG frame (uint8, {h}x{w}) or a BGR image (uint8, {h}x{w}x3)"
+    if arr is None or arr.dtype != np.uint8 or arr.ndim not in (2, 3):
+        what = "nothing" if arr is None else f"shape {arr.shape} of {arr.dtype}"
+        raise PerceptionError(f"camera frame has {what}; expected {expected}")
+    if arr.shape[:2] != (h, w) or (arr.ndim == 3 and arr.shape[2] != 3):
+        raise PerceptionError(f"camera frame has shape {arr.shape}; expected {expected}")
+    if arr.ndim == 2:
+        if fmt not in (None, "bayer", "bayer_bg", "raw"):
+            raise PerceptionError(f"camera frame format '{fmt}' is 2-D; expected {expected}")
+        return preprocess(arr, factors)
+    return arr
+
+
+class PerceptionSession:
+    """Models, gallery and records of one run; see the module doc."""
+
+    def __init__(self, rig: Any = None, log: Callable[[str], None] | None = None) -> None:
+        self.rig = rig
+        data = getattr(rig, "data", None) or {}
+        camera = (data.get("sensors") or {}).get("camera") or {}
+        self.camera: dict = dict(camera)
+        self.factors = tuple(float(f) for f in camera.get("white_balance", (1.0, 1.0, 1.0)))
+        self.log = log or (lambda msg: None)
+        self._detectors: dict[str, Any] = {}
+        self._embedders: dict[str, Any] = {}
+        self._galleries: dict[tuple[str, str], Any] = {}
+        self.recent: deque[KeyFrame] = deque(maxlen=45)  # frames with detections, newest last
+        self.key_frames: list[KeyFrame] = []  # frames the committed crops came from
+        self.scans: list[BlockScan] = []
+        self.identifications: list[dict] = []
+        self.enrolments: list[dict] = []
+        self.latencies_ms: list[float] = []
+        self.frames = 0
+        self.detections = 0
+
+    @classmethod
+    def of(cls, ctx: Any) -> PerceptionSession:
+        """The session of a mission context (created on first use)."""
+        session = ctx.resources.get("perception")
+        if session is None:
+            session = cls(ctx.resources.get("rig"), ctx.log)
+            ctx.resources["perception"] = session
+        return session
+
+    # -- models and gallery -------------------------------------------------------------------
+    def detector(self, path: str = "") -> Any:
+        """The block detector (``""``: the shipped weights), loaded once."""
+        if path not in self._detectors:
+            from perception.detector import BlockDetector
+
+            try:
+                self._detectors[path] = BlockDetector.load(path or None, threads=TORCH_THREADS)
+            except ModelError as exc:
+                raise PerceptionError(f"block detector: {exc}") from None
+        return self._detectors[path]
+
+    def embedder(self, path: str = "") -> Any:
+        """The PCB embedder (``""``: the shipped weights), loaded once."""
+        if path not in self._embedders:
+            from perception.embedder import BlockEmbedder
+
+            try:
+                self._embedders[path] = BlockEmbedder.load(path or None, threads=TORCH_THREADS)
+            except ModelError as exc:
+                raise PerceptionError(f"block embedder: {exc}") from None
+        return self._embedders[path]
+
+    def world_path(self) -> str | None:
+        """The rig's world file, if the rig has one."""
+        wp = getattr(self.rig, "world_path", None)
+        return wp if wp and os.path.exists(wp) else None
+
+    def gallery(self, spec: str, embedder: Any, create: bool = False, detector: Any = None) -> Any:
+        """Open the gallery ``spec`` for ``embedder``'s model (``"demo"``: the demo gallery of
+        the rig's world, built on first use; ``create``: make an empty file if missing)."""
+        from perception.gallery import Gallery, GalleryError
+
+        key = (spec, embedder.model_version)
+        if key in self._galleries:
+            return self._galleries[key]
+        try:
+            if spec == DEMO:
+                from nodes.demo_gallery import ensure_demo_gallery
+
+                world = self.world_path()
+                if world is None:
+                    raise PerceptionError(
+                        "the demo gallery needs a rig with a world (e.g. rigs/sim.yaml); "
+                        "give gallery=<file.sqlite> instead"
+                    )
+                path = ensure_demo_gallery(
+                    world, detector or self.detector(), embedder, self.camera, log=self.log
+                )
+                g = Gallery.open(path, embedder.model_version)
+            elif os.path.exists(spec):
+                g = Gallery.open(spec, embedder.model_version)
+            elif create:
+                g = Gallery.create(spec, embedder.model_version, embedder.dim)
+                g.set_thresholds(embedder.thresholds)
+            else:
+                raise PerceptionError(
+                    f"gallery '{spec}' does not exist: enrol pallets first "
+                    "(missions/enroll_pallet.xml or btrun gallery enrol), or use gallery=demo"
+                )
+            g.matrix()  # read the embeddings now, on the ground, not at the first identification
+        except GalleryError as exc:
+            raise PerceptionError(f"gallery: {exc}") from None
+        self._galleries[key] = g
+        return g
+
+    def close(self) -> None:
+        """Close the open galleries."""
+        for g in self._galleries.values():
+            g.close()
+        self._galleries.clear()
+
+    # -- frames ------------------------------------------------------------------------------
+    def process(self, frame: Any, detector: Any, sequencer: Any, min_score: float) -> list:
+        """Detect blocks in one camera frame and feed the sequencer; return new commits."""
+        t0 = time.perf_counter()
+        bgr = frame_bgr(frame.image, (frame.meta or {}).get("format"), self.factors)
+        dets = detector.detect(bgr, min_score=min_score)
+        committed = sequencer.update(bgr, dets, frame.t_s)
+        self.latencies_ms.append((time.perf_counter() - t0) * 1e3)
+        self.frames += 1
+        self.detections += len(dets)
+        if dets:
+            boxes = [(d.x1, d.y1, d.x2, d.y2, d.score) for d in dets]
+            self.recent.append(KeyFrame(frame.index, frame.t_s, bgr, boxes, seq_frame=sequencer.frames))
+        for block in committed:
+            source = next((k for k in self.recent if k.seq_frame == block.frame_index), None)
+            if source is not None:
+                source.committed.append(block.index)
+                b = block.box
+                source.committed_boxes.append((b.x1, b.y1, b.x2, b.y2))
+                if all(source is not k for k in self.key_frames):
+                    self.key_frames.append(source)
+        return committed
+
+    def run_summary(self) -> dict:
+        """What ``summary.json`` records under ``perception`` (see :meth:`summary`)."""
+        return self.summary()
+
+    def summary(self) -> dict:
+        """Figures for ``summary.json``: frames, detections, latency, answers."""
+        lat = np.asarray(self.latencies_ms) if self.latencies_ms else None
+        out: dict[str, Any] = {
+            "frames_processed": self.frames,
+            "detections": self.detections,
+            "blocks": [s.count for s in self.scans],
+        }
+        if lat is not None:
+            out["frame_to_decision_ms"] = {
+                "p50": round(float(np.percentile(lat, 50)), 2),
+                "p95": round(float(np.percentile(lat, 95)), 2),
+                "max": round(float(lat.max()), 2),
+            }
+        if self.identifications:
+            out["identifications"] = [
+                {k: v for k, v in rec.items() if k != "crops"} for rec in self.identifications
+            ]
+        if self.enrolments:
+            out["enrolments"] = self.enrolments
+        return out

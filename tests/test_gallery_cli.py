@@ -1,0 +1,66 @@
+"""``btrun gallery``: enrol, list, remove, export, evaluate, demo; errors are one line, exit 2."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import cv2
+import numpy as np
+from helpers import REPO
+
+from bt_engine.cli import main
+
+
+def test_enrol_list_evaluate_export_remove(tmp_path, capsys):
+    g = str(tmp_path / "p.sqlite")
+    assert main(["gallery", "enrol", g, "2B", "--world-side", "2B"]) == 0
+    assert main(["gallery", "enrol", g, "4A", "--world-side", "4A"]) == 0
+    out = capsys.readouterr().out
+    assert "enrolled 4A" in out and "(2 pallet sides)" in out
+    assert main(["gallery", "list", g]) == 0
+    out = capsys.readouterr().out
+    assert "2 pallet sides" in out and "2B" in out and "rendered scan of 2B" in out
+    assert main(["gallery", "evaluate", g]) == 0
+    assert "closest pair" in capsys.readouterr().out
+    out_dir = tmp_path / "export"
+    assert main(["gallery", "export", g, str(out_dir)]) == 0
+    meta = json.loads((out_dir / "entries.json").read_text())
+    assert meta["identities"] == ["2B", "4A"]
+    emb = np.load(out_dir / "embeddings.npy")
+    assert emb.shape[:2] == (2, 3) and np.all(np.isfinite(emb))
+    crop = cv2.imread(str(out_dir / "2B_block_1.png"))
+    assert crop is not None and crop.shape[2] == 3
+    # enrol the exported crops under a new name: the same pallet, so it matches 2B exactly
+    crops = [str(out_dir / f"2B_block_{i}.png") for i in (1, 2, 3)]
+    assert main(["gallery", "enrol", g, "2B-copy", "--crops", *crops]) == 0
+    assert main(["gallery", "remove", g, "4A"]) == 0
+    assert "2 pallet sides left" in capsys.readouterr().out  # 2B and 2B-copy remain
+    assert main(["gallery", "list", g]) == 0
+    out = capsys.readouterr().out
+    assert "4A" not in out and "2B-copy" in out
+
+
+def test_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
+    assert main(["gallery", "list", str(tmp_path / "missing.sqlite")]) == 2
+    assert "no such gallery file" in capsys.readouterr().out
+    bad = tmp_path / "bad.sqlite"
+    bad.write_bytes(os.urandom(4096))
+    assert main(["gallery", "list", str(bad)]) == 2
+    out = capsys.readouterr().out
+    assert "bad.sqlite" in out and ("not a readable" in out or "damaged" in out)
+    assert main(["gallery", "enrol", "demo", "9A", "--world-side", "3A"]) == 2
+    assert "demo gallery is generated" in capsys.readouterr().out
+    g = str(tmp_path / "g.sqlite")
+    assert main(["gallery", "enrol", g, "1A", "--crops", "a.png", "b.png", "c.png"]) == 2
+    assert "a.png: not a readable image" in capsys.readouterr().out
+    assert main(["gallery", "remove", g, "nobody"]) == 2
+    assert "nobody is not enrolled" in capsys.readouterr().out
+
+
+def test_demo_gallery_has_the_ten_reference_sides(capsys):
+    assert main(["gallery", "demo", "--rig", os.path.join(REPO, "rigs", "sim.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "10 pallet sides" in out
+    for side in ("1A", "3B", "5B"):
+        assert side in out
