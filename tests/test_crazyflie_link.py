@@ -166,3 +166,34 @@ def test_mission_flies_through_the_sitl_rig(tmp_path) -> None:
     assert cam["frames_at_vehicle"] > 30 and cam["dropped"] == 0 and cam["corrupt"] == 0
     assert cam["frames"] >= cam["emulator"]["frames_sent"] - 1  # at most the one in flight
     assert v["control"]["period_p99_ms"] < 40.0  # 100 Hz; generous: CI machines are shared
+
+
+SLOW_HOP = HOP.replace('pose="0.5;0;0.5" max_speed="0.5"', 'pose="1.5;0;0.5" max_speed="0.2"')
+
+
+@pytest.mark.parametrize(
+    "fault, sets",
+    [
+        ("mocap_lost", ["faults.mocap_freeze.at_s=4"]),  # the emulator's mocap repeats a frame
+        ("link_lost", ["faults.link_drop.at_s=4", "faults.link_drop.duration_s=1.2"]),
+    ],
+)
+def test_sitl_fault_in_flight_ends_with_the_drone_landed(tmp_path, fault, sets) -> None:
+    mission = tmp_path / "hop.xml"
+    mission.write_text(SLOW_HOP)
+    out = tmp_path / "run"
+    btrun = os.path.join(os.path.dirname(sys.executable), "btrun")
+    cmd = [btrun, str(mission), "--rig", os.path.join(REPO, "rigs", "sitl.yaml")]
+    cmd += ["--out", str(out), "--quiet", "--no-report", "--max-time", "30"]
+    for s in sets:
+        cmd += ["--set", s]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert res.returncode == 1, res.stdout + res.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "ABORTED" and summary["reason"].startswith(f"safety: {fault}")
+    s = summary["safety"]
+    assert [a["action"] for a in s["actions"]][-2:] == ["land", "disarm"]
+    assert s["final_state"] == "landed" and s["disarmed"]
+    truth = summary["vehicle"]["sitl"]  # the emulator's own drone, not what the link said
+    assert truth["landed"] and not truth["crashed"] and truth["final_pose"]["z_m"] < 0.05
+    assert 0.2 < truth["final_pose"]["x_m"] < 1.0  # it stopped on the way, not at the goal
