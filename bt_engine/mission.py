@@ -182,7 +182,8 @@ class Mission:
         # failure (a Fallback that flies home, then ForceFailure) still ends on its cause.
         for node, _, st in reversed(self._changes):
             if st is FAILURE and not node.children:
-                self._leaf_failure = f"{node.describe()} failed ({node.loc})"
+                why = getattr(node, "failure_reason", "")  # leaves may say why they failed
+                self._leaf_failure = f"{node.describe()} failed ({node.loc})" + (f": {why}" if why else "")
                 break
         if status is FAILURE:
             self.last_failure = self._leaf_failure

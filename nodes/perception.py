@@ -13,6 +13,8 @@ message in the run log; they never raise, so the tree (or the safety supervisor)
 
 from __future__ import annotations
 
+from typing import Any
+
 from bt_engine.node import (
     FAILURE,
     RUNNING,
@@ -44,6 +46,21 @@ def _fail(node, reason: str) -> NodeStatus:
     return FAILURE
 
 
+def _camera_problem(vehicle: Any) -> str:
+    """Why the vehicle cannot see the pallet ("" if it can, or if there is no vehicle)."""
+    if vehicle is None:
+        return ""
+    camera = getattr(vehicle, "camera", None)
+    if camera is None:
+        return "the rig has no camera: enable the AI-deck (aideck.enabled: true)"
+    if hasattr(camera, "renderer") and camera.renderer is None:
+        return (
+            "the simulated camera renders nothing (sensors.camera.renderer: none): "
+            "use --set sensors.camera.renderer=pallet"
+        )
+    return ""
+
+
 class PerceptionReady(SyncActionNode):
     """Load the detector and the embedder and open the gallery (building the demo gallery on
     first use); FAILURE with the reason if any of them cannot be used. Put it before the
@@ -62,6 +79,9 @@ class PerceptionReady(SyncActionNode):
     def tick_impl(self) -> NodeStatus:
         session = PerceptionSession.of(self.ctx)
         enrol = self.get_input("enrol")
+        problem = _camera_problem(self.ctx.vehicle)
+        if problem:
+            return _fail(self, problem)
         try:
             detector = session.detector(self.get_input("detector"))
             embedder = session.embedder(self.get_input("embedder"))

@@ -172,3 +172,11 @@ def test_empty_or_missing_gallery_is_refused_before_take_off(tmp_path):
     assert result.status == "FAILURE"
     assert "does not exist" in messages(m)
     assert not took_off(m)
+
+
+def test_a_rig_without_a_camera_is_refused_before_take_off():
+    m, pf, result = fly(overrides={"sensors.camera.renderer": "none"})
+    assert result.status == "FAILURE" and not took_off(m)
+    # the reason names the leaf, its place in the file and what to change
+    assert "perception_ready" in result.reason and "pallet_scan.xml:" in result.reason
+    assert "sensors.camera.renderer=pallet" in result.reason
