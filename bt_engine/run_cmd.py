@@ -241,5 +241,8 @@ def _result_lines(summary: dict) -> list[str]:
             extra.append(f"distance {float(dist):.3f}")
         if margin is not None:
             extra.append(f"margin {float(margin):.3f}")
+        ranking = bb.get("match_ranking") or []
+        if bb["pallet_id"] == "unknown" and ranking and ranking[0]:
+            extra.append(f"closest {ranking[0][0]}")
         out.append(f"pallet: {bb['pallet_id']}" + (f" ({', '.join(extra)})" if extra else ""))
     return out

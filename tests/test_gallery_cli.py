@@ -64,3 +64,18 @@ def test_demo_gallery_has_the_ten_reference_sides(capsys):
     assert "10 pallet sides" in out
     for side in ("1A", "3B", "5B"):
         assert side in out
+
+
+def test_a_pallet_side_not_in_the_gallery_is_unknown(tmp_path, capsys):
+    g = str(tmp_path / "g.sqlite")
+    for side in ("1A", "3B"):
+        assert main(["gallery", "enrol", g, side, "--world-side", side]) == 0
+    out = str(tmp_path / "run")
+    rc = main(["run", os.path.join(REPO, "missions", "pallet_scan.xml"), "--quiet", "--no-report",
+               "--out", out, "--set", f"gallery={g}", "--set", "world.scan_pallet=4B"])
+    assert rc == 0  # the mission succeeds: "unknown" is an answer, not a failure
+    printed = capsys.readouterr().out
+    assert "pallet: unknown (distance " in printed and "closest " in printed
+    with open(os.path.join(out, "summary.json")) as f:
+        bb = json.load(f)["blackboard"]
+    assert bb["pallet_id"] == "unknown" and bb["match_ranking"][0][0] in ("1A", "3B")
