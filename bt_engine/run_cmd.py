@@ -214,6 +214,13 @@ def run_command(args) -> int:
     with open(tmp, "w") as f:
         json.dump(summary, f, indent=2)
     os.replace(tmp, os.path.join(run_dir, "summary.json"))
+    # plug-in objects may give the run's headline (e.g. the identified pallet)
+    headlines = [
+        line
+        for res in mission.ctx.resources.values()
+        if callable(getattr(res, "result_lines", None))
+        for line in res.result_lines()
+    ]
     mission.close()
     speed = result.mission_time_s / result.wall_time_s if result.wall_time_s > 0 else 0.0
     print(
@@ -221,28 +228,9 @@ def run_command(args) -> int:
         f"({result.ticks} ticks, {result.mission_time_s:.2f} s mission time, "
         f"{result.wall_time_s:.2f} s wall, {speed:.0f}x real time)"
     )
-    for line in _result_lines(summary):
+    for line in headlines:
         print(line)
     if report:
         print(f"report: {report}")
     print(f"run folder: {run_dir}")
     return 0 if result.status == "SUCCESS" else 1
-
-
-def _result_lines(summary: dict) -> list[str]:
-    """Headline results a plug-in put on the blackboard (e.g. the identified pallet)."""
-    bb = summary.get("blackboard", {})
-    out = []
-    if "pallet_id" in bb:
-        margin = bb.get("match_margin")
-        dist = bb.get("match_distance")
-        extra = []
-        if dist is not None:
-            extra.append(f"distance {float(dist):.3f}")
-        if margin is not None:
-            extra.append(f"margin {float(margin):.3f}")
-        ranking = bb.get("match_ranking") or []
-        if bb["pallet_id"] == "unknown" and ranking and ranking[0]:
-            extra.append(f"closest {ranking[0][0]}")
-        out.append(f"pallet: {bb['pallet_id']}" + (f" ({', '.join(extra)})" if extra else ""))
-    return out

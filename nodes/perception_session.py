@@ -222,6 +222,17 @@ class PerceptionSession:
                     self.key_frames.append(source)
         return committed
 
+    def result_lines(self) -> list[str]:
+        """The run's headline for the terminal: the last identification's answer and how
+        sure it is (``btrun`` prints it after the status line)."""
+        if not self.identifications:
+            return []
+        r = self.identifications[-1]
+        extra = f"distance {r['distance']:.3f}, margin {r['margin']:.3f}"
+        if not r["known"]:
+            extra += f", closest {r['best_id']}"
+        return [f"pallet: {r['pallet_id']} ({extra})"]
+
     def run_summary(self) -> dict:
         """What ``summary.json`` records under ``perception`` (see :meth:`summary`)."""
         return self.summary()

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from perception.checkpoint import file_sha256
+from perception.checkpoint import check_format_version, file_sha256, read_checkpoint
 from perception.errors import ModelError
 from perception.sequencer import Detection
 
@@ -216,24 +216,12 @@ class BlockDetector:
             ModelError: the file is missing, unreadable, not a btrun-blockdet checkpoint,
                 of another format version, or its weights do not fit its architecture.
         """
-        if threads is not None:
-            torch.set_num_threads(max(1, int(threads)))
         path = path or DEFAULT_WEIGHTS
-        if not os.path.isfile(path):
-            raise ModelError(f"{path}: no detector weights file (expected a {FORMAT} checkpoint)")
-        try:
-            blob = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise ModelError(f"{path}: corrupt or unreadable detector weights ({first})") from None
+        blob = read_checkpoint(path, "detector weights", threads, f"{FORMAT} checkpoint")
         if not isinstance(blob, dict) or blob.get("format") != FORMAT:
             got = blob.get("format") if isinstance(blob, dict) else type(blob).__name__
             raise ModelError(f"{path}: not a {FORMAT} checkpoint (format {got!r})")
-        if blob.get("format_version") != FORMAT_VERSION:
-            raise ModelError(
-                f"{path}: checkpoint format version {blob.get('format_version')!r}, "
-                f"this btrun reads {FORMAT_VERSION}"
-            )
+        check_format_version(path, blob.get("format_version"), FORMAT_VERSION)
         try:
             config = config_from_dict(blob["config"])
             model = BlockNet(config)

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 import torch
 
-from perception.checkpoint import file_sha256
+from perception.checkpoint import check_format_version, file_sha256, read_checkpoint
 from perception.errors import ModelError
 from perception.gallery import Thresholds
 from perception.pcb import PCB, CheckpointError, PCBConfig, load_state
@@ -110,16 +110,8 @@ class BlockEmbedder:
         ``threads`` sets torch's intra-op thread count. Raises :class:`ModelError` naming
         the file for a missing, unreadable or mismatched checkpoint (with the key list).
         """
-        if threads is not None:
-            torch.set_num_threads(max(1, int(threads)))
         path = path or DEFAULT_WEIGHTS
-        if not os.path.isfile(path):
-            raise ModelError(f"{path}: no embedder weights file")
-        try:
-            blob = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise ModelError(f"{path}: corrupt or unreadable embedder weights ({first})") from None
+        blob = read_checkpoint(path, "embedder weights", threads)
         sha8 = file_sha256(path)[:8]
         if isinstance(blob, dict) and blob.get("format") == FORMAT:
             return cls._from_btrun(blob, path, sha8, backbone)
@@ -127,11 +119,7 @@ class BlockEmbedder:
 
     @classmethod
     def _from_btrun(cls, blob: dict, path: str, sha8: str, backbone: str | None) -> BlockEmbedder:
-        if blob.get("version") != FORMAT_VERSION:
-            raise ModelError(
-                f"{path}: checkpoint format version {blob.get('version')!r}, "
-                f"this btrun reads {FORMAT_VERSION}"
-            )
+        check_format_version(path, blob.get("version"), FORMAT_VERSION)
         try:
             config = config_from_dict(blob["config"])
             state = blob["state_dict"]
