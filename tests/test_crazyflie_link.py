@@ -145,16 +145,25 @@ HOP = """<?xml version="1.0" encoding="UTF-8"?>
 """
 
 
-def test_mission_flies_through_the_sitl_rig(tmp_path) -> None:
+def fly_sitl(tmp_path, xml: str, *sets: str) -> tuple[subprocess.CompletedProcess, dict]:
+    """Run the real ``btrun`` on ``xml`` through rigs/sitl.yaml: (process, summary.json)."""
     mission = tmp_path / "hop.xml"
-    mission.write_text(HOP)
+    mission.write_text(xml)
     out = tmp_path / "run"
     btrun = os.path.join(os.path.dirname(sys.executable), "btrun")
     cmd = [btrun, str(mission), "--rig", os.path.join(REPO, "rigs", "sitl.yaml")]
     cmd += ["--out", str(out), "--quiet", "--no-report", "--max-time", "30"]
+    for s in sets:
+        cmd += ["--set", s]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    summary_file = out / "summary.json"
+    summary = json.loads(summary_file.read_text()) if summary_file.exists() else {}
+    return res, summary
+
+
+def test_mission_flies_through_the_sitl_rig(tmp_path) -> None:
+    res, summary = fly_sitl(tmp_path, HOP)
     assert res.returncode == 0, res.stdout + res.stderr
-    summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "SUCCESS"
     v = summary["vehicle"]
     assert v["sitl"]["landed"] and not v["sitl"]["crashed"]
@@ -179,17 +188,8 @@ SLOW_HOP = HOP.replace('pose="0.5;0;0.5" max_speed="0.5"', 'pose="1.5;0;0.5" max
     ],
 )
 def test_sitl_fault_in_flight_ends_with_the_drone_landed(tmp_path, fault, sets) -> None:
-    mission = tmp_path / "hop.xml"
-    mission.write_text(SLOW_HOP)
-    out = tmp_path / "run"
-    btrun = os.path.join(os.path.dirname(sys.executable), "btrun")
-    cmd = [btrun, str(mission), "--rig", os.path.join(REPO, "rigs", "sitl.yaml")]
-    cmd += ["--out", str(out), "--quiet", "--no-report", "--max-time", "30"]
-    for s in sets:
-        cmd += ["--set", s]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    res, summary = fly_sitl(tmp_path, SLOW_HOP, *sets)
     assert res.returncode == 1, res.stdout + res.stderr
-    summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "ABORTED" and summary["reason"].startswith(f"safety: {fault}")
     s = summary["safety"]
     assert [a["action"] for a in s["actions"]][-2:] == ["land", "disarm"]
