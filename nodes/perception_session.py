@@ -224,14 +224,16 @@ class PerceptionSession:
 
     def result_lines(self) -> list[str]:
         """The run's headline for the terminal: the last identification's answer and how
-        sure it is (``btrun`` prints it after the status line)."""
-        if not self.identifications:
-            return []
-        r = self.identifications[-1]
-        extra = f"distance {r['distance']:.3f}, margin {r['margin']:.3f}"
-        if not r["known"]:
-            extra += f", closest {r['best_id']}"
-        return [f"pallet: {r['pallet_id']} ({extra})"]
+        sure it is, and what was enrolled (``btrun`` prints it after the status line)."""
+        out = []
+        if self.identifications:
+            r = self.identifications[-1]
+            extra = f"distance {r['distance']:.3f}, margin {r['margin']:.3f}"
+            if not r["known"]:
+                extra += f", closest {r['best_id']}"
+            out.append(f"pallet: {r['pallet_id']} ({extra})")
+        out += [f"enrolled: {e['name']} in {e['gallery']}" for e in self.enrolments]
+        return out
 
     def run_summary(self) -> dict:
         """What ``summary.json`` records under ``perception`` (see :meth:`summary`)."""

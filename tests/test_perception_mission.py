@@ -160,6 +160,7 @@ def test_enrol_then_identify_with_your_own_gallery(tmp_path):
     m, pf, result = fly(ENROLL, side="5A", seed=3, blackboard={"pallet": "P-005A", "gallery": gallery})
     assert result.status == "SUCCESS", result.reason
     assert m.blackboard["gallery_size"] == 1
+    assert m.ctx.resources["perception"].result_lines()[-1] == f"enrolled: P-005A in {gallery}"
     m, pf, result = fly(ENROLL, side="1B", seed=4, blackboard={"pallet": "P-001B", "gallery": gallery})
     assert result.status == "SUCCESS", result.reason
     m, pf, result = fly(side="5A", seed=5, blackboard={"gallery": gallery})
