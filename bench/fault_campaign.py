@@ -65,8 +65,10 @@ def plan(fault: str, i: int, base_seed: int) -> dict[str, Any]:
     sets: list[str] = []
     job: dict[str, Any] = {"fault": fault, "i": i, "seed": base_seed * 1000 + i, "at_s": at}
     if fault == "link_loss":
-        sets += [f"faults.link_drop.at_s={at}",
-                 f"faults.link_drop.duration_s={rng.uniform(0.2, 1.5):.2f}"]
+        sets += [
+            f"faults.link_drop.at_s={at}",
+            f"faults.link_drop.duration_s={rng.uniform(0.2, 1.5):.2f}",
+        ]
     elif fault == "link_loss_long":
         sets += [f"faults.link_drop.at_s={at}"]
     elif fault == "mocap_dropout":
@@ -76,13 +78,17 @@ def plan(fault: str, i: int, base_seed: int) -> dict[str, Any]:
     elif fault == "camera_stall":
         sets += [f"faults.camera_stall.at_s={at}", "sensors.camera.renderer=campaign_blank"]
     elif fault == "battery_sag":
-        sets += [f"faults.battery_sag.at_s={at}",
-                 f"faults.battery_sag.drop_v={rng.uniform(0.5, 1.0):.2f}"]
+        sets += [
+            f"faults.battery_sag.at_s={at}",
+            f"faults.battery_sag.drop_v={rng.uniform(0.5, 1.0):.2f}",
+        ]
     elif fault == "gust":
         a, s = rng.uniform(0, 2 * math.pi), rng.uniform(2.0, 4.0)
-        sets += [f"faults.gust.at_s={at}",
-                 f"faults.gust.speed_mps=[{s * math.cos(a):.2f},{s * math.sin(a):.2f},0]",
-                 f"faults.gust.duration_s={rng.uniform(1.0, 4.0):.2f}"]
+        sets += [
+            f"faults.gust.at_s={at}",
+            f"faults.gust.speed_mps=[{s * math.cos(a):.2f},{s * math.sin(a):.2f},0]",
+            f"faults.gust.duration_s={rng.uniform(1.0, 4.0):.2f}",
+        ]
     elif fault == "geofence":
         x = round(rng.uniform(1.0, 8.5), 2)
         job["at_s"] = None
@@ -128,16 +134,31 @@ def check_logs(run_dir: str) -> tuple[bool, dict | None, str]:
 def run_one(job: dict[str, Any], out: str, realtime: float) -> dict[str, Any]:
     """Run one job as a child process; return its outcome."""
     run_dir = os.path.join(out, f"{job['fault']}-{job['i']:03d}")
-    common = ["run", MISSION, "--quiet", "--no-report", "--seed", str(job["seed"]),
-              "--out", run_dir, "--max-time", "200"]
+    common = [
+        "run",
+        MISSION,
+        "--quiet",
+        "--no-report",
+        "--seed",
+        str(job["seed"]),
+        "--out",
+        run_dir,
+        "--max-time",
+        "200",
+    ]
     for s in job["sets"]:
         common += ["--set", s]
     t0 = time.monotonic()
     if job["fault"] in ("sigint", "sigterm"):
         exe = os.path.join(BIN, "btrun")
         cmd = [exe] if os.path.exists(exe) else [sys.executable, "-m", "bt_engine.cli"]
-        proc = subprocess.Popen(cmd + common + ["--realtime", str(realtime)], cwd=REPO,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(
+            cmd + common + ["--realtime", str(realtime)],
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         log = os.path.join(run_dir, "ticks.jsonl")
         start = time.monotonic() + 30.0
         while not os.path.exists(log) and proc.poll() is None and time.monotonic() < start:
@@ -155,20 +176,35 @@ def run_one(job: dict[str, Any], out: str, realtime: float) -> dict[str, Any]:
     else:
         proc2 = subprocess.run(
             [sys.executable, os.path.abspath(__file__), "--child", json.dumps(job), "--"] + common,
-            cwd=REPO, capture_output=True, text=True, timeout=300,
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=300,
         )
         rc, err = proc2.returncode, proc2.stderr
     complete, summary, why = check_logs(run_dir)
-    res: dict[str, Any] = {"job": job, "rc": rc, "complete": complete, "why": why,
-                           "wall_s": time.monotonic() - t0, "stderr": err[-2000:]}
+    res: dict[str, Any] = {
+        "job": job,
+        "rc": rc,
+        "complete": complete,
+        "why": why,
+        "wall_s": time.monotonic() - t0,
+        "stderr": err[-2000:],
+    }
     if summary is not None:
         saf, sim = summary.get("safety", {}), summary.get("sim", {})
-        res.update(status=summary.get("status"), reason=summary.get("reason"),
-                   final=saf.get("final_state"), disarmed=saf.get("disarmed"),
-                   crashed=sim.get("crashed"), landed=sim.get("landed"),
-                   fault=saf.get("fault"), t_s=saf.get("t_s"),
-                   mission_time_s=summary.get("mission_time_s"),
-                   traceback_on_screen="Traceback" in err)
+        res.update(
+            status=summary.get("status"),
+            reason=summary.get("reason"),
+            final=saf.get("final_state"),
+            disarmed=saf.get("disarmed"),
+            crashed=sim.get("crashed"),
+            landed=sim.get("landed"),
+            fault=saf.get("fault"),
+            t_s=saf.get("t_s"),
+            mission_time_s=summary.get("mission_time_s"),
+            traceback_on_screen="Traceback" in err,
+        )
     return res
 
 
@@ -177,7 +213,7 @@ def child(job: dict[str, Any], argv: list[str]) -> int:
     from bt_engine.cli import main
     from drivers.sim.camera import register_renderer
 
-    register_renderer("campaign_blank", lambda **_: (lambda pose, t_s: b"frame"))
+    register_renderer("campaign_blank", lambda **_: lambda pose, t_s: b"frame")
     if job["fault"] == "leaf_exception":
         import nodes.flight as flight
 
@@ -195,8 +231,10 @@ def child(job: dict[str, Any], argv: list[str]) -> int:
 
 def table(results: list[dict[str, Any]], faults: list[str]) -> str:
     """The per-fault table (Markdown)."""
-    head = ("| fault | injected | runs | landed+disarmed | crashed | flying | logs complete "
-            "| ABORTED by fault | traceback on screen |")
+    head = (
+        "| fault | injected | runs | landed+disarmed | crashed | flying | logs complete "
+        "| ABORTED by fault | traceback on screen |"
+    )
     rows = [head, "|" + "---|" * 9]
     for f in faults:
         rs = [r for r in results if r["job"]["fault"] == f]
@@ -206,8 +244,10 @@ def table(results: list[dict[str, Any]], faults: list[str]) -> str:
         complete = sum(1 for r in rs if r["complete"])
         aborted = sum(1 for r in rs if r.get("status") == "ABORTED")
         tb = sum(1 for r in rs if r.get("traceback_on_screen"))
-        rows.append(f"| {f} | {FAULT_TYPES[f]} | {len(rs)} | {landed} | {crashed} | {flying} "
-                    f"| {complete} | {aborted} | {tb} |")
+        rows.append(
+            f"| {f} | {FAULT_TYPES[f]} | {len(rs)} | {landed} | {crashed} | {flying} "
+            f"| {complete} | {aborted} | {tb} |"
+        )
     return "\n".join(rows)
 
 
@@ -219,12 +259,23 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=20, help="runs per fault type (default 20)")
     ap.add_argument("--seed", type=int, default=1, help="campaign seed (default 1)")
-    ap.add_argument("--faults", default=",".join(DEFAULT_FAULTS),
-                    help=f"comma-separated subset of {', '.join(FAULT_TYPES)}")
-    ap.add_argument("--jobs", type=int, default=max(2, (os.cpu_count() or 2)),
-                    help="parallel runs (default: CPUs)")
-    ap.add_argument("--realtime", type=float, default=20.0,
-                    help="pace of the signal runs (x real time, default 20)")
+    ap.add_argument(
+        "--faults",
+        default=",".join(DEFAULT_FAULTS),
+        help=f"comma-separated subset of {', '.join(FAULT_TYPES)}",
+    )
+    ap.add_argument(
+        "--jobs",
+        type=int,
+        default=max(2, (os.cpu_count() or 2)),
+        help="parallel runs (default: CPUs)",
+    )
+    ap.add_argument(
+        "--realtime",
+        type=float,
+        default=20.0,
+        help="pace of the signal runs (x real time, default 20)",
+    )
     ap.add_argument("--out", default=None, help="keep the run folders here (default: temp)")
     ap.add_argument("--json", default=None, help="write every run's outcome to this file")
     args = ap.parse_args(argv)
@@ -239,13 +290,17 @@ def main(argv: list[str] | None = None) -> int:
         results = list(pool.map(lambda j: run_one(j, out, args.realtime), jobs))
     wall = time.monotonic() - t0
     print(table(results, faults))
-    print(f"\n{len(results)} runs in {wall:.0f} s wall (--runs {args.runs} --seed {args.seed}, "
-          f"--jobs {args.jobs}, signals at --realtime {args.realtime:g})")
+    print(
+        f"\n{len(results)} runs in {wall:.0f} s wall (--runs {args.runs} --seed {args.seed}, "
+        f"--jobs {args.jobs}, signals at --realtime {args.realtime:g})"
+    )
     bad = [r for r in results if not r["complete"] or r.get("final") != "landed"]
     for r in bad[:15]:
         j = r["job"]
-        print(f"  {j['fault']} #{j['i']} seed {j['seed']}: {r.get('status')} "
-              f"{r.get('reason')!s:.90} final={r.get('final')} logs={r['why'] or 'ok'}")
+        print(
+            f"  {j['fault']} #{j['i']} seed {j['seed']}: {r.get('status')} "
+            f"{r.get('reason')!s:.90} final={r.get('final')} logs={r['why'] or 'ok'}"
+        )
     if args.json:
         with open(args.json, "w") as f:
             json.dump(results, f, indent=1, default=str)

@@ -89,13 +89,14 @@ def main(argv: list[str] | None = None) -> int:
     emb = BlockEmbedder.load(args.weights, threads=args.threads)
     rng = np.random.default_rng(0)
     crops = [block_crops("bench7A", None, b, rng, 1)[0] for b in range(3)]
-    print(f"{emb.model_version}, dim {emb.dim}, torch threads {torch.get_num_threads()}, "
-          f"crops {[c.shape[:2] for c in crops]}, gallery {args.entries} entries, load "
-          f"{os.getloadavg()[0]:.2f}")
+    print(
+        f"{emb.model_version}, dim {emb.dim}, torch threads {torch.get_num_threads()}, "
+        f"crops {[c.shape[:2] for c in crops]}, gallery {args.entries} entries, load "
+        f"{os.getloadavg()[0]:.2f}"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         t = time.perf_counter()
-        g = fill_gallery(os.path.join(tmp, "g.sqlite"), emb.model_version, emb.dim,
-                         args.entries, 1)
+        g = fill_gallery(os.path.join(tmp, "g.sqlite"), emb.model_version, emb.dim, args.entries, 1)
         print(f"gallery filled in {time.perf_counter() - t:.1f} s")
         q = emb.embed(crops)
         t = time.perf_counter()

@@ -43,9 +43,7 @@ def fly(side: str, seed: int, gust: float) -> dict:
     from drivers.rig import load_rig
 
     clock = SimClock()
-    rig = load_rig(
-        None, {"world.scan_pallet": side, "wind.gust_std_mps": str(gust)}
-    )
+    rig = load_rig(None, {"world.scan_pallet": side, "wind.gust_std_mps": str(gust)})
     platform = rig.make_platform(clock, seed)
     spec = load_spec(os.path.join(REPO, "missions", "pallet_scan.xml"))
     mission = Mission(
@@ -91,8 +89,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=100, help="first seed")
     args = ap.parse_args(argv)
     rows = []
-    print(f"{'run':>3} {'side':>4} {'seed':>4} {'blocks':>9} {'answer':>8} {'dist':>6} "
-          f"{'margin':>6} {'status':>8} {'wall s':>6}")
+    print(
+        f"{'run':>3} {'side':>4} {'seed':>4} {'blocks':>9} {'answer':>8} {'dist':>6} "
+        f"{'margin':>6} {'status':>8} {'wall s':>6}"
+    )
     for k in range(args.runs):
         side = SIDES[k % len(SIDES)]
         r = fly(side, args.seed + k, args.gust)
@@ -100,8 +100,11 @@ def main(argv: list[str] | None = None) -> int:
         blocks = f"{r['first_scan_blocks']}" + (f"->{r['blocks']}" if r["scans"] > 1 else "")
         dist = f"{r['distance']:.3f}" if r["distance"] is not None else "-"
         margin = f"{r['margin']:.3f}" if r["margin"] is not None else "-"
-        print(f"{k + 1:>3} {side:>4} {r['seed']:>4} {blocks:>9} {str(r['pallet_id']):>8} "
-              f"{dist:>6} {margin:>6} {r['status']:>8} {r['wall_s']:>6.2f}", flush=True)
+        print(
+            f"{k + 1:>3} {side:>4} {r['seed']:>4} {blocks:>9} {str(r['pallet_id']):>8} "
+            f"{dist:>6} {margin:>6} {r['status']:>8} {r['wall_s']:>6.2f}",
+            flush=True,
+        )
     n = len(rows)
     first = sum(r["first_scan_blocks"] >= 3 for r in rows)
     after = sum(r["blocks"] >= 3 for r in rows)
@@ -113,22 +116,34 @@ def main(argv: list[str] | None = None) -> int:
     landed = sum(r["landed"] for r in rows)
     print()
     print(f"runs: {n}, landed safely: {landed}/{n}, gusts {args.gust} m/s")
-    print(f"three blocks in the first scan: {first}/{n}; after the re-scan: {after}/{n} "
-          f"(reference: 8/20)")
-    print(f"identifications: {len(right)}/{n} right, {len(unknown)} unknown, {len(wrong)} wrong "
-          f"(reference: 21/30 right)")
+    print(
+        f"three blocks in the first scan: {first}/{n}; after the re-scan: {after}/{n} "
+        f"(reference: 8/20)"
+    )
+    print(
+        f"identifications: {len(right)}/{n} right, {len(unknown)} unknown, {len(wrong)} wrong "
+        f"(reference: 21/30 right)"
+    )
     if wrong:
-        print("wrong answers: " + ", ".join(
-            f"{r['side']}->{r['pallet_id']} margin {r['margin']:.3f}" for r in wrong))
+        print(
+            "wrong answers: "
+            + ", ".join(f"{r['side']}->{r['pallet_id']} margin {r['margin']:.3f}" for r in wrong)
+        )
     if right:
-        print(f"smallest margin of a right answer: {min(r['margin'] for r in right):.3f}; "
-              f"largest best distance: {max(r['distance'] for r in right):.3f}")
-    print(f"frame-to-decision latency: p50 {np.percentile(lat, 50):.1f} ms, "
-          f"p95 {np.percentile(lat, 95):.1f} ms over {lat.size} frames")
+        print(
+            f"smallest margin of a right answer: {min(r['margin'] for r in right):.3f}; "
+            f"largest best distance: {max(r['distance'] for r in right):.3f}"
+        )
+    print(
+        f"frame-to-decision latency: p50 {np.percentile(lat, 50):.1f} ms, "
+        f"p95 {np.percentile(lat, 95):.1f} ms over {lat.size} frames"
+    )
     walls = [r["wall_s"] for r in rows]
     sims = [r["mission_s"] for r in rows]
-    print(f"wall time per run: mean {np.mean(walls):.2f} s for {np.mean(sims):.1f} s of mission "
-          f"({np.mean(sims) / np.mean(walls):.0f}x real time)")
+    print(
+        f"wall time per run: mean {np.mean(walls):.2f} s for {np.mean(sims):.1f} s of mission "
+        f"({np.mean(sims) / np.mean(walls):.0f}x real time)"
+    )
     return 0
 
 

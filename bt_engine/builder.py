@@ -26,7 +26,9 @@ class _Builder:
         assert root is not None
         return self.node(root, scope, path)
 
-    def node(self, spec: NodeSpec, scope: Scope, parent_path: str, label: str | None = None) -> BTNode:
+    def node(
+        self, spec: NodeSpec, scope: Scope, parent_path: str, label: str | None = None
+    ) -> BTNode:
         model = self.registry.get(spec.type)
         assert model is not None, spec.type
         name = spec.name or model.id
@@ -63,7 +65,9 @@ class _Builder:
             for i, k in enumerate(PRE_CONDITIONS)
             if k in spec.attrs
         ]
-        post = {k: parse_script(str(spec.attrs[k].value)) for k in POST_CONDITIONS if k in spec.attrs}
+        post = {
+            k: parse_script(str(spec.attrs[k].value)) for k in POST_CONDITIONS if k in spec.attrs
+        }
         node._pre = pre or None
         node._post = post or None
 
@@ -86,7 +90,9 @@ class _Builder:
             for p in model.ports.values():
                 if p.name not in remap and p.name not in literals and p.default is not None:
                     literals[p.name] = p.default
-        child_scope = Scope(f"{path.split('/', 1)[-1]}", parent=scope, remap=remap, autoremap=autoremap)
+        child_scope = Scope(
+            f"{path.split('/', 1)[-1]}", parent=scope, remap=remap, autoremap=autoremap
+        )
         child_scope.prefix = f"{scope.root.prefix}{path.split('/', 1)[-1]}/"
         for k, v in literals.items():
             child_scope._store[child_scope.prefix + k] = v

@@ -57,12 +57,20 @@ def groot_palette(registry: Registry, include_builtins: bool = False) -> str:
             meta = etree.SubElement(el, "MetadataFields")
             etree.SubElement(meta, "Metadata", description=m.summary)
     etree.indent(root, space="  ")
-    return '<?xml version="1.0" encoding="UTF-8"?>\n' + etree.tostring(root, encoding="unicode") + "\n"
+    return (
+        '<?xml version="1.0" encoding="UTF-8"?>\n' + etree.tostring(root, encoding="unicode") + "\n"
+    )
 
 
 def port_line(p: Port) -> str:
     """One-line description of a port for text output."""
-    req = "required" if p.required else f"default {_default_text(p)}" if _default_text(p) is not None else "optional"
+    req = (
+        "required"
+        if p.required
+        else f"default {_default_text(p)}"
+        if _default_text(p) is not None
+        else "optional"
+    )
     arrow = {"input": "in ", "output": "out", "inout": "i/o"}[p.direction]
     desc = f" - {p.description}" if p.description else ""
     return f"{arrow} {p.name}: {p.type.name} ({req}){desc}"

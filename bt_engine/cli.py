@@ -46,7 +46,9 @@ def _parser(extra: dict | None = None) -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0, help="random seed of the simulator (default 0)")
     r.add_argument("--rate", type=float, default=50.0, help="tick rate in Hz (default 50)")
     r.add_argument("--out", help="run folder (default runs/<mission>-<time>)")
-    r.add_argument("--max-time", type=float, default=900.0, help="mission time limit in s (default 900)")
+    r.add_argument(
+        "--max-time", type=float, default=900.0, help="mission time limit in s (default 900)"
+    )
     r.add_argument(
         "--realtime",
         nargs="?",

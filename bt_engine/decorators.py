@@ -251,7 +251,11 @@ class RunOnce(DecoratorNode):
 
     bt_id = "RunOnce"
     category = CATEGORY
-    ports = (input_port("then_skip", BOOL, True, "after the first run: SKIPPED (true) or repeat the result"),)
+    ports = (
+        input_port(
+            "then_skip", BOOL, True, "after the first run: SKIPPED (true) or repeat the result"
+        ),
+    )
 
     def __init__(self, name: str, ctx=None) -> None:
         super().__init__(name, ctx)

@@ -34,9 +34,7 @@ class Row:
 def _node_label(node: NodeSpec) -> str:
     name = node.name
     head = node.type if not name or name == node.type else f"{node.type} '{name}'"
-    attrs = " ".join(
-        f"{k}={value_to_text(a.value)}" for k, a in node.attrs.items() if k != "name"
-    )
+    attrs = " ".join(f"{k}={value_to_text(a.value)}" for k, a in node.attrs.items() if k != "name")
     return f"{head} {attrs}".rstrip()
 
 
@@ -75,7 +73,10 @@ def tree_lines(rows: list[Row], statuses: Iterable[str] | None = None) -> list[s
         mark = ""
         if st is not None and i < len(st):
             mark = f"[{STATUS_MARK.get(st[i], '?')}] "
-        out.append(f"{mark}{prefix}{r.label}" + (f"  {st[i]}" if st is not None and i < len(st) and st[i] != "IDLE" else ""))
+        out.append(
+            f"{mark}{prefix}{r.label}"
+            + (f"  {st[i]}" if st is not None and i < len(st) and st[i] != "IDLE" else "")
+        )
     return out
 
 

@@ -36,7 +36,9 @@ def load_spec(path: str) -> MissionSpec:
     if ext != ".xml" and os.path.exists(path):
         spec = MissionSpec(file=path)
         spec.load_problems.append(
-            Problem(Loc(path, 1, 1), f"unknown mission file type '{ext}' (expected .xml, .yaml or .yml)")
+            Problem(
+                Loc(path, 1, 1), f"unknown mission file type '{ext}' (expected .xml, .yaml or .yml)"
+            )
         )
         return spec
     if not os.path.exists(path):
@@ -66,7 +68,9 @@ def mission_inputs(spec: MissionSpec) -> dict[str, Any]:
     return {
         p.name: p.default
         for p in model.ports.values()
-        if p.direction in ("input", "inout") and p.default is not None and not p.name.startswith("__")
+        if p.direction in ("input", "inout")
+        and p.default is not None
+        and not p.name.startswith("__")
     }
 
 
@@ -183,7 +187,9 @@ class Mission:
         for node, _, st in reversed(self._changes):
             if st is FAILURE and not node.children:
                 why = getattr(node, "failure_reason", "")  # leaves may say why they failed
-                self._leaf_failure = f"{node.describe()} failed ({node.loc})" + (f": {why}" if why else "")
+                self._leaf_failure = f"{node.describe()} failed ({node.loc})" + (
+                    f": {why}" if why else ""
+                )
                 break
         if status is FAILURE:
             self.last_failure = self._leaf_failure
@@ -204,7 +210,9 @@ class Mission:
         out = {n.path: n.bt_status._value_ for n, old in first.items() if n.bt_status is not old}
         #: leaves that finished during the drained ticks, even if reset to IDLE since
         self.finished = {
-            n.path: st._value_ for n, _, st in changes if (st is SUCCESS or st is FAILURE) and not n.children
+            n.path: st._value_
+            for n, _, st in changes
+            if (st is SUCCESS or st is FAILURE) and not n.children
         }
         changes.clear()
         self._drained = True

@@ -203,7 +203,9 @@ class Vec3Type(PortType):
         else:
             raise PortValueError(f"expected {self.expected}, got {value!r}")
         if len(parts) != 3:
-            raise PortValueError(f"expected {self.expected}, got {len(parts)} value(s) in {value!r}")
+            raise PortValueError(
+                f"expected {self.expected}, got {len(parts)} value(s) in {value!r}"
+            )
         x, y, z = _floats(parts, self.expected)
         return (x, y, z)
 
@@ -348,7 +350,9 @@ class Port:
         return self.direction in (OUTPUT, INOUT)
 
 
-def input_port(name: str, type: PortType = ANY, default: Any = NO_DEFAULT, description: str = "") -> Port:
+def input_port(
+    name: str, type: PortType = ANY, default: Any = NO_DEFAULT, description: str = ""
+) -> Port:
     """Declare an input port (required unless it has a default)."""
     return Port(name, INPUT, type, default, description)
 
@@ -358,7 +362,9 @@ def output_port(name: str, type: PortType = ANY, description: str = "") -> Port:
     return Port(name, OUTPUT, type, NO_DEFAULT, description)
 
 
-def inout_port(name: str, type: PortType = ANY, default: Any = NO_DEFAULT, description: str = "") -> Port:
+def inout_port(
+    name: str, type: PortType = ANY, default: Any = NO_DEFAULT, description: str = ""
+) -> Port:
     """Declare a port the node both reads and writes."""
     return Port(name, INOUT, type, default, description)
 

@@ -32,9 +32,7 @@ def parse_sets(items: list[str]) -> tuple[dict[str, Any], dict[str, str], list[P
     problems: list[Problem] = []
     for i, item in enumerate(items, 1):
         if "=" not in item:
-            problems.append(
-                Problem(Loc("--set", i, 1), f"expected KEY=VALUE, got {item!r}")
-            )
+            problems.append(Problem(Loc("--set", i, 1), f"expected KEY=VALUE, got {item!r}"))
             continue
         key, value = item.split("=", 1)
         key = key.strip()
@@ -117,7 +115,11 @@ def run_command(args) -> int:
             raise MissionError(_config_problems(exc)) from None
     elif args.rig or rig_over:
         raise MissionError(
-            [Problem(Loc(args.rig or "--set", 0, 0), "no vehicle plug-in is installed to use a rig")]
+            [
+                Problem(
+                    Loc(args.rig or "--set", 0, 0), "no vehicle plug-in is installed to use a rig"
+                )
+            ]
         )
     factor = args.realtime or getattr(rig, "realtime_factor", None)
     clock = WallClock(factor) if factor else SimClock()
@@ -138,7 +140,10 @@ def run_command(args) -> int:
         "rig": getattr(rig, "path", None),
         "seed": args.seed,
         "rate_hz": args.rate,
-        "nodes": [[n.path, r.label, r.depth, list(r.last_flags)] for n, r in zip(mission.nodes, rows, strict=False)],
+        "nodes": [
+            [n.path, r.label, r.depth, list(r.last_flags)]
+            for n, r in zip(mission.nodes, rows, strict=False)
+        ],
     }
     log = TickLog(os.path.join(run_dir, "ticks.jsonl"), header)
     telemetry = getattr(platform, "telemetry_row", None)

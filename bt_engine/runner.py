@@ -75,7 +75,9 @@ class Runner:
         self.hooks = list(hooks or [])
         self.log = log
         if telemetry is None:  # a platform hook that reports vehicle state feeds the trace
-            telemetry = next((h.telemetry_row for h in self.hooks if hasattr(h, "telemetry_row")), None)
+            telemetry = next(
+                (h.telemetry_row for h in self.hooks if hasattr(h, "telemetry_row")), None
+            )
         self.telemetry = telemetry
         self.on_tick = on_tick
         self.trace: list[dict] = []
@@ -180,7 +182,10 @@ class Runner:
                 except Exception as exc:  # a bug in a leaf must not leave the drone flying
                     self.error_traceback = traceback.format_exc()
                     where = _raising_node(exc)
-                    result, reason = "ABORTED", f"internal error{where}: {type(exc).__name__}: {exc}"
+                    result, reason = (
+                        "ABORTED",
+                        f"internal error{where}: {type(exc).__name__}: {exc}",
+                    )
                     break
                 if status is SUCCESS:
                     result, reason = "SUCCESS", "the mission tree returned SUCCESS"

@@ -26,7 +26,9 @@ def to_jsonable(value: Any, depth: int = 0) -> Any:
     if isinstance(value, dict):
         items = list(value.items())
         # records and their status/blackboard maps are complete; only nested values are capped
-        return {str(k): to_jsonable(v, depth + 1) for k, v in (items if depth < 2 else items[:1000])}
+        return {
+            str(k): to_jsonable(v, depth + 1) for k, v in (items if depth < 2 else items[:1000])
+        }
     tolist = getattr(value, "tolist", None)
     if callable(tolist) and getattr(value, "size", 1e9) <= 64:
         return to_jsonable(tolist(), depth + 1)

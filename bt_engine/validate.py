@@ -56,8 +56,7 @@ class _Validator:
         if spec.trees and main is None:
             self.add(
                 spec.root_loc or _file_loc(spec),
-                "no main tree: set main_tree_to_execute to one of "
-                + ", ".join(sorted(spec.trees)),
+                "no main tree: set main_tree_to_execute to one of " + ", ".join(sorted(spec.trees)),
             )
         elif main is not None and main not in spec.trees and spec.trees:
             hint = suggest_name(main, list(spec.trees))
@@ -202,7 +201,8 @@ class _Validator:
                 self.add(
                     attr.loc,
                     f"SubTree '{target}' has no port '{key}' (its <TreeNodesModel> declares: "
-                    f"{', '.join(model.ports) or 'none'})" + (f"; did you mean '{hint}'?" if hint else ""),
+                    f"{', '.join(model.ports) or 'none'})"
+                    + (f"; did you mean '{hint}'?" if hint else ""),
                 )
             elif model is not None and model.ports[key].direction != "input":
                 if blackboard_ref(attr.value) is None:
@@ -212,11 +212,20 @@ class _Validator:
                         f"{attr.value!r}; expected a blackboard entry such as {{{key}}}",
                     )
         if model is not None:
-            auto = str(node.attrs["_autoremap"].value).lower() in ("true", "1") if "_autoremap" in node.attrs else False
+            auto = (
+                str(node.attrs["_autoremap"].value).lower() in ("true", "1")
+                if "_autoremap" in node.attrs
+                else False
+            )
             for p in model.ports.values():
                 if p.name.startswith("__"):
                     continue
-                if p.direction == "input" and p.default is None and p.name not in node.attrs and not auto:
+                if (
+                    p.direction == "input"
+                    and p.default is None
+                    and p.name not in node.attrs
+                    and not auto
+                ):
                     self.add(
                         node.loc,
                         f"SubTree '{target}' needs port '{p.name}'"
@@ -228,8 +237,7 @@ class _Validator:
         if node.type in self.spec.trees:
             self.add(
                 loc,
-                f"'{node.type}' is a tree of this mission; use it as "
-                f'<SubTree ID="{node.type}"/>',
+                f"'{node.type}' is a tree of this mission; use it as <SubTree ID=\"{node.type}\"/>",
             )
             return
         if node.type in self.spec.models:
@@ -242,7 +250,8 @@ class _Validator:
         hint = self.registry.suggest(node.type)
         self.add(
             loc,
-            f"unknown node '{node.type}'" + (f"; did you mean '{hint}'?" if hint else "")
+            f"unknown node '{node.type}'"
+            + (f"; did you mean '{hint}'?" if hint else "")
             + " (btrun nodes lists them all)",
         )
 

@@ -105,7 +105,10 @@ class _YamlLoader:
                 self.spec.comments.extend(self._comments_above(key))
             if name == "btrun":
                 if not (value.tag == _CORE + "int" and value.value.strip() == "1"):
-                    self.problem(value, f"btrun: {_kind(value)} is not a supported format version (expected 1)")
+                    self.problem(
+                        value,
+                        f"btrun: {_kind(value)} is not a supported format version (expected 1)",
+                    )
             elif name == "main":
                 if not _text(value):
                     self.problem(value, f"main: expected the ID of a tree, got {_kind(value)}")
@@ -116,11 +119,17 @@ class _YamlLoader:
                     if _text(item):
                         self._include(item)
                     else:
-                        self.problem(item, f"include: expected a relative file path, got {_kind(item)}")
-            elif name == "trees" and self._mapping(value, "trees", "tree IDs mapped to their root node"):
+                        self.problem(
+                            item, f"include: expected a relative file path, got {_kind(item)}"
+                        )
+            elif name == "trees" and self._mapping(
+                value, "trees", "tree IDs mapped to their root node"
+            ):
                 for tid, tkey, tval in self._pairs(value):
                     self._tree(tid, tkey, tval)
-            elif name == "models" and self._mapping(value, "models", "node IDs mapped to {kind, ports}"):
+            elif name == "models" and self._mapping(
+                value, "models", "node IDs mapped to {kind, ports}"
+            ):
                 for mid, mkey, mval in self._pairs(value):
                     self._model(mid, mkey, mval)
             elif name not in TOP_KEYS:
@@ -142,11 +151,15 @@ class _YamlLoader:
                 if not isinstance(ev, (yaml.ScalarEvent, yaml.CollectionStartEvent)):
                     continue
                 if ev.anchor is not None:
-                    self.problem(ev, f"YAML anchors (&{ev.anchor}) are not allowed in mission files")
+                    self.problem(
+                        ev, f"YAML anchors (&{ev.anchor}) are not allowed in mission files"
+                    )
                     return False
                 if ev.tag is not None and ev.tag not in ALLOWED_TAGS:
                     tag = ev.tag.replace(_CORE, "!!", 1) if ev.tag.startswith(_CORE) else ev.tag
-                    self.problem(ev, f"YAML tag '{tag}' is not allowed in mission files (only plain values)")
+                    self.problem(
+                        ev, f"YAML tag '{tag}' is not allowed in mission files (only plain values)"
+                    )
                     return False
                 count += 1
                 depth += isinstance(ev, yaml.CollectionStartEvent)
@@ -171,7 +184,9 @@ class _YamlLoader:
         msg = getattr(exc, "problem", None) or str(exc)
         if getattr(exc, "context", None):
             msg += f" ({exc.context})"
-        line = self.lines[mark.line][: mark.column + 1] if mark and mark.line < len(self.lines) else ""
+        line = (
+            self.lines[mark.line][: mark.column + 1] if mark and mark.line < len(self.lines) else ""
+        )
         if "\t" in line:
             msg += "; indent with spaces, not tabs"
         self.problem(mark or Loc(self.file, 1, 1), f"YAML syntax error: {msg}")
@@ -208,7 +223,9 @@ class _YamlLoader:
                 end = n.end_mark.line + (n.end_mark.column > 0)
                 self.claimed.update(range(n.start_mark.line + 1, end + 1))
             else:
-                todo.extend(n.value if isinstance(n, SequenceNode) else [x for kv in n.value for x in kv])
+                todo.extend(
+                    n.value if isinstance(n, SequenceNode) else [x for kv in n.value for x in kv]
+                )
 
     def _claim_comment(self, line: int, out: list[str]) -> bool:
         text = self.lines[line - 1].strip() if 0 < line <= len(self.lines) else ""
@@ -229,7 +246,9 @@ class _YamlLoader:
     def _tree(self, tid: str, key: Node, value: Node) -> None:
         loc = self.loc(key)
         if tid in self.spec.trees:
-            self.problem(loc, f"tree '{tid}' is defined twice (first at {self.spec.trees[tid].loc})")
+            self.problem(
+                loc, f"tree '{tid}' is defined twice (first at {self.spec.trees[tid].loc})"
+            )
             return
         tree = self.spec.trees[tid] = TreeSpec(tid, loc, comments=self._comments_above(key))
         nodes = [] if _null(value) else value.value if isinstance(value, SequenceNode) else [value]
@@ -264,7 +283,9 @@ class _YamlLoader:
             self.problem(key, f"expected a node type name, got {_kind(key)}")
             return bad
         kloc = self.loc(key)
-        node = NodeSpec(key.value, kloc, tag=key.value, comments=self._comments_above(key), type_loc=kloc)
+        node = NodeSpec(
+            key.value, kloc, tag=key.value, comments=self._comments_above(key), type_loc=kloc
+        )
         if isinstance(value, SequenceNode):
             node.children = [self._node(c) for c in value.value]
         elif isinstance(value, MappingNode):
@@ -285,7 +306,10 @@ class _YamlLoader:
             elif name == "child" and not isinstance(value, SequenceNode) and not _null(value):
                 child_key, node.children = name, [self._node(value)]
             elif name == "children":
-                want, hint = "a list of nodes (`- Type: ...` lines)", "use `child:` for a single node"
+                want, hint = (
+                    "a list of nodes (`- Type: ...` lines)",
+                    "use `child:` for a single node",
+                )
                 self.problem(value, f"children: expected {want}, got {_kind(value)}; {hint}")
             elif name == "child":
                 hint = "; use `children:` for a list" if isinstance(value, SequenceNode) else ""
@@ -294,12 +318,16 @@ class _YamlLoader:
                 hint = f'write {name}: "" for empty text'
                 self.problem(key, f"attribute '{name}' of {node.type} has no value ({hint})")
             elif (val := self._value(value, name)) is not _BAD:
-                node.attrs["_autoremap" if name == "__autoremap" else name] = AttrSpec(val, self.loc(key))
+                node.attrs["_autoremap" if name == "__autoremap" else name] = AttrSpec(
+                    val, self.loc(key)
+                )
 
     def _value(self, n: Node, name: str) -> Any:
         """A native value; a one-key mapping with no value is the blackboard reference ``{key}``."""
         if isinstance(n, ScalarNode):
-            if n.tag in ALLOWED_TAGS[1:]:  # int, float, bool, null; others (timestamps...) stay text
+            if (
+                n.tag in ALLOWED_TAGS[1:]
+            ):  # int, float, bool, null; others (timestamps...) stay text
                 return self.construct(n)
             return n.value
         if isinstance(n, SequenceNode):
@@ -309,7 +337,9 @@ class _YamlLoader:
         if not more and isinstance(k, ScalarNode) and k.value and _null(v):
             return "{" + k.value + "}"
         want = "a value (number, text, true/false or a list)"
-        self.problem(n, f"'{name}': expected {want}, got a mapping; a reference is written \"{{entry}}\"")
+        self.problem(
+            n, f"'{name}': expected {want}, got a mapping; a reference is written \"{{entry}}\""
+        )
         return _BAD
 
     # -- models and includes --------------------------------------------------------------
@@ -338,7 +368,9 @@ class _YamlLoader:
                     for field, fnode, fval in self._fields(pvalue, what, PORT_KEYS):
                         if field == "direction" and fval not in DIRECTIONS:
                             want = ", ".join(DIRECTIONS)
-                            self.problem(fnode, f"direction: expected one of {want}, got {_kind(fnode)}")
+                            self.problem(
+                                fnode, f"direction: expected one of {want}, got {_kind(fnode)}"
+                            )
                         elif field == "default":
                             port.default = fval
                         else:
@@ -489,7 +521,11 @@ class _Dumper:
                 out.append("    ports:")
             for p in m.ports.values():
                 fields = (p.direction, p.type, p.default, p.description)
-                items = [f"{k}: {_fmt(v)}" for k, v in zip(PORT_KEYS, fields, strict=True) if v not in ("", None)]
+                items = [
+                    f"{k}: {_fmt(v)}"
+                    for k, v in zip(PORT_KEYS, fields, strict=True)
+                    if v not in ("", None)
+                ]
                 flow = f"      {_fmt(p.name)}: {{" + ", ".join(items) + "}"
                 block = [f"      {_fmt(p.name)}:"] + ["        " + i for i in items]
                 out += [flow] if len(flow) <= FLOW_WIDTH else block
@@ -525,7 +561,9 @@ def convert_file(src: str, dst: str, registry: Registry | None = None) -> list[P
             holder.comments = [_xml_comment(c) for c in holder.comments]
         text = dump_xml(spec)
     else:
-        return [Problem(Loc(dst, 0, 0), f"unknown output type '{ext}' (expected .xml, .yaml or .yml)")]
+        return [
+            Problem(Loc(dst, 0, 0), f"unknown output type '{ext}' (expected .xml, .yaml or .yml)")
+        ]
     try:
         with open(dst, "w", encoding="utf-8") as f:
             f.write(text)

@@ -223,10 +223,14 @@ def _unsafe_nodes(root: yaml.Node, filename: str, limit: int = 100_000) -> list[
         node = stack.pop()
         count += 1
         if count > limit:
-            problems.append(f"{_loc(filename, node)}: more than {limit} values: not a settings file")
+            problems.append(
+                f"{_loc(filename, node)}: more than {limit} values: not a settings file"
+            )
             break
         if id(node) in seen:
-            problems.append(f"{_loc(filename, node)}: YAML anchors and aliases are not allowed here")
+            problems.append(
+                f"{_loc(filename, node)}: YAML anchors and aliases are not allowed here"
+            )
             continue
         seen.add(id(node))
         if node.tag not in _PLAIN_TAGS:

@@ -52,8 +52,15 @@ ACTIONS: dict[str, str] = {
 }
 
 #: Faults detected by observation every tick (the other two come from how the run ended).
-OBSERVED = ("crash", "battery_critical", "link_lost", "geofence", "mocap_lost", "battery_low",
-            "camera_stalled")
+OBSERVED = (
+    "crash",
+    "battery_critical",
+    "link_lost",
+    "geofence",
+    "mocap_lost",
+    "battery_low",
+    "camera_stalled",
+)
 #: Faults that stay active once seen (a sagging battery recovers when the load drops).
 LATCHED = ("crash", "battery_critical", "battery_low")
 
@@ -117,8 +124,13 @@ class SafetyConfig:
             )
         c.policies = pol
         c.enabled = bool(data.get("enabled", c.enabled))
-        for key in ("battery_low_v", "battery_critical_v", "land_speed_mps", "return_speed_mps",
-                    "max_recovery_s"):
+        for key in (
+            "battery_low_v",
+            "battery_critical_v",
+            "land_speed_mps",
+            "return_speed_mps",
+            "max_recovery_s",
+        ):
             if key in data:
                 setattr(c, key, float(data[key]))
         g = data.get("geofence") or {}
@@ -501,8 +513,11 @@ class SafetySupervisor:
             self._step(f"return to ({hx:.2f}, {hy:.2f}) at {z:.2f} m")
             dist = math.hypot(hx - x, hy - y)
             limit = 10.0 + 2.0 * dist / max(c.return_speed_mps, 1e-3)
-            self._wait(lambda: p.reached or p.failed or p.cancelled or self._critical() or down(),
-                       limit, deadline)
+            self._wait(
+                lambda: p.reached or p.failed or p.cancelled or self._critical() or down(),
+                limit,
+                deadline,
+            )
             if self._critical():
                 self._step("battery critical: land here")
         elif action == "return_inside_and_land":

@@ -46,7 +46,9 @@ def add_commands():
             "loopback, for cfclient or the AI-deck viewers",
         )
         serve.add_argument("device", choices=("crazyflie", "aideck"))
-        serve.add_argument("args", nargs=argparse.REMAINDER, help="options of the emulator (--help)")
+        serve.add_argument(
+            "args", nargs=argparse.REMAINDER, help="options of the emulator (--help)"
+        )
 
     def run(args) -> int:
         if args.device == "crazyflie":

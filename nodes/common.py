@@ -19,7 +19,9 @@ def vehicle_of(node: BTNode) -> Any:
     """The vehicle a leaf flies, or a located error if the mission runs without one."""
     v = node.ctx.vehicle if node.ctx is not None else None
     if v is None:
-        raise NodeRuntimeError(node, "needs a vehicle: run the mission with a rig (e.g. rigs/sim.yaml)")
+        raise NodeRuntimeError(
+            node, "needs a vehicle: run the mission with a rig (e.g. rigs/sim.yaml)"
+        )
     return v
 
 

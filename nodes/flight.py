@@ -35,8 +35,12 @@ def _motion_ports(timeout_s: float) -> tuple:
     return (
         input_port("pos_threshold", FLOAT, DEFAULT_POS_THRESHOLD_M, "position tolerance in m"),
         input_port("yaw_threshold", FLOAT, DEFAULT_YAW_THRESHOLD_RAD, "yaw tolerance in rad"),
-        input_port("yaw_threshold_deg", FLOAT, None, "yaw tolerance in degrees (overrides yaw_threshold)"),
-        input_port("settle_time", DURATION, 0.0, "time both tolerances must hold before SUCCESS, s"),
+        input_port(
+            "yaw_threshold_deg", FLOAT, None, "yaw tolerance in degrees (overrides yaw_threshold)"
+        ),
+        input_port(
+            "settle_time", DURATION, 0.0, "time both tolerances must hold before SUCCESS, s"
+        ),
         input_port("timeout", DURATION, timeout_s, "FAILURE if not done within this time, s"),
         output_port("distance_to_go", FLOAT, "distance to the goal in m, every tick"),
         output_port("yaw_error", FLOAT, "goal yaw minus yaw in rad, wrapped to [-pi, pi]"),
@@ -60,7 +64,9 @@ class _Motion(StatefulActionNode):
         self.progress = self.start_motion()
         p = self.progress
         pos_tol, yaw_tol = (
-            self.tolerances() if self.port_decl("pos_threshold") else (p.position_tolerance_m, p.yaw_tolerance_rad)
+            self.tolerances()
+            if self.port_decl("pos_threshold")
+            else (p.position_tolerance_m, p.yaw_tolerance_rad)
         )
         # One record per motion, for the flight report (what was asked, when, and how it ended).
         self.record = {
@@ -177,9 +183,13 @@ class GoTo(_Motion):
     ports = (
         input_port("pose", VEC3, description="goal position x;y;z in m"),
         input_port("max_speed", FLOAT, 0.5, "speed limit, m/s"),
-        input_port("yaw_mode", YAW_MODE, "KEEP_YAW", "KEEP_YAW, PATH_FACING or FIXED_YAW (or 0, 1, 2)"),
+        input_port(
+            "yaw_mode", YAW_MODE, "KEEP_YAW", "KEEP_YAW, PATH_FACING or FIXED_YAW (or 0, 1, 2)"
+        ),
         input_port("yaw_angle", FLOAT, 0.0, "yaw for FIXED_YAW, rad"),
-        input_port("yaw_angle_deg", FLOAT, None, "yaw for FIXED_YAW in degrees (overrides yaw_angle)"),
+        input_port(
+            "yaw_angle_deg", FLOAT, None, "yaw for FIXED_YAW in degrees (overrides yaw_angle)"
+        ),
         input_port("relative", BOOL, False, "pose is an offset from the current position"),
         input_port("frame_id", STRING, "earth", "reference frame (only 'earth' is supported)"),
     ) + _motion_ports(60.0)

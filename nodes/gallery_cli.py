@@ -144,10 +144,10 @@ def _enrol(args: argparse.Namespace) -> int:
         crops = scan_blocks(frames, s.detector(args.detector), s.factors)
         source = f"rendered scan of {args.world_side}"
         if len(crops) < 3:
-            raise GalleryCommandError(f"the scan of {args.world_side} found {len(crops)} of 3 blocks")
-    g.enrol(
-        args.name, emb.embed(crops), [png_bytes(c) for c in crops], source, not args.no_replace
-    )
+            raise GalleryCommandError(
+                f"the scan of {args.world_side} found {len(crops)} of 3 blocks"
+            )
+    g.enrol(args.name, emb.embed(crops), [png_bytes(c) for c in crops], source, not args.no_replace)
     print(f"enrolled {args.name} in {g.path} ({len(g)} pallet sides)")
     return 0
 
@@ -195,7 +195,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     if len(ids) < 2:
         raise GalleryCommandError(f"{g.path}: needs at least two pallet sides to compare")
     th = g.thresholds
-    print(f"{g.path}: {len(ids)} sides; unknown above {th.max_distance:.3f}, margin {th.min_margin:.3f}")
+    print(
+        f"{g.path}: {len(ids)} sides; unknown above {th.max_distance:.3f}, margin {th.min_margin:.3f}"
+    )
     print(f"  {'side':<10} {'nearest other':<14} {'mean distance':>13}")
     worst = None
     for i, ident in enumerate(ids):

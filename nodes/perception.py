@@ -85,7 +85,9 @@ class PerceptionReady(SyncActionNode):
         try:
             detector = session.detector(self.get_input("detector"))
             embedder = session.embedder(self.get_input("embedder"))
-            g = session.gallery(self.get_input("gallery"), embedder, create=enrol, detector=detector)
+            g = session.gallery(
+                self.get_input("gallery"), embedder, create=enrol, detector=detector
+            )
         except PerceptionError as exc:
             return _fail(self, str(exc))
         self.set_output("gallery_size", len(g))
@@ -217,7 +219,9 @@ class IdentifyPallet(SyncActionNode):
         input_port("scan", ANY, description="DetectBlocks' scan output"),
         _GALLERY,
         _EMBEDDER,
-        input_port("max_distance", FLOAT, None, "unknown above this mean distance (default: gallery)"),
+        input_port(
+            "max_distance", FLOAT, None, "unknown above this mean distance (default: gallery)"
+        ),
         input_port("min_margin", FLOAT, None, "unknown below this margin (default: gallery)"),
         input_port("top_k", INT, 5, "length of the ranking"),
         output_port("pallet_id", STRING, "identity (e.g. 3A) or unknown"),
@@ -282,7 +286,9 @@ class EnrollPallet(SyncActionNode):
     ports = (
         input_port("identity", STRING, description="pallet side to enrol, e.g. 7A"),
         input_port("scan", ANY, description="DetectBlocks' scan output"),
-        input_port("gallery", STRING, "pallets.sqlite", "gallery file (.sqlite), created if missing"),
+        input_port(
+            "gallery", STRING, "pallets.sqlite", "gallery file (.sqlite), created if missing"
+        ),
         _EMBEDDER,
         input_port("replace", BOOL, True, "replace an existing entry of the same name"),
         output_port("gallery_size", INT, "number of enrolled pallet sides after enrolling"),

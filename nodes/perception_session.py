@@ -211,7 +211,9 @@ class PerceptionSession:
         self.detections += len(dets)
         if dets:
             boxes = [(d.x1, d.y1, d.x2, d.y2, d.score) for d in dets]
-            self.recent.append(KeyFrame(frame.index, frame.t_s, bgr, boxes, seq_frame=sequencer.frames))
+            self.recent.append(
+                KeyFrame(frame.index, frame.t_s, bgr, boxes, seq_frame=sequencer.frames)
+            )
         for block in committed:
             source = next((k for k in self.recent if k.seq_frame == block.frame_index), None)
             if source is not None:

@@ -48,7 +48,9 @@ def _annotated(frame: Any) -> np.ndarray:
 
 def _crop_cell(run_dir: str, name: str, crop: np.ndarray) -> str:
     _save(os.path.join(run_dir, "perception", name), crop)
-    return f'<img src="perception/{name}" alt="{name}" style="height:96px;image-rendering:pixelated">'
+    return (
+        f'<img src="perception/{name}" alt="{name}" style="height:96px;image-rendering:pixelated">'
+    )
 
 
 def perception_section(run_dir: str, mission: Any) -> str:

@@ -30,7 +30,9 @@ def read_checkpoint(path: str, what: str, threads: int | None = None, expected: 
     if threads is not None:
         torch.set_num_threads(max(1, int(threads)))
     if not os.path.isfile(path):
-        raise ModelError(f"{path}: no {what} file" + (f" (expected a {expected})" if expected else ""))
+        raise ModelError(
+            f"{path}: no {what} file" + (f" (expected a {expected})" if expected else "")
+        )
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:

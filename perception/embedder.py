@@ -139,7 +139,9 @@ class BlockEmbedder:
         return cls(model, version, thresholds, dict(blob.get("metrics") or {}), path)
 
     @classmethod
-    def _from_foreign(cls, blob: object, path: str, sha8: str, backbone: str | None) -> BlockEmbedder:
+    def _from_foreign(
+        cls, blob: object, path: str, sha8: str, backbone: str | None
+    ) -> BlockEmbedder:
         if backbone is None:
             raise ModelError(
                 f"{path}: not a btrun-pcb checkpoint; pass backbone= (e.g. 'resnet50' for a "

@@ -306,7 +306,6 @@ class Gallery:
             ranking=ranking,
         )
 
-
     def _screen(self, q: np.ndarray, g: np.ndarray) -> np.ndarray:
         """Approximate mean block distances to every entry (float32 dot products)."""
         if self._fast is None or self._fast[0] is not g:

@@ -105,8 +105,13 @@ class TrainConfig:
 
 
 SMOKE = TrainConfig(
-    pallets=3, crops_per_block=3, steps=6, classes_per_batch=4, crops_per_class=2,
-    val_pallets=3, val_unknown_pallets=1,
+    pallets=3,
+    crops_per_block=3,
+    steps=6,
+    classes_per_batch=4,
+    crops_per_class=2,
+    val_pallets=3,
+    val_unknown_pallets=1,
 )
 
 
@@ -128,7 +133,9 @@ def augment(crop: np.ndarray, rng: np.random.Generator, hw: tuple[int, int]) -> 
     f = f * gain.astype(np.float32)
     if rng.random() < 0.3:
         k = rng.uniform(0.35, 0.8)
-        small = cv2.resize(f, (max(4, int(w * k)), max(4, int(h * k))), interpolation=cv2.INTER_AREA)
+        small = cv2.resize(
+            f, (max(4, int(w * k)), max(4, int(h * k))), interpolation=cv2.INTER_AREA
+        )
         f = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
     if rng.random() < 0.3:
         eh, ew = int(h * rng.uniform(0.1, 0.4)), int(w * rng.uniform(0.1, 0.4))
@@ -189,8 +196,11 @@ def train(
     warm = max(1, cfg.steps // 20)
     sched = torch.optim.lr_scheduler.LambdaLR(
         opt,
-        lambda s: min(1.0, (s + 1) / warm)
-        * 0.5 * (1 + math.cos(math.pi * min(1.0, s / max(1, cfg.steps)))),
+        lambda s: (
+            min(1.0, (s + 1) / warm)
+            * 0.5
+            * (1 + math.cos(math.pi * min(1.0, s / max(1, cfg.steps))))
+        ),
     )
     rng = np.random.default_rng(seed)
     usable = np.flatnonzero(counts >= 1)
@@ -199,7 +209,9 @@ def train(
         cls = rng.choice(usable, cfg.classes_per_batch, replace=False)
         imgs, labels = [], []
         for c in cls:
-            for k in rng.choice(counts[c], cfg.crops_per_class, replace=counts[c] < cfg.crops_per_class):
+            for k in rng.choice(
+                counts[c], cfg.crops_per_class, replace=counts[c] < cfg.crops_per_class
+            ):
                 imgs.append(augment(crops[c][k], rng, input_hw))
                 labels.append(int(c))
         x, y = to_tensor(imgs), torch.tensor(labels)
@@ -294,7 +306,9 @@ def calibrate(known: np.ndarray, truth: np.ndarray, unknown: np.ndarray) -> tupl
     return th, decision_report(th, known, truth, unknown)
 
 
-def decision_report(th: Thresholds, known: np.ndarray, truth: np.ndarray, unknown: np.ndarray) -> dict:
+def decision_report(
+    th: Thresholds, known: np.ndarray, truth: np.ndarray, unknown: np.ndarray
+) -> dict:
     """Accept/unknown outcome of the thresholds on known and non-enrolled queries."""
     best, d1, margin = best_and_margin(known)
     accept = (d1 <= th.max_distance) & (margin >= th.min_margin)
@@ -338,6 +352,7 @@ def baselines(gallery: list, queries: list, k_gallery: int = 0, k_query: int = 1
     out = {}
     truth = np.arange(len(queries))
     for name, fn in (("raw_pixels", pixel_features), ("hsv_histogram", histogram_features)):
+
         def feats(data: list, k: int, fn: Callable = fn) -> np.ndarray:
             flat = [ident[b][min(k, len(ident[b]) - 1)] for ident in data for b in range(BLOCKS)]
             return fn(flat).reshape(len(data), BLOCKS, -1)
@@ -362,14 +377,18 @@ def evaluate(emb: BlockEmbedder, args: argparse.Namespace, log: Log) -> dict:
     report = {"model_version": emb.model_version, "embedder": rank_metrics(dist, truth)}
     report["embed_ms_per_crop"] = round(embed_s * 1000 / (3 * (2 * len(data) + len(udata))), 2)
     report["baselines"] = baselines(data, data, 0, 1)
-    report["thresholds"] = {"max_distance": emb.thresholds.max_distance,
-                            "min_margin": emb.thresholds.min_margin}
+    report["thresholds"] = {
+        "max_distance": emb.thresholds.max_distance,
+        "min_margin": emb.thresholds.min_margin,
+    }
     report["decisions"] = decision_report(emb.thresholds, dist, truth, mean_block_distances(u, g))
     return report
 
 
 # ------------------------------------------------------------------------------ CLI
-def save_checkpoint(path: str, model: PCB, thresholds: Thresholds, metrics: dict, training: dict) -> None:
+def save_checkpoint(
+    path: str, model: PCB, thresholds: Thresholds, metrics: dict, training: dict
+) -> None:
     """Write a ``btrun-pcb`` checkpoint (classifier weights dropped: not used at inference)."""
     state = {k: v for k, v in model.state_dict().items() if not k.startswith("classifier.")}
     torch.save(
@@ -378,7 +397,10 @@ def save_checkpoint(path: str, model: PCB, thresholds: Thresholds, metrics: dict
             "version": FORMAT_VERSION,
             "config": config_to_dict(model.config),
             "state_dict": state,
-            "thresholds": {"max_distance": thresholds.max_distance, "min_margin": thresholds.min_margin},
+            "thresholds": {
+                "max_distance": thresholds.max_distance,
+                "min_margin": thresholds.min_margin,
+            },
             "metrics": metrics,
             "training": training,
         },
@@ -415,9 +437,13 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
     )
     metrics = {**figures, **stats}
     minutes = (time.perf_counter() - t0) / 60
-    training = {"command": " ".join(["python -m perception.train_embedder", *sys.argv[1:]]),
-                "seed": args.seed, "minutes": round(minutes, 2), "threads": torch.get_num_threads(),
-                "config": cfg.__dict__}
+    training = {
+        "command": " ".join(["python -m perception.train_embedder", *sys.argv[1:]]),
+        "seed": args.seed,
+        "minutes": round(minutes, 2),
+        "threads": torch.get_num_threads(),
+        "config": cfg.__dict__,
+    }
     save_checkpoint(args.out, model, th, metrics, training)
     log(f"thresholds {th}; validation {json.dumps(metrics['validation'])}")
     log(f"decisions {json.dumps(metrics['validation_decisions'])}")
@@ -438,8 +464,10 @@ def cmd_calibrate(args: argparse.Namespace, log: Log) -> int:
         emb, TrainConfig.val_pallets, TrainConfig.val_unknown_pallets, args.seed, args.jobs, log
     )
     metrics = {**blob.get("metrics", {}), **figures}
-    training = {**blob.get("training", {}), "calibrated": "python -m perception.train_embedder "
-                + " ".join(sys.argv[1:])}
+    training = {
+        **blob.get("training", {}),
+        "calibrated": "python -m perception.train_embedder " + " ".join(sys.argv[1:]),
+    }
     emb.model.eval()
     save_checkpoint(args.out or args.weights, emb.model, th, metrics, training)
     log(f"thresholds {th}; decisions {json.dumps(figures['validation_decisions'])}")
@@ -466,8 +494,11 @@ def cmd_eval(args: argparse.Namespace, log: Log) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
-    ap = argparse.ArgumentParser(prog="python -m perception.train_embedder", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m perception.train_embedder",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sub = ap.add_subparsers(dest="cmd", required=True)
     tr = sub.add_parser("train", help="train + calibrate, write a checkpoint")
     tr.add_argument("--out", required=True)

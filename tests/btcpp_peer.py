@@ -195,7 +195,11 @@ def run_btcpp(
                     os.write(1, f"\n{_TICK}\n".encode())
                     root_bb = tree.root_blackboard()
                     trace.blackboards.append(
-                        {k: root_bb.get_int(k) for k in blackboard or {} if root_bb.get_int(k) is not None}
+                        {
+                            k: root_bb.get_int(k)
+                            for k in blackboard or {}
+                            if root_bb.get_int(k) is not None
+                        }
                     )
             finally:
                 logger.flush()

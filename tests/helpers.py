@@ -8,6 +8,8 @@ from bt_engine import Mission, SimClock
 from bt_engine.xml_io import load_xml
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
 def xml_mission(xml: str, path: str = "inline.xml", **kwargs) -> Mission:
     """Build a Mission from XML text (a SimClock unless one is given)."""
     kwargs.setdefault("clock", SimClock())
@@ -22,7 +24,9 @@ def wrap(body: str, extra: str = "") -> str:
     )
 
 
-def sim_mission(xml_or_path: str, seed: int = 0, overrides: dict | None = None, rate_hz: float = 50.0, **kw):
+def sim_mission(
+    xml_or_path: str, seed: int = 0, overrides: dict | None = None, rate_hz: float = 50.0, **kw
+):
     """A mission flying the in-process simulator: returns ``(mission, runner, platform)``.
 
     ``xml_or_path`` is a mission file path or inline XML text.

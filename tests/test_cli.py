@@ -45,7 +45,9 @@ def test_same_seed_same_tick_log_different_seed_differs(tmp_path):
 
 def test_world_setting_and_rig_errors_are_located(tmp_path, capsys):
     out = tmp_path / "run"
-    assert run_cli(YAW, "--out", str(out), "-q", "--no-report", "--set", "world.scan_pallet=2B") == 0
+    assert (
+        run_cli(YAW, "--out", str(out), "-q", "--no-report", "--set", "world.scan_pallet=2B") == 0
+    )
     assert json.loads((out / "summary.json").read_text())["sim"]["scan_pallet"] == "2B"
     assert run_cli(YAW, "--out", str(tmp_path / "x"), "--set", "world.scan_palet=2B") == 2
     err = capsys.readouterr().err
@@ -56,8 +58,10 @@ def test_world_setting_and_rig_errors_are_located(tmp_path, capsys):
 
 def test_failure_exit_code_and_reason(tmp_path, capsys):
     bad = tmp_path / "timeout.xml"
-    bad.write_text('<root BTCPP_format="4"><BehaviorTree ID="M"><Sequence><TakeOff/>'
-                   '<GoTo name="far" pose="5;0;1" timeout="1"/></Sequence></BehaviorTree></root>')
+    bad.write_text(
+        '<root BTCPP_format="4"><BehaviorTree ID="M"><Sequence><TakeOff/>'
+        '<GoTo name="far" pose="5;0;1" timeout="1"/></Sequence></BehaviorTree></root>'
+    )
     out = tmp_path / "run"
     assert run_cli(str(bad), "--out", str(out), "--no-report") == 1
     s = json.loads((out / "summary.json").read_text())

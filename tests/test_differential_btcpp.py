@@ -111,8 +111,12 @@ def run_btrun(
     trace = Trace(preorder_names(xml))
     clock = SimClock()
     try:
-        m = Mission(load_xml("differential.xml", text=xml), clock=clock, registry=REG,
-                    blackboard=dict(blackboard or {}))
+        m = Mission(
+            load_xml("differential.xml", text=xml),
+            clock=clock,
+            registry=REG,
+            blackboard=dict(blackboard or {}),
+        )
     except Exception as exc:
         trace.created = False
         trace.error = f"{type(exc).__name__}: {exc}"
@@ -146,8 +150,13 @@ def run_btrun(
             trace.statuses.append([n.bt_status.value for n in m.nodes])
             trace.transitions.append([(n.name, st.value) for n, _, st in m._changes])
             m._changes.clear()
-            trace.blackboards.append({k: int(float(m.blackboard[k])) for k in blackboard or {}
-                                      if m.blackboard.get(k) is not None})
+            trace.blackboards.append(
+                {
+                    k: int(float(m.blackboard[k]))
+                    for k in blackboard or {}
+                    if m.blackboard.get(k) is not None
+                }
+            )
     finally:
         m.close()
     return trace
@@ -197,24 +206,32 @@ def diff(
         return None
     for i in range(max(len(ref.roots), len(got.roots))):
         if i >= len(ref.roots) or i >= len(got.roots):
-            return (f"tick {i + 1}: BT.CPP raised={ref.error if i >= len(ref.roots) else None!r}"
-                    f", btrun raised={got.error if i >= len(got.roots) else None!r}")
+            return (
+                f"tick {i + 1}: BT.CPP raised={ref.error if i >= len(ref.roots) else None!r}"
+                f", btrun raised={got.error if i >= len(got.roots) else None!r}"
+            )
         if ref.roots[i] != got.roots[i] or ref.statuses[i] != got.statuses[i]:
             rows = [
                 f"  {'*' if a != b else ' '} {name:<14} btcpp={a:<8} btrun={b}"
                 for name, a, b in zip(ref.names, ref.statuses[i], got.statuses[i], strict=True)
             ]
             prev = ref.statuses[i - 1] if i else ["IDLE"] * len(ref.names)
-            return (f"tick {i + 1}: root btcpp={ref.roots[i]} btrun={got.roots[i]}\n"
-                    + "\n".join(rows) + f"\n  (before: {prev})")
+            return (
+                f"tick {i + 1}: root btcpp={ref.roots[i]} btrun={got.roots[i]}\n"
+                + "\n".join(rows)
+                + f"\n  (before: {prev})"
+            )
         if ref.blackboards[i] != got.blackboards[i]:
             return f"tick {i + 1}: blackboard btcpp={ref.blackboards[i]} btrun={got.blackboards[i]}"
         if ref.transitions[i] != got.transitions[i]:
-            return (f"tick {i + 1}: status changes differ\n  btcpp={ref.transitions[i]}"
-                    f"\n  btrun={got.transitions[i]}")
+            return (
+                f"tick {i + 1}: status changes differ\n  btcpp={ref.transitions[i]}"
+                f"\n  btrun={got.transitions[i]}"
+            )
     if _kind(ref.error) != _kind(got.error):
-        return (f"after {len(ref.roots)} ticks: BT.CPP error={ref.error!r}, "
-                f"btrun error={got.error!r}")
+        return (
+            f"after {len(ref.roots)} ticks: BT.CPP error={ref.error!r}, btrun error={got.error!r}"
+        )
     return None
 
 
@@ -230,16 +247,39 @@ def check(
 
 # -- random trees ---------------------------------------------------------------------------
 CONTROLS = (
-    "Sequence", "SequenceWithMemory", "ReactiveSequence", "Fallback", "ReactiveFallback",
-    "Parallel", "ParallelAll", "IfThenElse", "WhileDoElse",
+    "Sequence",
+    "SequenceWithMemory",
+    "ReactiveSequence",
+    "Fallback",
+    "ReactiveFallback",
+    "Parallel",
+    "ParallelAll",
+    "IfThenElse",
+    "WhileDoElse",
 )
 DECORATORS = (
-    "Inverter", "ForceSuccess", "ForceFailure", "Repeat", "RetryUntilSuccessful", "RunOnce",
-    "KeepRunningUntilFailure", "Timeout", "Delay", "SubTree",
+    "Inverter",
+    "ForceSuccess",
+    "ForceFailure",
+    "Repeat",
+    "RetryUntilSuccessful",
+    "RunOnce",
+    "KeepRunningUntilFailure",
+    "Timeout",
+    "Delay",
+    "SubTree",
 )
 LEAVES = (
-    "AlwaysSuccess", "AlwaysFailure", "Script", "ScriptCondition", "SetBlackboard",
-    SCRIPTED, SCRIPTED, SCRIPTED, SCRIPTED_SYNC, SCRIPTED_SYNC,
+    "AlwaysSuccess",
+    "AlwaysFailure",
+    "Script",
+    "ScriptCondition",
+    "SetBlackboard",
+    SCRIPTED,
+    SCRIPTED,
+    SCRIPTED,
+    SCRIPTED_SYNC,
+    SCRIPTED_SYNC,
 )
 PRE = ("_failureIf", "_successIf", "_skipIf", "_while")
 POST = ("_onSuccess", "_onFailure", "_post", "_onHalted")
@@ -360,7 +400,9 @@ class TreeGen:
             el.set("code", self.cond())
         elif tag == "SetBlackboard":
             el.set("output_key", r.choice(VARS))
-            el.set("value", "{" + r.choice(VARS) + "}" if r.random() < 0.5 else str(r.randint(0, 3)))
+            el.set(
+                "value", "{" + r.choice(VARS) + "}" if r.random() < 0.5 else str(r.randint(0, 3))
+            )
         return el
 
 
@@ -394,82 +436,126 @@ def test_generator_covers_every_builtin() -> None:
 # -- hand-written regression cases -----------------------------------------------------------
 def doc(body: str, *subtrees: str) -> str:
     """A mission whose main tree is ``body``; ``subtrees`` become T1, T2, ..."""
-    trees = "".join(f'<BehaviorTree ID="T{i + 1}">{t}</BehaviorTree>' for i, t in enumerate(subtrees))
-    return (f'<root BTCPP_format="4" main_tree_to_execute="Main">'
-            f'<BehaviorTree ID="Main">{body}</BehaviorTree>{trees}</root>')
+    trees = "".join(
+        f'<BehaviorTree ID="T{i + 1}">{t}</BehaviorTree>' for i, t in enumerate(subtrees)
+    )
+    return (
+        f'<root BTCPP_format="4" main_tree_to_execute="Main">'
+        f'<BehaviorTree ID="Main">{body}</BehaviorTree>{trees}</root>'
+    )
 
 
 KRUF_COUNT = '<KeepRunningUntilFailure name="k"><Script name="inc" code="c0 += 1"/></KeepRunningUntilFailure>'
 
 CASES: dict[str, tuple[str, ...]] = {
     # Sequence
-    "sequence": ('<Sequence name="s"><Scripted name="a_RS"/><Scripted name="b_RRF"/>'
-                 '<AlwaysSuccess name="c"/></Sequence>',),
+    "sequence": (
+        '<Sequence name="s"><Scripted name="a_RS"/><Scripted name="b_RRF"/>'
+        '<AlwaysSuccess name="c"/></Sequence>',
+    ),
     # BT.CPP quirk: a Sequence whose children were all skipped returns SKIPPED but stays RUNNING
     "sequence_all_skipped_stays_running": (
         '<Sequence name="p"><Sequence name="s"><AlwaysSuccess name="a" _skipIf="true"/>'
-        '<AlwaysFailure name="b" _skipIf="true"/></Sequence><Scripted name="c_RS"/></Sequence>',),
+        '<AlwaysFailure name="b" _skipIf="true"/></Sequence><Scripted name="c_RS"/></Sequence>',
+    ),
     "root_skipped": ('<Sequence name="s" _skipIf="c0 == 0"><AlwaysSuccess name="a"/></Sequence>',),
     # SequenceWithMemory
     "sequence_with_memory_retries_failed_child": (
         '<SequenceWithMemory name="s"><AlwaysSuccess name="a"/><ScriptedSync name="b_FFS"/>'
-        '<Scripted name="c_RS"/></SequenceWithMemory>',),
+        '<Scripted name="c_RS"/></SequenceWithMemory>',
+    ),
     "sequence_with_memory_wakes_up": (
         '<SequenceWithMemory name="s"><Script name="a" code="c0 += 1"/>'
-        '<Script name="b" code="c0 += 1"/><AlwaysSuccess name="c"/></SequenceWithMemory>',),
+        '<Script name="b" code="c0 += 1"/><AlwaysSuccess name="c"/></SequenceWithMemory>',
+    ),
     "sequence_with_memory_halted": (
         '<ReactiveSequence name="r"><ScriptedSync name="g_SSFS"/><SequenceWithMemory name="s">'
-        '<Scripted name="a_RS"/><Scripted name="b_RRS"/></SequenceWithMemory></ReactiveSequence>',),
+        '<Scripted name="a_RS"/><Scripted name="b_RRS"/></SequenceWithMemory></ReactiveSequence>',
+    ),
     # ReactiveSequence / ReactiveFallback
     "reactive_sequence_condition_interrupts": (
         '<ReactiveSequence name="r"><ScriptedSync name="c_SSF"/><Scripted name="a_RRRS"/>'
-        '</ReactiveSequence>',),
+        "</ReactiveSequence>",
+    ),
     "reactive_sequence_two_running_children": (
-        '<ReactiveSequence name="r"><Scripted name="a_SR"/><Scripted name="b_R"/></ReactiveSequence>',),
+        '<ReactiveSequence name="r"><Scripted name="a_SR"/><Scripted name="b_R"/></ReactiveSequence>',
+    ),
     "reactive_sequence_skipped_child": (
         '<ReactiveSequence name="r"><AlwaysSuccess name="a" _skipIf="c0 &lt; 2"/>'
-        '<Script name="b" code="c0 += 1"/><Scripted name="c_RS"/></ReactiveSequence>',),
-    "reactive_fallback": ('<ReactiveFallback name="f"><ScriptedSync name="c_FFS"/>'
-                          '<Scripted name="a_RRRF"/></ReactiveFallback>',),
+        '<Script name="b" code="c0 += 1"/><Scripted name="c_RS"/></ReactiveSequence>',
+    ),
+    "reactive_fallback": (
+        '<ReactiveFallback name="f"><ScriptedSync name="c_FFS"/>'
+        '<Scripted name="a_RRRF"/></ReactiveFallback>',
+    ),
     "reactive_fallback_two_running_children": (
-        '<ReactiveFallback name="f"><Scripted name="a_FR"/><Scripted name="b_R"/></ReactiveFallback>',),
+        '<ReactiveFallback name="f"><Scripted name="a_FR"/><Scripted name="b_R"/></ReactiveFallback>',
+    ),
     # Fallback
-    "fallback": ('<Fallback name="f"><Scripted name="a_RF"/><ScriptedSync name="b_FS"/>'
-                 '<Scripted name="c_RS"/></Fallback>',),
-    "fallback_all_skipped": ('<Fallback name="f"><AlwaysFailure name="a" _skipIf="true"/>'
-                             '<AlwaysSuccess name="b" _skipIf="true"/></Fallback>',),
+    "fallback": (
+        '<Fallback name="f"><Scripted name="a_RF"/><ScriptedSync name="b_FS"/>'
+        '<Scripted name="c_RS"/></Fallback>',
+    ),
+    "fallback_all_skipped": (
+        '<Fallback name="f"><AlwaysFailure name="a" _skipIf="true"/>'
+        '<AlwaysSuccess name="b" _skipIf="true"/></Fallback>',
+    ),
     # Parallel / ParallelAll
-    "parallel_defaults": ('<Parallel name="p"><Scripted name="a_RS"/><Scripted name="b_RRS"/>'
-                          '<Scripted name="c_RRRF"/></Parallel>',),
-    "parallel_one_success": ('<Parallel name="p" success_count="1" failure_count="-1">'
-                             '<Scripted name="a_RRF"/><Scripted name="b_RRRS"/></Parallel>',),
-    "parallel_counts_two": ('<Parallel name="p" success_count="2" failure_count="2">'
-                            '<Scripted name="a_RF"/><Scripted name="b_RRS"/>'
-                            '<ScriptedSync name="c_FS"/></Parallel>',),
-    "parallel_count_out_of_range": ('<Parallel name="p" success_count="3"><Scripted name="a_RS"/>'
-                                    '<AlwaysSuccess name="b"/></Parallel>',),
-    "parallel_skipped_children": ('<Parallel name="p"><AlwaysSuccess name="a" _skipIf="true"/>'
-                                  '<Scripted name="b_RS"/></Parallel>',),
-    "parallel_all_skipped": ('<Parallel name="p"><AlwaysSuccess name="a" _skipIf="true"/></Parallel>',),
-    "parallel_all": ('<ParallelAll name="p" max_failures="2"><Scripted name="a_RF"/>'
-                     '<Scripted name="b_RRS"/><ScriptedSync name="c_F"/></ParallelAll>',),
-    "parallel_all_negative": ('<ParallelAll name="p" max_failures="-1"><Scripted name="a_RF"/>'
-                              '<ScriptedSync name="b_SF"/></ParallelAll>',),
+    "parallel_defaults": (
+        '<Parallel name="p"><Scripted name="a_RS"/><Scripted name="b_RRS"/>'
+        '<Scripted name="c_RRRF"/></Parallel>',
+    ),
+    "parallel_one_success": (
+        '<Parallel name="p" success_count="1" failure_count="-1">'
+        '<Scripted name="a_RRF"/><Scripted name="b_RRRS"/></Parallel>',
+    ),
+    "parallel_counts_two": (
+        '<Parallel name="p" success_count="2" failure_count="2">'
+        '<Scripted name="a_RF"/><Scripted name="b_RRS"/>'
+        '<ScriptedSync name="c_FS"/></Parallel>',
+    ),
+    "parallel_count_out_of_range": (
+        '<Parallel name="p" success_count="3"><Scripted name="a_RS"/>'
+        '<AlwaysSuccess name="b"/></Parallel>',
+    ),
+    "parallel_skipped_children": (
+        '<Parallel name="p"><AlwaysSuccess name="a" _skipIf="true"/>'
+        '<Scripted name="b_RS"/></Parallel>',
+    ),
+    "parallel_all_skipped": (
+        '<Parallel name="p"><AlwaysSuccess name="a" _skipIf="true"/></Parallel>',
+    ),
+    "parallel_all": (
+        '<ParallelAll name="p" max_failures="2"><Scripted name="a_RF"/>'
+        '<Scripted name="b_RRS"/><ScriptedSync name="c_F"/></ParallelAll>',
+    ),
+    "parallel_all_negative": (
+        '<ParallelAll name="p" max_failures="-1"><Scripted name="a_RF"/>'
+        '<ScriptedSync name="b_SF"/></ParallelAll>',
+    ),
     # IfThenElse / WhileDoElse
-    "if_then_else": ('<IfThenElse name="i"><Scripted name="c_RSF"/><Scripted name="t_RS"/>'
-                     '<Scripted name="e_RF"/></IfThenElse>',),
-    "if_then_without_else": ('<IfThenElse name="i"><ScriptedSync name="c_FS"/><Scripted name="t_RS"/>'
-                             '</IfThenElse>',),
+    "if_then_else": (
+        '<IfThenElse name="i"><Scripted name="c_RSF"/><Scripted name="t_RS"/>'
+        '<Scripted name="e_RF"/></IfThenElse>',
+    ),
+    "if_then_without_else": (
+        '<IfThenElse name="i"><ScriptedSync name="c_FS"/><Scripted name="t_RS"/></IfThenElse>',
+    ),
     "if_then_else_skipped_condition_raises": (
         '<IfThenElse name="i"><AlwaysSuccess name="c" _skipIf="true"/><AlwaysSuccess name="t"/>'
-        '</IfThenElse>',),
-    "while_do_else": ('<WhileDoElse name="w"><ScriptedSync name="c_SSFFS"/><Scripted name="d_RRRS"/>'
-                      '<Scripted name="e_RRF"/></WhileDoElse>',),
-    "while_do_without_else": ('<WhileDoElse name="w"><ScriptedSync name="c_SSF"/>'
-                              '<Scripted name="d_RRS"/></WhileDoElse>',),
+        "</IfThenElse>",
+    ),
+    "while_do_else": (
+        '<WhileDoElse name="w"><ScriptedSync name="c_SSFFS"/><Scripted name="d_RRRS"/>'
+        '<Scripted name="e_RRF"/></WhileDoElse>',
+    ),
+    "while_do_without_else": (
+        '<WhileDoElse name="w"><ScriptedSync name="c_SSF"/><Scripted name="d_RRS"/></WhileDoElse>',
+    ),
     "while_do_else_skipped_condition_raises": (
         '<WhileDoElse name="w"><AlwaysSuccess name="c" _skipIf="true"/><AlwaysSuccess name="d"/>'
-        '</WhileDoElse>',),
+        "</WhileDoElse>",
+    ),
     # Inverter, ForceSuccess, ForceFailure
     "inverter": ('<Inverter name="i"><Scripted name="a_RSRF"/></Inverter>',),
     "force_success": ('<ForceSuccess name="f"><Scripted name="a_RF"/></ForceSuccess>',),
@@ -477,72 +563,110 @@ CASES: dict[str, tuple[str, ...]] = {
     "decorators_pass_skipped": (
         '<Sequence name="s"><Inverter name="i"><AlwaysSuccess name="a" _skipIf="true"/></Inverter>'
         '<ForceFailure name="f"><AlwaysSuccess name="b" _skipIf="true"/></ForceFailure>'
-        '<Scripted name="c_RS"/></Sequence>',),
+        '<Scripted name="c_RS"/></Sequence>',
+    ),
     # Repeat, RetryUntilSuccessful
-    "repeat_sync_child_wakes_up": ('<Repeat name="r" num_cycles="3"><Script name="a" code="c0 += 1"/>'
-                                   '</Repeat>',),
+    "repeat_sync_child_wakes_up": (
+        '<Repeat name="r" num_cycles="3"><Script name="a" code="c0 += 1"/></Repeat>',
+    ),
     "repeat_running_child": ('<Repeat name="r" num_cycles="2"><Scripted name="a_RSF"/></Repeat>',),
     "repeat_zero": ('<Repeat name="r" num_cycles="0"><AlwaysFailure name="a"/></Repeat>',),
-    "repeat_from_blackboard": ('<Repeat name="r" num_cycles="{c1}"><Script name="a" code="c0 += 1"/>'
-                               '</Repeat>', "c1=2"),
-    "repeat_forever_running_child": ('<Repeat name="r" num_cycles="-1"><Scripted name="a_RS"/></Repeat>',),
+    "repeat_from_blackboard": (
+        '<Repeat name="r" num_cycles="{c1}"><Script name="a" code="c0 += 1"/></Repeat>',
+        "c1=2",
+    ),
+    "repeat_forever_running_child": (
+        '<Repeat name="r" num_cycles="-1"><Scripted name="a_RS"/></Repeat>',
+    ),
     # both engines loop forever inside the first tick (every cycle emits a wake-up)
     "repeat_forever_sync_child_never_returns": (
-        '<Repeat name="r" num_cycles="-1"><AlwaysSuccess name="a"/></Repeat>',),
-    "retry": ('<RetryUntilSuccessful name="r" num_attempts="3"><ScriptedSync name="a_FFFS"/>'
-              '</RetryUntilSuccessful>',),
-    "retry_running_child": ('<RetryUntilSuccessful name="r" num_attempts="2"><Scripted name="a_RFRS"/>'
-                            '</RetryUntilSuccessful>',),
-    "retry_forever": ('<RetryUntilSuccessful name="r" num_attempts="-1"><ScriptedSync name="a_FFS"/>'
-                      '</RetryUntilSuccessful>',),
+        '<Repeat name="r" num_cycles="-1"><AlwaysSuccess name="a"/></Repeat>',
+    ),
+    "retry": (
+        '<RetryUntilSuccessful name="r" num_attempts="3"><ScriptedSync name="a_FFFS"/>'
+        "</RetryUntilSuccessful>",
+    ),
+    "retry_running_child": (
+        '<RetryUntilSuccessful name="r" num_attempts="2"><Scripted name="a_RFRS"/>'
+        "</RetryUntilSuccessful>",
+    ),
+    "retry_forever": (
+        '<RetryUntilSuccessful name="r" num_attempts="-1"><ScriptedSync name="a_FFS"/>'
+        "</RetryUntilSuccessful>",
+    ),
     # RunOnce, KeepRunningUntilFailure
-    "run_once_then_skip": ('<Sequence name="s"><RunOnce name="o"><Scripted name="a_RF"/></RunOnce>'
-                           '<Scripted name="b_RS"/></Sequence>',),
-    "run_once_repeat_result": ('<Sequence name="s"><RunOnce name="o" then_skip="false">'
-                               '<Scripted name="a_RS"/></RunOnce><Scripted name="b_RS"/></Sequence>',),
-    "keep_running_until_failure": ('<KeepRunningUntilFailure name="k"><ScriptedSync name="a_SSF"/>'
-                                   '</KeepRunningUntilFailure>',),
+    "run_once_then_skip": (
+        '<Sequence name="s"><RunOnce name="o"><Scripted name="a_RF"/></RunOnce>'
+        '<Scripted name="b_RS"/></Sequence>',
+    ),
+    "run_once_repeat_result": (
+        '<Sequence name="s"><RunOnce name="o" then_skip="false">'
+        '<Scripted name="a_RS"/></RunOnce><Scripted name="b_RS"/></Sequence>',
+    ),
+    "keep_running_until_failure": (
+        '<KeepRunningUntilFailure name="k"><ScriptedSync name="a_SSF"/></KeepRunningUntilFailure>',
+    ),
     "keep_running_until_failure_skipped_child": (
         '<KeepRunningUntilFailure name="k"><Script name="a" code="c0 += 1" _skipIf="c0 &gt;= 2"/>'
-        '</KeepRunningUntilFailure>',),
+        "</KeepRunningUntilFailure>",
+    ),
     # Timeout, Delay (durations that never elapse)
-    "timeout_zero_is_pass_through": ('<Timeout name="t" msec="0"><Scripted name="a_RRF"/></Timeout>',),
+    "timeout_zero_is_pass_through": (
+        '<Timeout name="t" msec="0"><Scripted name="a_RRF"/></Timeout>',
+    ),
     "timeout_huge_halted_by_parent": (
         '<ReactiveSequence name="r"><ScriptedSync name="g_SSF"/><Timeout name="t" msec="1000000000">'
-        '<Scripted name="a_R" _onHalted="c0 += 1"/></Timeout></ReactiveSequence>',),
+        '<Scripted name="a_R" _onHalted="c0 += 1"/></Timeout></ReactiveSequence>',
+    ),
     "delay_huge_halted_by_parent": (
         '<ReactiveFallback name="r"><ScriptedSync name="g_FFS"/><Delay name="d" delay_msec="1000000000">'
-        '<AlwaysSuccess name="a"/></Delay></ReactiveFallback>',),
+        '<AlwaysSuccess name="a"/></Delay></ReactiveFallback>',
+    ),
     # leaves
     "scripts_and_conditions": (
         '<Sequence name="s"><Script name="a" code="c0 += 1"/><SetBlackboard name="b" output_key="c1" '
-        'value="{c0}"/><ScriptCondition name="c" code="c1 &lt; 3"/><AlwaysSuccess name="d"/></Sequence>',),
-    "set_blackboard_literal": ('<Sequence name="s"><SetBlackboard name="a" output_key="c1" value="3"/>'
-                               '<Script name="b" code="c1 += 1"/><AlwaysFailure name="f"/></Sequence>',),
+        'value="{c0}"/><ScriptCondition name="c" code="c1 &lt; 3"/><AlwaysSuccess name="d"/></Sequence>',
+    ),
+    "set_blackboard_literal": (
+        '<Sequence name="s"><SetBlackboard name="a" output_key="c1" value="3"/>'
+        '<Script name="b" code="c1 += 1"/><AlwaysFailure name="f"/></Sequence>',
+    ),
     # SubTree
-    "subtree_remapped": ('<Sequence name="s"><SubTree name="st" ID="T1" c0="{c2}" c1="{c1}" c2="{c0}"/>'
-                         '<Scripted name="b_RS"/></Sequence>',
-                         '<Sequence name="in"><Script name="x" code="c0 += 1"/><Scripted name="a_RF"/>'
-                         '</Sequence>'),
-    "subtree_autoremap_nested": ('<SubTree name="st" ID="T1" _autoremap="true"/>',
-                                 '<Fallback name="f"><SubTree name="st2" ID="T2" _autoremap="true"/>'
-                                 '<Script name="y" code="c1 += 1"/></Fallback>',
-                                 '<Sequence name="g"><Script name="x" code="c0 += 1"/>'
-                                 '<ScriptedSync name="a_FS"/></Sequence>'),
-    "subtree_with_conditions": ('<Sequence name="s"><SubTree name="st" ID="T1" _autoremap="true" '
-                                '_while="c0 &lt; 2" _onHalted="c1 += 5" _onSuccess="c2 += 1"/>'
-                                '<Script name="x" code="c0 += 1"/></Sequence>',
-                                '<Scripted name="a_RRRS"/>'),
+    "subtree_remapped": (
+        '<Sequence name="s"><SubTree name="st" ID="T1" c0="{c2}" c1="{c1}" c2="{c0}"/>'
+        '<Scripted name="b_RS"/></Sequence>',
+        '<Sequence name="in"><Script name="x" code="c0 += 1"/><Scripted name="a_RF"/></Sequence>',
+    ),
+    "subtree_autoremap_nested": (
+        '<SubTree name="st" ID="T1" _autoremap="true"/>',
+        '<Fallback name="f"><SubTree name="st2" ID="T2" _autoremap="true"/>'
+        '<Script name="y" code="c1 += 1"/></Fallback>',
+        '<Sequence name="g"><Script name="x" code="c0 += 1"/>'
+        '<ScriptedSync name="a_FS"/></Sequence>',
+    ),
+    "subtree_with_conditions": (
+        '<Sequence name="s"><SubTree name="st" ID="T1" _autoremap="true" '
+        '_while="c0 &lt; 2" _onHalted="c1 += 5" _onSuccess="c2 += 1"/>'
+        '<Script name="x" code="c0 += 1"/></Sequence>',
+        '<Scripted name="a_RRRS"/>',
+    ),
     # pre- and post-conditions
-    "while_halts_running_node": ('<Parallel name="p" success_count="2"><Scripted name="a_RRRRS" '
-                                 '_while="c0 &lt; 2" _onHalted="c1 += 1"/>' + KRUF_COUNT + '</Parallel>',),
+    "while_halts_running_node": (
+        '<Parallel name="p" success_count="2"><Scripted name="a_RRRRS" '
+        '_while="c0 &lt; 2" _onHalted="c1 += 1"/>' + KRUF_COUNT + "</Parallel>",
+    ),
     "success_if_failure_if_only_when_idle": (
         '<Sequence name="s"><Scripted name="a_RRS" _successIf="c0 &gt;= 1" _failureIf="c0 &gt;= 3"/>'
-        '<Script name="b" code="c0 += 1"/></Sequence>',),
-    "failure_if_checked_before_success_if": ('<AlwaysSuccess name="a" _successIf="true" _failureIf="true"/>',),
-    "post_conditions": ('<Sequence name="s"><ScriptedSync name="a_SF" _onSuccess="c0 += 1" '
-                        '_onFailure="c1 += 1" _post="c2 += 1"/><Scripted name="b_RS" _post="c2 := 0"/>'
-                        '</Sequence>',),
+        '<Script name="b" code="c0 += 1"/></Sequence>',
+    ),
+    "failure_if_checked_before_success_if": (
+        '<AlwaysSuccess name="a" _successIf="true" _failureIf="true"/>',
+    ),
+    "post_conditions": (
+        '<Sequence name="s"><ScriptedSync name="a_SF" _onSuccess="c0 += 1" '
+        '_onFailure="c1 += 1" _post="c2 += 1"/><Scripted name="b_RS" _post="c2 := 0"/>'
+        "</Sequence>",
+    ),
 }
 
 
@@ -574,19 +698,22 @@ def test_stale_wake_up_carries_over_to_next_tick() -> None:
     """A wake-up emitted in a tick that finished the root re-ticks the next tick (BT.CPP)."""
     # Parallel succeeds at once while the Repeat has just emitted a wake-up; next tick the
     # root is RUNNING, so the stale wake-up re-ticks it and the counter moves twice.
-    xml = doc('<Parallel name="p" success_count="1"><Repeat name="r" num_cycles="2">'
-              '<AlwaysSuccess name="a"/></Repeat><Sequence name="q"><Script name="x" code="c0 += 1"/>'
-              '<AlwaysSuccess name="b" _skipIf="c0 &gt; 1"/></Sequence></Parallel>')
+    xml = doc(
+        '<Parallel name="p" success_count="1"><Repeat name="r" num_cycles="2">'
+        '<AlwaysSuccess name="a"/></Repeat><Sequence name="q"><Script name="x" code="c0 += 1"/>'
+        '<AlwaysSuccess name="b" _skipIf="c0 &gt; 1"/></Sequence></Parallel>'
+    )
     check(xml, ticks=6)
 
 
 TIMED = {
     "timeout_expires": '<Parallel name="p" success_count="1" failure_count="2"><Timeout name="t" msec="30">'
-                       '<Scripted name="a_R" _onHalted="c1 += 1"/></Timeout>' + KRUF_COUNT + '</Parallel>',
+    '<Scripted name="a_R" _onHalted="c1 += 1"/></Timeout>' + KRUF_COUNT + "</Parallel>",
     "delay_elapses": '<Parallel name="p" success_count="2" failure_count="2"><Delay name="d" delay_msec="30">'
-                     '<Scripted name="a_RRRS"/></Delay>' + KRUF_COUNT + '</Parallel>',
+    '<Scripted name="a_RRRS"/></Delay>' + KRUF_COUNT + "</Parallel>",
     "sleep_elapses": '<Parallel name="p" success_count="2" failure_count="2"><Sleep name="z" msec="30"/>'
-                     + KRUF_COUNT + '</Parallel>',
+    + KRUF_COUNT
+    + "</Parallel>",
 }
 
 
@@ -606,4 +733,3 @@ def test_timers_wake_the_tree_up(case: str) -> None:
             return
         problems.append(problem)
     pytest.fail(f"{problems[0]}\n{xml}")
-

@@ -19,9 +19,12 @@ from bt_engine.ticklog import TickLog, read_log
 
 
 def test_sequence_resumes_at_running_child_tick_by_tick():
-    m = xml_mission(wrap(
-        '<Sequence name="main"><Script code="n := 0"/><Sleep name="nap" msec="60"/>'
-        '<Script name="after" code="n := n + 1"/></Sequence>'))
+    m = xml_mission(
+        wrap(
+            '<Sequence name="main"><Script code="n := 0"/><Sleep name="nap" msec="60"/>'
+            '<Script name="after" code="n := n + 1"/></Sequence>'
+        )
+    )
     run = Runner(m, rate_hz=50)
     assert run.step() is RUNNING  # t=0.02: nap starts, until 0.08
     assert m.status_of("nap") == "RUNNING"
@@ -37,7 +40,9 @@ def test_sequence_resumes_at_running_child_tick_by_tick():
 
 
 def test_timeout_fails_and_halts_child_on_the_simulated_clock():
-    m = xml_mission(wrap('<Timeout name="limit" msec="100"><Sleep name="long" msec="1000"/></Timeout>'))
+    m = xml_mission(
+        wrap('<Timeout name="limit" msec="100"><Sleep name="long" msec="1000"/></Timeout>')
+    )
     run = Runner(m, rate_hz=100)
     ticks = run.run_until(lambda mm: mm.status.value != "RUNNING", max_ticks=50)
     assert m.status.value == "FAILURE"
@@ -53,11 +58,18 @@ def test_delay_waits_on_mission_clock():
 
 
 def test_subtree_remapping_literals_and_isolation():
-    extra = ('<BehaviorTree ID="Inc"><Sequence><Script code="out := inp + 1"/>'
-             '<Script code="private := 42"/></Sequence></BehaviorTree>')
-    m = xml_mission(wrap('<Sequence><Script code="a := 1"/>'
-                         '<SubTree ID="Inc" inp="{a}" out="{b}"/>'
-                         '<SubTree ID="Inc" inp="10" out="{c}"/></Sequence>', extra))
+    extra = (
+        '<BehaviorTree ID="Inc"><Sequence><Script code="out := inp + 1"/>'
+        '<Script code="private := 42"/></Sequence></BehaviorTree>'
+    )
+    m = xml_mission(
+        wrap(
+            '<Sequence><Script code="a := 1"/>'
+            '<SubTree ID="Inc" inp="{a}" out="{b}"/>'
+            '<SubTree ID="Inc" inp="10" out="{c}"/></Sequence>',
+            extra,
+        )
+    )
     m.tick()
     assert m.blackboard["b"] == 2
     assert m.blackboard["c"] == 11  # the literal "10" converts in arithmetic
@@ -66,8 +78,10 @@ def test_subtree_remapping_literals_and_isolation():
 
 
 def test_autoremap_shares_entries_except_private_ones():
-    extra = ('<BehaviorTree ID="Set"><Sequence><Script code="shared := 5"/>'
-             '<Script code="_mine := 1"/></Sequence></BehaviorTree>')
+    extra = (
+        '<BehaviorTree ID="Set"><Sequence><Script code="shared := 5"/>'
+        '<Script code="_mine := 1"/></Sequence></BehaviorTree>'
+    )
     m = xml_mission(wrap('<SubTree ID="Set" _autoremap="true"/>', extra))
     m.tick()
     assert m.blackboard["shared"] == 5
@@ -94,11 +108,14 @@ def test_two_missions_in_one_process_do_not_share_entries():
 
 
 def test_pre_and_post_conditions():
-    m = xml_mission(wrap(
-        '<Sequence><AlwaysSuccess name="skipped" _skipIf="flag"/>'
-        '<AlwaysFailure name="forced" _successIf="flag" _onSuccess="done := true"/>'
-        '<AlwaysSuccess name="post" _post="count := count + 1"/></Sequence>'),
-        blackboard={"flag": True, "count": 0})
+    m = xml_mission(
+        wrap(
+            '<Sequence><AlwaysSuccess name="skipped" _skipIf="flag"/>'
+            '<AlwaysFailure name="forced" _successIf="flag" _onSuccess="done := true"/>'
+            '<AlwaysSuccess name="post" _post="count := count + 1"/></Sequence>'
+        ),
+        blackboard={"flag": True, "count": 0},
+    )
     recorder = Runner(m)
     assert recorder.step() is SUCCESS
     assert m.blackboard["done"] is True and m.blackboard["count"] == 1
@@ -118,8 +135,12 @@ def test_while_precondition_halts_running_node():
 
 
 def test_node_lookup_by_name_and_path_and_errors():
-    m = xml_mission(wrap('<Sequence name="root"><AlwaysSuccess/><AlwaysSuccess/>'
-                         '<Sleep name="nap" msec="1"/></Sequence>'))
+    m = xml_mission(
+        wrap(
+            '<Sequence name="root"><AlwaysSuccess/><AlwaysSuccess/>'
+            '<Sleep name="nap" msec="1"/></Sequence>'
+        )
+    )
     assert m.node("nap").path == "Main/root/nap"
     assert m.node("Main/root/AlwaysSuccess[1]").bt_id == "AlwaysSuccess"
     with pytest.raises(KeyError, match="ambiguous"):
@@ -132,8 +153,10 @@ def test_missing_blackboard_input_aborts_with_located_message():
     m = xml_mission(wrap('<Sleep msec="{delay}"/>'), path="missions/x.xml")
     result = Runner(m).run(max_time_s=1)
     assert result.status == "ABORTED"
-    assert result.reason.startswith("missions/x.xml:3:1: Sleep 'Sleep': input port 'msec' reads "
-                                    "blackboard entry {delay}, which is not set")
+    assert result.reason.startswith(
+        "missions/x.xml:3:1: Sleep 'Sleep': input port 'msec' reads "
+        "blackboard entry {delay}, which is not set"
+    )
 
 
 class Exploding(StatefulActionNode):
@@ -151,8 +174,10 @@ class Exploding(StatefulActionNode):
 def test_exception_in_a_leaf_aborts_and_halts():
     reg = REGISTRY.copy()
     reg.register(Exploding)
-    m = xml_mission(wrap('<Parallel success_count="2"><Exploding/><Sleep name="s" msec="5000"/></Parallel>'),
-                    registry=reg)
+    m = xml_mission(
+        wrap('<Parallel success_count="2"><Exploding/><Sleep name="s" msec="5000"/></Parallel>'),
+        registry=reg,
+    )
     run = Runner(m)
     result = run.run(max_time_s=10)
     assert result.status == "ABORTED"
@@ -200,8 +225,10 @@ def test_tick_log_is_flushed_per_tick_and_replayable(tmp_path):
 
 
 def test_same_mission_same_trace():
-    xml = wrap('<Repeat num_cycles="3"><Sequence><Script code="i := i + 1"/><Sleep msec="30"/>'
-               "</Sequence></Repeat>")
+    xml = wrap(
+        '<Repeat num_cycles="3"><Sequence><Script code="i := i + 1"/><Sleep msec="30"/>'
+        "</Sequence></Repeat>"
+    )
     traces = []
     for _ in range(2):
         m = xml_mission(xml, blackboard={"i": 0})
@@ -232,7 +259,11 @@ def test_clock_is_injected_not_read_from_time():
 def test_changes_are_net_complete_and_bounded(tmp_path):
     """A leaf that goes IDLE->SUCCESS->IDLE within a tick is 'done', not 'changed'; a tick
     log record keeps every change of a large tree; undrained changes do not pile up."""
-    body = "<ReactiveSequence>" + "<AlwaysSuccess/>" * 1500 + '<Sleep name="s" msec="1000"/></ReactiveSequence>'
+    body = (
+        "<ReactiveSequence>"
+        + "<AlwaysSuccess/>" * 1500
+        + '<Sleep name="s" msec="1000"/></ReactiveSequence>'
+    )
     m = xml_mission(wrap(body))
     log = TickLog(str(tmp_path / "t.jsonl"))
     run = Runner(m, log=log)
@@ -253,10 +284,13 @@ def test_changes_are_net_complete_and_bounded(tmp_path):
 def test_a_handled_failure_is_still_the_reason_when_the_tree_fails_later():
     # the cause fails in one tick, the fallback's clean-up runs for two more, then the tree
     # fails through a decorator: the reason names the leaf that caused it
-    m = xml_mission(wrap(
-        '<Fallback><AlwaysFailure name="cause"/>'
-        '<ForceFailure><Sequence><Delay delay_msec="20"><AlwaysSuccess/></Delay>'
-        '<AlwaysSuccess name="cleanup"/></Sequence></ForceFailure></Fallback>'))
+    m = xml_mission(
+        wrap(
+            '<Fallback><AlwaysFailure name="cause"/>'
+            '<ForceFailure><Sequence><Delay delay_msec="20"><AlwaysSuccess/></Delay>'
+            '<AlwaysSuccess name="cleanup"/></Sequence></ForceFailure></Fallback>'
+        )
+    )
     run = Runner(m, rate_hz=100)
     result = run.run(max_time_s=1.0)
     assert result.status == "FAILURE" and m.ticks >= 3

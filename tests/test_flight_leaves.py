@@ -54,16 +54,22 @@ def test_yaw_from_plus_170_to_minus_170_turns_20_degrees_not_340():
     v = pf.vehicle
     assert abs(_wrap_deg(math.degrees(v.yaw_rad) - 170.0)) < 15.0
     yaws = []
-    run.run_until(lambda mm: (yaws.append(math.degrees(v.yaw_rad)) or mm.status.value != "RUNNING"), 3000)
+    run.run_until(
+        lambda mm: yaws.append(math.degrees(v.yaw_rad)) or mm.status.value != "RUNNING", 3000
+    )
     assert m.status.value == "SUCCESS"
     # every yaw on the way stayed within the short 20-degree arc through 180
     assert all(abs(y) >= 160.0 for y in yaws), min(abs(y) for y in yaws)
 
 
 def test_path_facing_faces_the_direction_of_travel():
-    m, run, pf = fly_to_start('<GoTo name="go" pose="1;1;1" yaw_mode="PATH_FACING" max_speed="0.5"/>')
+    m, run, pf = fly_to_start(
+        '<GoTo name="go" pose="1;1;1" yaw_mode="PATH_FACING" max_speed="0.5"/>'
+    )
     v = pf.vehicle
-    run.run_until(lambda mm: math.dist(v.position[:2], (0, 0)) > 0.7 or mm.status.value != "RUNNING", 3000)
+    run.run_until(
+        lambda mm: math.dist(v.position[:2], (0, 0)) > 0.7 or mm.status.value != "RUNNING", 3000
+    )
     assert abs(_wrap_deg(math.degrees(v.yaw_rad) - 45.0)) < 15.0
     vel = v.velocity
     travel = math.degrees(math.atan2(vel.vy_mps, vel.vx_mps))
@@ -73,7 +79,9 @@ def test_path_facing_faces_the_direction_of_travel():
 
 
 def test_aerostack2_integer_yaw_mode_is_path_facing():
-    m, run, pf = fly_to_start('<Action ID="GoTo" name="go" pose="0;1;1" yaw_mode="1" max_speed="0.5"/>')
+    m, run, pf = fly_to_start(
+        '<Action ID="GoTo" name="go" pose="0;1;1" yaw_mode="1" max_speed="0.5"/>'
+    )
     run.run_until(lambda mm: mm.status.value != "RUNNING", 3000)
     assert m.status.value == "SUCCESS"
     assert abs(_wrap_deg(math.degrees(pf.vehicle.yaw_rad) - 90.0)) < 15.0
@@ -93,7 +101,9 @@ def test_timeout_fails_the_node_and_the_drone_holds():
         if m.status.value == "RUNNING":
             break
     assert math.dist(v.position, held) < 0.3
-    assert any("time-out after 2 s" in r.get("messages", [""])[0] for r in run.trace if r.get("messages"))
+    assert any(
+        "time-out after 2 s" in r.get("messages", [""])[0] for r in run.trace if r.get("messages")
+    )
 
 
 def test_halted_goto_holds_position():
@@ -126,15 +136,18 @@ def test_relative_goto_and_feedback_outputs():
 
 
 def test_conditions_read_the_vehicle():
-    m, run, pf = sim_mission(wrap(
-        "<Sequence>"
-        '<Inverter><IsFlying/></Inverter>'
-        f"{TAKEOFF}"
-        '<IsFlying/><IsAtPosition pose="0;0;1" threshold="0.06"/>'
-        '<IsYawWithin angle_deg="0" threshold_deg="15"/>'
-        '<BatteryAbove percent="20"/><BatteryAbove volts="3.3"/>'
-        "<IsHealthy/>"
-        '<Land name="land"/></Sequence>'))
+    m, run, pf = sim_mission(
+        wrap(
+            "<Sequence>"
+            "<Inverter><IsFlying/></Inverter>"
+            f"{TAKEOFF}"
+            '<IsFlying/><IsAtPosition pose="0;0;1" threshold="0.06"/>'
+            '<IsYawWithin angle_deg="0" threshold_deg="15"/>'
+            '<BatteryAbove percent="20"/><BatteryAbove volts="3.3"/>'
+            "<IsHealthy/>"
+            '<Land name="land"/></Sequence>'
+        )
+    )
     run.run_until(lambda mm: mm.status.value != "RUNNING", 3000)
     assert m.status.value == "SUCCESS", m.last_failure
     assert pf.vehicle.is_landed
@@ -143,7 +156,9 @@ def test_conditions_read_the_vehicle():
 def test_battery_above_needs_exactly_one_threshold():
     m, run, _ = sim_mission(wrap("<BatteryAbove/>"))
     result = run.run(max_time_s=1)
-    assert result.status == "ABORTED" and "give exactly one of 'percent' or 'volts'" in result.reason
+    assert (
+        result.status == "ABORTED" and "give exactly one of 'percent' or 'volts'" in result.reason
+    )
 
 
 def test_leaves_without_a_vehicle_give_a_located_error():

@@ -32,9 +32,44 @@ MISSIONS += sorted(glob.glob(os.path.join(REPO, "missions", "*.yaml")))
 TEXTS = {os.path.basename(p): open(p, encoding="utf-8").read() for p in MISSIONS}
 ATTR = re.compile(r'(\w+)="([^"]*)"')
 YAML_VALUE = re.compile(r"(:\s+)([^\s#][^#\n]*)")
-TOKENS = ["<", ">", "/>", "</", '"', "'", "&", "&amp;", "{", "}", "{@x}", ";", ":", "-", "\n",
-          "\t", "  ", "!!", "*", "&a ", "\x00", "\u00e9", "<!--", "-->", "=", "[", "]", "nan",
-          "1e999", "-1", "ID", "BehaviorTree", "SubTree", "include", "_skipIf", "{=}"]
+TOKENS = [
+    "<",
+    ">",
+    "/>",
+    "</",
+    '"',
+    "'",
+    "&",
+    "&amp;",
+    "{",
+    "}",
+    "{@x}",
+    ";",
+    ":",
+    "-",
+    "\n",
+    "\t",
+    "  ",
+    "!!",
+    "*",
+    "&a ",
+    "\x00",
+    "\u00e9",
+    "<!--",
+    "-->",
+    "=",
+    "[",
+    "]",
+    "nan",
+    "1e999",
+    "-1",
+    "ID",
+    "BehaviorTree",
+    "SubTree",
+    "include",
+    "_skipIf",
+    "{=}",
+]
 
 
 def _mutate(text: str, ops: list[tuple[int, int, int, int]], swap_re: re.Pattern) -> str:
@@ -57,8 +92,13 @@ def _mutate(text: str, ops: list[tuple[int, int, int, int]], swap_re: re.Pattern
                     x, y = y, x
                 if x.end() <= y.start():
                     vx, vy = x.group(2), y.group(2)
-                    text = (text[: x.start(2)] + vy + text[x.end(2) : y.start(2)] + vx
-                            + text[y.end(2) :])
+                    text = (
+                        text[: x.start(2)]
+                        + vy
+                        + text[x.end(2) : y.start(2)]
+                        + vx
+                        + text[y.end(2) :]
+                    )
         else:  # delete or duplicate a line (an element, an attribute line, a YAML entry)
             lines = text.split("\n")
             j = a % len(lines)
@@ -71,8 +111,9 @@ def _mutate(text: str, ops: list[tuple[int, int, int, int]], swap_re: re.Pattern
 
 
 OPS = st.lists(
-    st.tuples(st.integers(0, 5), st.integers(0, 10**6), st.integers(0, 10**6),
-              st.integers(0, 10**6)),
+    st.tuples(
+        st.integers(0, 5), st.integers(0, 10**6), st.integers(0, 10**6), st.integers(0, 10**6)
+    ),
     min_size=1,
     max_size=6,
 )
@@ -88,8 +129,12 @@ def _check_mission(name: str, text: str) -> None:
         Mission(spec, clock=SimClock()).close()
 
 
-@settings(max_examples=1200, deadline=2000, derandomize=True,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@settings(
+    max_examples=1200,
+    deadline=2000,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 @given(st.sampled_from(sorted(TEXTS)), OPS)
 def test_fuzzed_missions_load_or_locate(name: str, ops) -> None:
     swap = YAML_VALUE if name.endswith(".yaml") else ATTR
@@ -98,7 +143,10 @@ def test_fuzzed_missions_load_or_locate(name: str, ops) -> None:
 
 def _config_files() -> dict[str, tuple[str, str]]:
     out = {}
-    for p in [os.path.join(REPO, "rigs", "sim.yaml"), os.path.join(REPO, "worlds", "warehouse.yaml")]:
+    for p in [
+        os.path.join(REPO, "rigs", "sim.yaml"),
+        os.path.join(REPO, "worlds", "warehouse.yaml"),
+    ]:
         out[os.path.basename(p)] = (p, open(p, encoding="utf-8").read())
     return out
 
@@ -106,8 +154,12 @@ def _config_files() -> dict[str, tuple[str, str]]:
 CONFIGS = _config_files()
 
 
-@settings(max_examples=250, deadline=3000, derandomize=True,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=250,
+    deadline=3000,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
 @given(st.sampled_from(sorted(CONFIGS)), OPS)
 def test_fuzzed_rigs_and_worlds_load_or_locate(tmp_path_factory, name: str, ops) -> None:
     from drivers.rig import load_rig
@@ -163,14 +215,15 @@ def test_xml_entities_and_dtds_are_refused(text: str) -> None:
 def test_yaml_mission_tags_anchors_are_refused(tmp_path) -> None:
     marker = tmp_path / "pwned"
     text = (
-        f'btrun: 1\nmain: M\ntrees:\n  M:\n    Echo: {{message: !!python/object/apply:os.system '
+        f"btrun: 1\nmain: M\ntrees:\n  M:\n    Echo: {{message: !!python/object/apply:os.system "
         f'["touch {marker}"]}}\n'
     )
     problems = validate(load_yaml("evil.yaml", text=text), REGISTRY)
     assert problems and all(LOCATED.match(str(p)) for p in problems)
     assert not marker.exists()
     bomb = "a: &a [x, x, x, x, x, x, x, x]\n" + "".join(
-        f"{c}: &{c} [{', '.join(['*' + p] * 8)}]\n" for p, c in zip("abcdefg", "bcdefgh", strict=False)
+        f"{c}: &{c} [{', '.join(['*' + p] * 8)}]\n"
+        for p, c in zip("abcdefg", "bcdefgh", strict=False)
     )
     problems = validate(load_yaml("bomb.yaml", text=bomb), REGISTRY)
     assert problems and all(LOCATED.match(str(p)) for p in problems)
@@ -178,10 +231,14 @@ def test_yaml_mission_tags_anchors_are_refused(tmp_path) -> None:
 
 def test_include_loops_are_refused(tmp_path) -> None:
     a, b = tmp_path / "a.xml", tmp_path / "b.xml"
-    a.write_text('<root BTCPP_format="4" main_tree_to_execute="A"><include path="b.xml"/>'
-                 '<BehaviorTree ID="A"><Echo message="a"/></BehaviorTree></root>')
-    b.write_text('<root BTCPP_format="4"><include path="a.xml"/>'
-                 '<BehaviorTree ID="B"><Echo message="b"/></BehaviorTree></root>')
+    a.write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="A"><include path="b.xml"/>'
+        '<BehaviorTree ID="A"><Echo message="a"/></BehaviorTree></root>'
+    )
+    b.write_text(
+        '<root BTCPP_format="4"><include path="a.xml"/>'
+        '<BehaviorTree ID="B"><Echo message="b"/></BehaviorTree></root>'
+    )
     problems = validate(load_xml(str(a)), REGISTRY)
     assert any("loop" in str(p) for p in problems)
     assert all(LOCATED.match(str(p)) for p in problems)
@@ -213,9 +270,14 @@ def test_yaml_anchor_bomb_in_rig(tmp_path) -> None:
     from drivers.rig import load_rig
 
     rig = tmp_path / "rig.yaml"
-    rig.write_text("a: &a [l, l, l, l, l, l, l, l, l]\n" + "".join(
-        f"{c}: &{c} [{', '.join(['*' + p] * 9)}]\n" for p, c in zip("abcdef", "bcdefg", strict=False)
-    ) + "wind: {mean_mps: *g}\n")
+    rig.write_text(
+        "a: &a [l, l, l, l, l, l, l, l, l]\n"
+        + "".join(
+            f"{c}: &{c} [{', '.join(['*' + p] * 9)}]\n"
+            for p, c in zip("abcdef", "bcdefg", strict=False)
+        )
+        + "wind: {mean_mps: *g}\n"
+    )
     t0 = time.monotonic()
     with pytest.raises(ConfigError) as info:
         load_rig(str(rig))

@@ -71,8 +71,20 @@ def test_a_pallet_side_not_in_the_gallery_is_unknown(tmp_path, capsys):
     for side in ("1A", "3B"):
         assert main(["gallery", "enrol", g, side, "--world-side", side]) == 0
     out = str(tmp_path / "run")
-    rc = main(["run", os.path.join(REPO, "missions", "pallet_scan.xml"), "--quiet", "--no-report",
-               "--out", out, "--set", f"gallery={g}", "--set", "world.scan_pallet=4B"])
+    rc = main(
+        [
+            "run",
+            os.path.join(REPO, "missions", "pallet_scan.xml"),
+            "--quiet",
+            "--no-report",
+            "--out",
+            out,
+            "--set",
+            f"gallery={g}",
+            "--set",
+            "world.scan_pallet=4B",
+        ]
+    )
     assert rc == 0  # the mission succeeds: "unknown" is an answer, not a failure
     printed = capsys.readouterr().out
     assert "pallet: unknown (distance " in printed and "closest " in printed

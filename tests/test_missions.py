@@ -11,7 +11,10 @@ from helpers import REPO, sim_mission
 
 from bt_engine.cli import main
 
-MISSIONS = sorted(glob.glob(os.path.join(REPO, "missions", "*.xml")) + glob.glob(os.path.join(REPO, "missions", "*.yaml")))
+MISSIONS = sorted(
+    glob.glob(os.path.join(REPO, "missions", "*.xml"))
+    + glob.glob(os.path.join(REPO, "missions", "*.yaml"))
+)
 
 
 @pytest.mark.parametrize("path", MISSIONS, ids=os.path.basename)
@@ -45,7 +48,9 @@ def test_pallet_scan_follows_the_scan_line():
     # committed once 20 px right of the image centre), which stops the scan early.
     assert min(ys) < -0.75 and 0.5 < max(ys) <= 0.62
     # three segments: the drone passed both checkpoints, the third stopped by the detection
-    done = [(rec["t"], p) for rec in run.trace for p, st in finished(rec).items() if st == "SUCCESS"]
+    done = [
+        (rec["t"], p) for rec in run.trace for p, st in finished(rec).items() if st == "SUCCESS"
+    ]
     segs = [(t, p.rsplit("/", 1)[-1]) for t, p in done if "/segment_" in p]
     assert [s for _, s in segs] == ["segment_1", "segment_2"]
     # the scan ran at about 0.07 m/s: the middle third of the 1.4 m line takes about 6.7 s
@@ -62,8 +67,20 @@ def finished(rec: dict) -> dict:
 def test_mission_inputs_can_be_overridden(tmp_path, monkeypatch):
     out = tmp_path / "run"
     monkeypatch.chdir(REPO)
-    rc = main(["missions/square.xml", "--out", str(out), "-q", "--set", "height=0.6",
-               "--set", "speed=1.0", "--seed", "3"])
+    rc = main(
+        [
+            "missions/square.xml",
+            "--out",
+            str(out),
+            "-q",
+            "--set",
+            "height=0.6",
+            "--set",
+            "speed=1.0",
+            "--seed",
+            "3",
+        ]
+    )
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["blackboard"]["height"] == 0.6
@@ -75,8 +92,20 @@ def test_pallet_scan_xml_and_yaml_fly_identically(tmp_path):
     logs = []
     for ext in ("xml", "yaml"):
         out = tmp_path / ext
-        assert main([os.path.join(REPO, "missions", f"pallet_scan.{ext}"), "--out", str(out),
-                     "-q", "--no-report", "--seed", "2"]) == 0
+        assert (
+            main(
+                [
+                    os.path.join(REPO, "missions", f"pallet_scan.{ext}"),
+                    "--out",
+                    str(out),
+                    "-q",
+                    "--no-report",
+                    "--seed",
+                    "2",
+                ]
+            )
+            == 0
+        )
         logs.append((out / "ticks.jsonl").read_text().splitlines()[1:])
     assert len(logs[0]) > 2000
     assert logs[0] == logs[1]
@@ -90,4 +119,6 @@ def test_yaml_copy_is_up_to_date(tmp_path):
     out = tmp_path / "p.yaml"
     assert convert_file(os.path.join(REPO, "missions", "pallet_scan.xml"), str(out), REGISTRY) == []
     with open(os.path.join(REPO, "missions", "pallet_scan.yaml"), encoding="utf-8") as f:
-        assert f.read() == out.read_text(), "run: btrun convert missions/pallet_scan.xml missions/pallet_scan.yaml"
+        assert f.read() == out.read_text(), (
+            "run: btrun convert missions/pallet_scan.xml missions/pallet_scan.yaml"
+        )

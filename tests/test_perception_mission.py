@@ -88,8 +88,13 @@ def test_same_seed_same_answer():
 def test_missed_block_triggers_one_rescan():
     """The camera stalls while block 2 passes (shorter than DetectBlocks' stall time-out,
     made longer for this test): the first scan commits two blocks, the re-scan all three."""
-    text = open(PALLET_SCAN).read().replace(
-        '<DetectBlocks name="detect_blocks"', '<DetectBlocks name="detect_blocks" stall_timeout="6"'
+    text = (
+        open(PALLET_SCAN)
+        .read()
+        .replace(
+            '<DetectBlocks name="detect_blocks"',
+            '<DetectBlocks name="detect_blocks" stall_timeout="6"',
+        )
     )
     state = {}
 
@@ -145,9 +150,13 @@ def test_frames_of_the_wrong_size_fail_the_scan_and_land():
 
 
 def test_missing_weights_stop_the_mission_on_the_ground(tmp_path):
-    text = open(PALLET_SCAN).read().replace(
-        '<PerceptionReady name="perception_ready"',
-        f'<PerceptionReady name="perception_ready" detector="{tmp_path}/none.pt"',
+    text = (
+        open(PALLET_SCAN)
+        .read()
+        .replace(
+            '<PerceptionReady name="perception_ready"',
+            f'<PerceptionReady name="perception_ready" detector="{tmp_path}/none.pt"',
+        )
     )
     m, pf, result = fly(text)
     assert result.status == "FAILURE"
@@ -157,11 +166,15 @@ def test_missing_weights_stop_the_mission_on_the_ground(tmp_path):
 
 def test_enrol_then_identify_with_your_own_gallery(tmp_path):
     gallery = str(tmp_path / "pallets.sqlite")
-    m, pf, result = fly(ENROLL, side="5A", seed=3, blackboard={"pallet": "P-005A", "gallery": gallery})
+    m, pf, result = fly(
+        ENROLL, side="5A", seed=3, blackboard={"pallet": "P-005A", "gallery": gallery}
+    )
     assert result.status == "SUCCESS", result.reason
     assert m.blackboard["gallery_size"] == 1
     assert m.ctx.resources["perception"].result_lines()[-1] == f"enrolled: P-005A in {gallery}"
-    m, pf, result = fly(ENROLL, side="1B", seed=4, blackboard={"pallet": "P-001B", "gallery": gallery})
+    m, pf, result = fly(
+        ENROLL, side="1B", seed=4, blackboard={"pallet": "P-001B", "gallery": gallery}
+    )
     assert result.status == "SUCCESS", result.reason
     m, pf, result = fly(side="5A", seed=5, blackboard={"gallery": gallery})
     assert result.status == "SUCCESS", result.reason

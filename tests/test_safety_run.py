@@ -31,8 +31,20 @@ def _logged(run_dir: str) -> tuple[dict, list[dict]]:
 
 def test_summary_records_the_fault_and_what_was_done(tmp_path, capsys) -> None:
     out = str(tmp_path / "run")
-    rc = main(["run", MISSION, "--quiet", "--no-report", "--out", out,
-               "--set", "faults.link_drop.at_s=12", "--set", "faults.link_drop.duration_s=0.5"])
+    rc = main(
+        [
+            "run",
+            MISSION,
+            "--quiet",
+            "--no-report",
+            "--out",
+            out,
+            "--set",
+            "faults.link_drop.at_s=12",
+            "--set",
+            "faults.link_drop.duration_s=0.5",
+        ]
+    )
     assert rc == 1
     summary, records = _logged(out)
     s = summary["safety"]
@@ -60,7 +72,10 @@ def _signalled(tmp_path, sig: int) -> tuple[subprocess.CompletedProcess, dict, l
     cmd = [exe] if os.path.exists(exe) else [sys.executable, "-m", "bt_engine.cli"]
     proc = subprocess.Popen(
         cmd + ["run", MISSION, "--quiet", "--no-report", "--realtime", "20", "--out", out],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     log = os.path.join(out, "ticks.jsonl")
     deadline = time.monotonic() + 30
@@ -78,7 +93,10 @@ def _signalled(tmp_path, sig: int) -> tuple[subprocess.CompletedProcess, dict, l
 
 @pytest.mark.parametrize(
     ("sig", "reason"),
-    [(signal.SIGINT, "operator interrupt (Ctrl-C)"), (signal.SIGTERM, "operator interrupt (SIGTERM)")],
+    [
+        (signal.SIGINT, "operator interrupt (Ctrl-C)"),
+        (signal.SIGTERM, "operator interrupt (SIGTERM)"),
+    ],
 )
 def test_signal_halts_lands_and_writes_the_summary(tmp_path, sig, reason) -> None:
     proc, summary, records = _signalled(tmp_path, sig)

@@ -237,7 +237,10 @@ def test_second_interrupt_cuts_motors() -> None:
     platform.before_tick = step
     sup.shutdown("operator interrupt (Ctrl-C)")
     s = sup.summary()
-    assert [a["action"] for a in s["actions"]][-2:] == ["emergency stop (second interrupt)", "disarm"]
+    assert [a["action"] for a in s["actions"]][-2:] == [
+        "emergency stop (second interrupt)",
+        "disarm",
+    ]
     assert platform.vehicle.flight_state.value in ("emergency", "crashed")
 
 

@@ -23,8 +23,12 @@ def _free_udp_port() -> int:
 def test_cflib_connects_to_btrun_sim_serve():
     port = _free_udp_port()
     btrun = os.path.join(os.path.dirname(sys.executable), "btrun")
-    proc = subprocess.Popen([btrun, "sim", "serve", "crazyflie", "--port", str(port)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=REPO)
+    proc = subprocess.Popen(
+        [btrun, "sim", "serve", "crazyflie", "--port", str(port)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        cwd=REPO,
+    )
     try:
         line = proc.stdout.readline().decode()
         assert f"udp://127.0.0.1:{port}" in line
@@ -37,7 +41,9 @@ def test_cflib_connects_to_btrun_sim_serve():
             "    print('est', scf.cf.param.get_value('stabilizer.estimator'))\n"
         )
         t0 = time.monotonic()
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+        out = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, timeout=60
+        )
         assert out.returncode == 0, out.stderr[-2000:]
         assert "est " in out.stdout
         assert time.monotonic() - t0 < 60

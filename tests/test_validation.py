@@ -42,8 +42,16 @@ CASES = [
     ('<Script code="x := (1 +"/>', "m.xml:3:9", "bad script 'x := (1 +'"),
     ('<AlwaysSuccess _skipIf="a ==="/>', "m.xml:3:16", "_skipIf: bad script"),
     ('<SubTree ID="Nope"/>', "m.xml:3:10", "SubTree 'Nope' is not defined"),
-    ('<Parallel success_count="two"><AlwaysSuccess/></Parallel>', "m.xml:3:11", "expected a whole number"),
-    ('<RunOnce then_skip="maybe"><AlwaysSuccess/></RunOnce>', "m.xml:3:10", "expected true or false"),
+    (
+        '<Parallel success_count="two"><AlwaysSuccess/></Parallel>',
+        "m.xml:3:11",
+        "expected a whole number",
+    ),
+    (
+        '<RunOnce then_skip="maybe"><AlwaysSuccess/></RunOnce>',
+        "m.xml:3:10",
+        "expected true or false",
+    ),
     ('<Sleep msec="{bad key}"/>', "m.xml:3:8", "not a valid blackboard reference"),
     ('<Action ID="Sleeep" msec="1"/>', "m.xml:3:9", "unknown node 'Sleeep'"),
     ("<Action/>", "m.xml:3:1", "<Action> needs an ID"),
@@ -90,15 +98,20 @@ def test_output_port_bound_to_literal_is_an_error():
 
 
 def test_recursive_subtrees_are_refused():
-    xml = wrap('<SubTree ID="A"/>', '<BehaviorTree ID="A"><SubTree ID="B"/></BehaviorTree>'
-               '<BehaviorTree ID="B"><SubTree ID="A"/></BehaviorTree>')
+    xml = wrap(
+        '<SubTree ID="A"/>',
+        '<BehaviorTree ID="A"><SubTree ID="B"/></BehaviorTree>'
+        '<BehaviorTree ID="B"><SubTree ID="A"/></BehaviorTree>',
+    )
     msg = one(xml)
     assert "recursive SubTree: Main -> A -> B -> A" in msg
 
 
 def test_no_main_tree():
-    xml = ('<root BTCPP_format="4"><BehaviorTree ID="A"><AlwaysSuccess/></BehaviorTree>'
-           '<BehaviorTree ID="B"><AlwaysSuccess/></BehaviorTree></root>')
+    xml = (
+        '<root BTCPP_format="4"><BehaviorTree ID="A"><AlwaysSuccess/></BehaviorTree>'
+        '<BehaviorTree ID="B"><AlwaysSuccess/></BehaviorTree></root>'
+    )
     assert "no main tree: set main_tree_to_execute to one of A, B" in one(xml)
     xml2 = xml.replace('BTCPP_format="4"', 'BTCPP_format="4" main_tree_to_execute="C"')
     assert "main tree 'C' is not defined" in one(xml2)
@@ -115,34 +128,43 @@ def test_xml_syntax_error_is_located():
 
 
 def test_dtd_and_entities_are_refused():
-    xml = ('<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY a "aaaa"><!ENTITY b "&a;&a;&a;">]>\n'
-           '<root><BehaviorTree ID="A"><AlwaysSuccess name="&b;"/></BehaviorTree></root>')
+    xml = (
+        '<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY a "aaaa"><!ENTITY b "&a;&a;&a;">]>\n'
+        '<root><BehaviorTree ID="A"><AlwaysSuccess name="&b;"/></BehaviorTree></root>'
+    )
     assert one(xml).startswith("m.xml:2:1: DOCTYPE, DTD and entity declarations are not allowed")
 
 
 def test_external_entity_is_never_read(tmp_path):
     secret = tmp_path / "secret.txt"
     secret.write_text("TOPSECRET")
-    xml = (f'<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY x SYSTEM "file://{secret}">]>\n'
-           '<root><BehaviorTree ID="A"><AlwaysSuccess name="&x;"/></BehaviorTree></root>')
+    xml = (
+        f'<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY x SYSTEM "file://{secret}">]>\n'
+        '<root><BehaviorTree ID="A"><AlwaysSuccess name="&x;"/></BehaviorTree></root>'
+    )
     found = problems_of(xml)
     assert found and "TOPSECRET" not in " ".join(found)
 
 
 def test_models_of_unknown_nodes_matter_only_where_used():
-    model = ('<TreeNodesModel><Action ID="FancyThing"><input_port name="a"/></Action>'
-             "</TreeNodesModel>")
+    model = (
+        '<TreeNodesModel><Action ID="FancyThing"><input_port name="a"/></Action></TreeNodesModel>'
+    )
     assert problems_of(wrap("<AlwaysSuccess/>", model)) == []
     msg = one(wrap('<FancyThing a="1"/>', model))
     assert "declared in <TreeNodesModel> but btrun has no implementation" in msg
 
 
 def test_subtree_ports_checked_against_tree_nodes_model():
-    extra = ('<BehaviorTree ID="Scan"><AlwaysSuccess/></BehaviorTree>'
-             '<TreeNodesModel><SubTree ID="Scan"><input_port name="speed"/>'
-             '<output_port name="found"/></SubTree></TreeNodesModel>')
+    extra = (
+        '<BehaviorTree ID="Scan"><AlwaysSuccess/></BehaviorTree>'
+        '<TreeNodesModel><SubTree ID="Scan"><input_port name="speed"/>'
+        '<output_port name="found"/></SubTree></TreeNodesModel>'
+    )
     assert problems_of(wrap('<SubTree ID="Scan" speed="0.1" found="{f}"/>', extra)) == []
-    assert "SubTree 'Scan' has no port 'sped'" in one(wrap('<SubTree ID="Scan" speed="1" sped="1" found="{f}"/>', extra))
+    assert "SubTree 'Scan' has no port 'sped'" in one(
+        wrap('<SubTree ID="Scan" speed="1" sped="1" found="{f}"/>', extra)
+    )
     assert "needs port 'speed'" in one(wrap('<SubTree ID="Scan" found="{f}"/>', extra))
     assert "output port 'found' of SubTree 'Scan' is bound to the literal" in one(
         wrap('<SubTree ID="Scan" speed="1" found="3"/>', extra)
@@ -152,9 +174,13 @@ def test_subtree_ports_checked_against_tree_nodes_model():
 def test_include_loop_and_missing_include(tmp_path):
     a = tmp_path / "a.xml"
     b = tmp_path / "b.xml"
-    a.write_text('<root main_tree_to_execute="A"><include path="b.xml"/>'
-                 '<BehaviorTree ID="A"><SubTree ID="B"/></BehaviorTree></root>')
-    b.write_text('<root><include path="a.xml"/><BehaviorTree ID="B"><AlwaysSuccess/></BehaviorTree></root>')
+    a.write_text(
+        '<root main_tree_to_execute="A"><include path="b.xml"/>'
+        '<BehaviorTree ID="A"><SubTree ID="B"/></BehaviorTree></root>'
+    )
+    b.write_text(
+        '<root><include path="a.xml"/><BehaviorTree ID="B"><AlwaysSuccess/></BehaviorTree></root>'
+    )
     from bt_engine.mission import check_file
 
     _, problems = check_file(str(a), REGISTRY)
@@ -162,7 +188,9 @@ def test_include_loop_and_missing_include(tmp_path):
     b.write_text('<root><BehaviorTree ID="B"><AlwaysSuccess/></BehaviorTree></root>')
     _, problems = check_file(str(a), REGISTRY)
     assert problems == []
-    a.write_text('<root><include path="missing.xml"/><BehaviorTree ID="A"><AlwaysSuccess/></BehaviorTree></root>')
+    a.write_text(
+        '<root><include path="missing.xml"/><BehaviorTree ID="A"><AlwaysSuccess/></BehaviorTree></root>'
+    )
     _, problems = check_file(str(a), REGISTRY)
     assert "included file not found" in str(problems[0])
 
@@ -184,8 +212,10 @@ def test_cli_validate_exit_code_and_no_traceback(tmp_path, capsys):
 
 
 def test_v3_spellings_load():
-    xml = ('<root main_tree_to_execute="Main"><BehaviorTree ID="Main"><SequenceStar>'
-           '<Action ID="AlwaysSuccess"/><Condition ID="AlwaysSuccess"/>'
-           '<SubTreePlus ID="S" __autoremap="1"/></SequenceStar></BehaviorTree>'
-           '<BehaviorTree ID="S"><AlwaysSuccess/></BehaviorTree></root>')
+    xml = (
+        '<root main_tree_to_execute="Main"><BehaviorTree ID="Main"><SequenceStar>'
+        '<Action ID="AlwaysSuccess"/><Condition ID="AlwaysSuccess"/>'
+        '<SubTreePlus ID="S" __autoremap="1"/></SequenceStar></BehaviorTree>'
+        '<BehaviorTree ID="S"><AlwaysSuccess/></BehaviorTree></root>'
+    )
     assert problems_of(xml) == []

@@ -102,7 +102,12 @@ def test_example_loads_with_locations_and_native_values(tmp_path):
     seq = main.root
     assert (seq.type, seq.name, seq.loc.line, seq.loc.col) == ("Sequence", "mission", 9, 5)
     assert [c.type for c in seq.children] == [
-        "TestFly", "TestFly", "Timeout", "SubTree", "TestFly", "AlwaysSuccess",
+        "TestFly",
+        "TestFly",
+        "Timeout",
+        "SubTree",
+        "TestFly",
+        "AlwaysSuccess",
     ]
     fly, approach, timeout, sub, fly2, _ = seq.children
     assert fly.comments == ["go up first"]
@@ -142,7 +147,13 @@ BAD = [
     ("syntax", "trees: [a, b\n", 2, 1, "YAML syntax error"),
     ("tab", "trees:\n\tT: A\n", 2, 1, "not tabs"),
     ("indent", "trees:\n  T:\n    Sequence:\n   - A\n", 4, 4, "YAML syntax error"),
-    ("python tag", "trees:\n  T: !!python/object:os.system x\n", 2, 6, "'!!python/object:os.system'"),
+    (
+        "python tag",
+        "trees:\n  T: !!python/object:os.system x\n",
+        2,
+        6,
+        "'!!python/object:os.system'",
+    ),
     ("custom tag", "trees:\n  T: !mine x\n", 2, 6, "YAML tag '!mine'"),
     ("set tag", "trees:\n  T: !!set {a}\n", 2, 6, "'!!set'"),
     ("anchor", "trees:\n  T: &a {AlwaysSuccess: null}\n", 2, 6, "anchors (&a)"),
@@ -163,9 +174,21 @@ BAD = [
     ("list node", "trees:\n  T: {Sequence: [[A]]}\n", 2, 18, "got a list"),
     ("scalar value", "trees:\n  T: {Sleep: 500}\n", 2, 14, "expected attributes"),
     ("subtree id", "trees:\n  T: {SubTree: Scan}\n", 2, 16, "SubTree: {ID: Scan}"),
-    ("children map", "trees:\n  T:\n    Sequence:\n      children: {A: null}\n", 4, 17, "children: expected a list"),
+    (
+        "children map",
+        "trees:\n  T:\n    Sequence:\n      children: {A: null}\n",
+        4,
+        17,
+        "children: expected a list",
+    ),
     ("child list", "trees:\n  T:\n    Inverter:\n      child: [A, B]\n", 4, 14, "use `children:`"),
-    ("child empty", "trees:\n  T:\n    Inverter:\n      child:\n", 4, 13, "child: expected a single node"),
+    (
+        "child empty",
+        "trees:\n  T:\n    Inverter:\n      child:\n",
+        4,
+        13,
+        "child: expected a single node",
+    ),
     ("both", "trees:\n  T:\n    Inverter:\n      child: A\n      children: [B]\n", 5, 7, "both"),
     ("map value", "trees:\n  T: {Sleep: {msec: {a: 1}}}\n", 2, 21, "got a mapping"),
     ("no value", "trees:\n  T:\n    Sleep:\n      msec:\n", 4, 7, "has no value"),
@@ -173,14 +196,34 @@ BAD = [
     ("include missing", "include: nope.yaml\ntrees: {T: A}\n", 1, 10, "included file not found"),
     ("model kind", "trees: {T: A}\nmodels:\n  T: {kind: Tree}\n", 3, 13, "kind: expected one of"),
     ("model key", "trees: {T: A}\nmodels:\n  T: {kinds: SubTree}\n", 3, 7, "did you mean 'kind'"),
-    ("direction", "trees: {T: A}\nmodels:\n  T:\n    ports: {a: {direction: in}}\n", 4, 28, "direction"),
-    ("port key", "trees: {T: A}\nmodels:\n  T:\n    ports: {a: {typ: int}}\n", 4, 17, "did you mean 'type'"),
-    ("port type", "trees: {T: A}\nmodels:\n  T:\n    ports: {a: 5}\n", 4, 16, "port 'a' of model 'T'"),
+    (
+        "direction",
+        "trees: {T: A}\nmodels:\n  T:\n    ports: {a: {direction: in}}\n",
+        4,
+        28,
+        "direction",
+    ),
+    (
+        "port key",
+        "trees: {T: A}\nmodels:\n  T:\n    ports: {a: {typ: int}}\n",
+        4,
+        17,
+        "did you mean 'type'",
+    ),
+    (
+        "port type",
+        "trees: {T: A}\nmodels:\n  T:\n    ports: {a: 5}\n",
+        4,
+        16,
+        "port 'a' of model 'T'",
+    ),
     ("reader", "trees: {T: A\x07}\n", 1, 13, "unacceptable character"),
 ]
 
 
-@pytest.mark.parametrize(("text", "line", "col", "message"), [b[1:] for b in BAD], ids=[b[0] for b in BAD])
+@pytest.mark.parametrize(
+    ("text", "line", "col", "message"), [b[1:] for b in BAD], ids=[b[0] for b in BAD]
+)
 def test_problems_are_located(tmp_path, text, line, col, message):
     path = write(tmp_path, "m.yaml", text)
     problems = load_yaml(path).load_problems
@@ -212,8 +255,16 @@ def test_limits(tmp_path, monkeypatch):
 
 def test_includes_and_loops(tmp_path):
     write(tmp_path, "common.yaml", "trees:\n  Common: AlwaysSuccess\n")
-    write(tmp_path, "old.xml", '<root BTCPP_format="4"><BehaviorTree ID="Old"><AlwaysFailure/></BehaviorTree></root>')
-    main = write(tmp_path, "m.yaml", "include: [common.yaml, old.xml]\nmain: Main\ntrees:\n  Main: {SubTree: {ID: Common}}\n")
+    write(
+        tmp_path,
+        "old.xml",
+        '<root BTCPP_format="4"><BehaviorTree ID="Old"><AlwaysFailure/></BehaviorTree></root>',
+    )
+    main = write(
+        tmp_path,
+        "m.yaml",
+        "include: [common.yaml, old.xml]\nmain: Main\ntrees:\n  Main: {SubTree: {ID: Common}}\n",
+    )
     spec = load_yaml(main)
     assert spec.load_problems == [] and list(spec.trees) == ["Common", "Old", "Main"]
     assert validate(spec, REG) == []
@@ -221,14 +272,20 @@ def test_includes_and_loops(tmp_path):
     b = write(tmp_path, "b.yaml", "include: [x.xml]\ntrees: {B: AlwaysSuccess}\n")
     write(tmp_path, "x.xml", '<root><include path="a.yaml"/></root>')
     problems = load_yaml(a).load_problems
-    assert len(problems) == 1 and "include loop: a.yaml -> b.yaml -> x.xml -> a.yaml" in problems[0].message
+    assert (
+        len(problems) == 1
+        and "include loop: a.yaml -> b.yaml -> x.xml -> a.yaml" in problems[0].message
+    )
     assert (problems[0].loc.file, problems[0].loc.line) == (str(tmp_path / "x.xml"), 1)
     write(tmp_path, "self.yaml", "include: self.yaml\ntrees: {A: AlwaysSuccess}\n")
     p = load_yaml(str(tmp_path / "self.yaml")).load_problems
     assert [(x.loc.line, x.loc.col) for x in p] == [(1, 10)] and "include loop" in p[0].message
     dup = write(tmp_path, "d.yaml", "include: [common.yaml]\ntrees:\n  Common: AlwaysFailure\n")
     p = load_yaml(dup).load_problems
-    assert "'Common' is defined twice" in p[0].message and (p[0].loc.file, p[0].loc.line) == (dup, 3)
+    assert "'Common' is defined twice" in p[0].message and (p[0].loc.file, p[0].loc.line) == (
+        dup,
+        3,
+    )
     assert b
 
 
@@ -293,10 +350,16 @@ def test_round_trip_is_stable_and_keeps_comments(tmp_path):
     assert convert_file(str(tmp_path / "m2.xml"), str(tmp_path / "m3.yaml"), REG) == []
     assert (tmp_path / "m3.yaml").read_text() == yaml1
     for text in (yaml1, (tmp_path / "m2.xml").read_text()):
-        for c in ("Behaviour check mission", "the main tree", "counts, waits and scans", "(two lines)", "wait a bit"):
+        for c in (
+            "Behaviour check mission",
+            "the main tree",
+            "counts, waits and scans",
+            "(two lines)",
+            "wait a bit",
+        ):
             assert c in text
     assert yaml1.startswith("# Behaviour check mission\nbtrun: 1\nmain: Main\n")
-    assert "- Sleep: {msec: 300}" in yaml1 and "speed: \"{n}\"" in yaml1
+    assert "- Sleep: {msec: 300}" in yaml1 and 'speed: "{n}"' in yaml1
     assert "_autoremap: true" in yaml1 and "child:" in yaml1
     spec = load_xml(str(tmp_path / "m2.xml"))
     assert spec.trees["Main"].root.comments == ["counts, waits and scans", "(two lines)"]
@@ -321,14 +384,16 @@ def test_dump_converts_xml_text_with_port_types(tmp_path):
     back = load_yaml("x.yaml", text)
     assert back.load_problems == []
     fly = back.trees["T"].root.children[0]
-    assert fly.attrs["pose"].value == [1.0, 2.0, 3.0] and fly.attrs["yaw_mode"].value == "PATH_FACING"
-    assert "pose=\"1;2;3\"" in dump_xml(back)
+    assert (
+        fly.attrs["pose"].value == [1.0, 2.0, 3.0] and fly.attrs["yaw_mode"].value == "PATH_FACING"
+    )
+    assert 'pose="1;2;3"' in dump_xml(back)
 
 
 def test_dump_quotes_and_long_lines():
     spec = load_yaml(
         "m.yaml",
-        'trees:\n  T:\n    Script:\n      code: "a := \'x, y\'\\nb := 1 # c"\n'
+        "trees:\n  T:\n    Script:\n      code: \"a := 'x, y'\\nb := 1 # c\"\n"
         '      name: "null"\n      _skipIf: "' + "x == 1 && " * 12 + 'true"\n',
     )
     assert spec.load_problems == []
@@ -389,7 +454,9 @@ def test_convert_file_refuses_and_reports(tmp_path):
     dst = tmp_path / "bad.xml"
     problems = convert_file(bad, str(dst), REG)
     assert problems and problems[0].loc.file == bad and not dst.exists()
-    ok = write(tmp_path, "ok.yaml", "# -- header --\ntrees:\n  T:\n    # a -- b -\n    AlwaysSuccess\n")
+    ok = write(
+        tmp_path, "ok.yaml", "# -- header --\ntrees:\n  T:\n    # a -- b -\n    AlwaysSuccess\n"
+    )
     problems = convert_file(ok, str(tmp_path / "ok.txt"), REG)
     assert "unknown output type" in problems[0].message
     assert convert_file(ok, str(tmp_path / "ok.xml"), REG) == []

@@ -114,9 +114,7 @@ class SimCamera:
             return renderer(pose, t_s, previous=previous)
 
         self.index += 1
-        self._pending.append(
-            LazyCameraFrame(render, t_s, pose, self.index, {"format": "bayer_bg"})
-        )
+        self._pending.append(LazyCameraFrame(render, t_s, pose, self.index, {"format": "bayer_bg"}))
 
     def poll(self, now_s: float) -> LazyCameraFrame | None:
         """The newest frame delivered by ``now_s`` (older undelivered ones are skipped)."""
