@@ -20,16 +20,16 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from drivers.aideck_stream import AIDeckStream  # noqa: E402
-from drivers.sim.aideck_emulator import AIDeckEmulator, default_pose, make_frame_source  # noqa: E402
-from drivers.types import CameraFrame  # noqa: E402
+from drivers.crazyflie.aideck_stream import AIDeckStream  # noqa: E402
+from drivers.sim.emulators.aideck import AIDeckEmulator, default_pose, make_frame_source  # noqa: E402
+from drivers.vehicle.types import CameraFrame  # noqa: E402
 
 
 def run(fmt: str, seconds: float, fps: float, renderer: str, output: str) -> dict:
     """Stream ``seconds`` of ``fmt`` frames; return the figures."""
     world = None
     if renderer != "pattern":
-        from drivers.rig import REPO_ROOT
+        from drivers.rig.loader import REPO_ROOT
         from drivers.sim.world import load_world
 
         world = load_world(os.path.join(REPO_ROOT, "worlds", "warehouse.yaml"))

@@ -15,8 +15,8 @@ import math
 
 import numpy as np
 
-from drivers.sim.harness import SimHarness
-from drivers.types import YawMode
+from drivers.rig.harness import SimHarness
+from drivers.vehicle.types import YawMode
 
 
 def fly_btrun(script, seed: int = 0):

@@ -211,7 +211,7 @@ def run_one(job: dict[str, Any], out: str, realtime: float) -> dict[str, Any]:
 def child(job: dict[str, Any], argv: list[str]) -> int:
     """Child mode: install the job's test-only patches, then run ``btrun``."""
     from bt_engine.cli import main
-    from drivers.sim.camera import register_renderer
+    from drivers.sim.renderers import register_renderer
 
     register_renderer("campaign_blank", lambda **_: lambda pose, t_s: b"frame")
     if job["fault"] == "leaf_exception":

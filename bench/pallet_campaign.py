@@ -40,11 +40,12 @@ def fly(side: str, seed: int, gust: float) -> dict:
     import nodes  # noqa: F401
     from bt_engine import Mission, Runner, SimClock
     from bt_engine.mission import load_spec
-    from drivers.rig import load_rig
+    from drivers.rig.factory import make_platform
+    from drivers.rig.loader import load_rig
 
     clock = SimClock()
     rig = load_rig(None, {"world.scan_pallet": side, "wind.gust_std_mps": str(gust)})
-    platform = rig.make_platform(clock, seed)
+    platform = make_platform(rig, clock, seed)
     spec = load_spec(os.path.join(REPO, "missions", "pallet_scan.xml"))
     mission = Mission(
         spec,

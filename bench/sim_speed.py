@@ -13,8 +13,9 @@ import argparse
 import time
 
 from bt_engine.clock import SimClock
-from drivers.rig import load_rig
-from drivers.types import YawMode
+from drivers.rig.factory import make_platform
+from drivers.rig.loader import load_rig
+from drivers.vehicle.types import YawMode
 
 MISSION_S = 60.0
 TICK_HZ = 50.0
@@ -24,7 +25,7 @@ def scripted_flight(seed: int, overrides: dict[str, str]) -> tuple[float, dict]:
     """Fly the script; return (wall seconds, platform summary)."""
     rig = load_rig(None, overrides)
     clock = SimClock()
-    platform = rig.make_platform(clock, seed)
+    platform = make_platform(rig, clock, seed)
     v = platform.vehicle
     square = [(2.0, 0.0, 0.5), (2.0, 2.0, 0.5), (0.0, 2.0, 0.5), (0.0, 0.0, 0.5)]
     steps: list = ["takeoff", *square]

@@ -25,9 +25,10 @@ import statistics
 import time
 
 from bt_engine.clock import WallClock
-from drivers.crazyflie_link import CrazyflieLink, CrazyflieLinkConfig
-from drivers.rig import REPO_ROOT, load_rig
-from drivers.sim.sitl import SitlSession
+from drivers.crazyflie.cflib_link import CrazyflieLink, CrazyflieLinkConfig
+from drivers.rig.factory import make_platform
+from drivers.rig.loader import REPO_ROOT, load_rig
+from drivers.sim.emulators.sitl import SitlSession
 
 
 def pct(values: list[float], q: float) -> float:
@@ -55,7 +56,7 @@ def hover(hover_s: float) -> dict:
     rig = load_rig(f"{REPO_ROOT}/rigs/sitl.yaml")
     clock = WallClock(1.0)
     t_boot = time.monotonic()
-    platform = rig.make_platform(clock, 0)
+    platform = make_platform(rig, clock, 0)
     end = time.monotonic() + 5.0
     while platform.connect_to_ready_s() is None and time.monotonic() < end:
         time.sleep(0.002)

@@ -26,7 +26,8 @@ sys.path.insert(0, REPO)
 
 import nodes  # noqa: E402,F401  (registers the drone leaves)
 from bt_engine import Mission, Runner, SimClock  # noqa: E402
-from drivers.rig import load_rig  # noqa: E402
+from drivers.rig.factory import make_platform  # noqa: E402
+from drivers.rig.loader import load_rig  # noqa: E402
 from nodes.report import motion_metrics, telemetry_arrays, write_report  # noqa: E402
 
 MISSION = os.path.join(REPO, "missions", "square.xml")
@@ -51,7 +52,7 @@ def reference_overrides(gust_mps: float) -> dict[str, str]:
 def fly(rig, seed: int) -> dict:
     """One flight: the GoTo rows of the report's motion table, and whether it passed."""
     clock = SimClock()
-    platform = rig.make_platform(clock, seed)
+    platform = make_platform(rig, clock, seed)
     m = Mission.from_file(MISSION, clock=clock, vehicle=platform.vehicle)
     runner = Runner(m, hooks=[platform], telemetry=platform.telemetry_row)
     result = runner.run(max_time_s=120.0)

@@ -10,6 +10,7 @@ import argparse
 import os
 import sys
 
+from bt_engine.plugins import Command, plugin_commands
 from bt_engine.spec import MissionError, Problem
 
 COMMANDS = ("run", "validate", "show", "convert", "nodes", "replay")
@@ -23,7 +24,7 @@ def _print_problems(problems: list[Problem], stream=None) -> None:
     print(f"{n} problem{'s' if n != 1 else ''} found; nothing was run.", file=stream)
 
 
-def _parser(extra: dict | None = None) -> argparse.ArgumentParser:
+def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="btrun",
         description="Fly behaviour-tree missions (BehaviorTree.CPP XML or YAML) on the "
@@ -82,28 +83,15 @@ def _parser(extra: dict | None = None) -> argparse.ArgumentParser:
     rp.add_argument("log", help="ticks.jsonl or the run folder")
     rp.add_argument("--tick", type=int, help="show the tree at this tick and exit")
     rp.add_argument("--all", action="store_true", help="print every tick that changed something")
-    for name, (helptext, setup, _) in (extra or {}).items():
-        setup(sub.add_parser(name, help=helptext))
+    for name, command in (extra or {}).items():
+        command.setup(sub.add_parser(name, help=command.help))
     return p
-
-
-def _plugin_commands() -> dict:
-    """Subcommands added by plug-ins: ``add_commands()`` returns
-    ``{name: (help, setup(parser), handler(args) -> exit code)}``."""
-    from bt_engine.plugins import load_plugins
-
-    out: dict = {}
-    for mod in load_plugins():
-        fn = getattr(mod, "add_commands", None)
-        if fn is not None:
-            out.update(fn())
-    return out
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``btrun`` command; returns the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    extra = _plugin_commands()
+    extra = plugin_commands()
     if argv and argv[0] not in COMMANDS and argv[0] not in extra and not argv[0].startswith("-"):
         argv.insert(0, "run")
     parser = _parser(extra)
@@ -113,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         if args.command in extra:
-            return extra[args.command][2](args)
+            return extra[args.command].run(args)
         if args.command == "run":
             from bt_engine.run_cmd import run_command
 

@@ -1,50 +1,178 @@
-"""Plug-in discovery: packages that add nodes (and a vehicle platform) to the engine.
+"""The plug-in contract: the engine's only door to vehicles, reports and extra commands.
 
-The engine imports no drone code. A plug-in is a module named in the ``btrun.plugins``
-entry-point group (btrun's own ``nodes`` package is one). Importing it registers its nodes
-in :data:`bt_engine.registry.REGISTRY`; if it defines ``load_rig(path, overrides)`` the CLI
-uses it to build the platform (simulator or real drone) a mission flies on.
+The engine imports no drone code. A plug-in is an object that satisfies :class:`Plugin`,
+named in the ``btrun.plugins`` entry-point group (``name = "package.module:attribute"``;
+btrun's own is ``nodes.plugin:PLUGIN``) or, for a plug-in that is not installed as a
+package, in the ``BTRUN_PLUGINS`` environment variable (comma-separated, same spelling).
+Importing a plug-in registers its leaves in :data:`bt_engine.registry.REGISTRY`.
+
+What a plug-in provides (:class:`Plugin`):
+
+* :meth:`Plugin.load_target` - read a rig file plus ``--set`` overrides into a
+  :class:`RunTarget`: what the mission flies on (it builds the platform and the extra hooks,
+  such as a safety supervisor). Bad input raises :class:`~bt_engine.spec.MissionError`
+  with located :class:`~bt_engine.spec.Problem` s.
+* :meth:`Plugin.write_report` - write the flight report of a finished run.
+* :meth:`Plugin.commands` - subcommands of ``btrun`` (:class:`Command`).
+
+The first plug-in that provides a capability is the one used. Mission resources that
+report on the run implement :class:`RunReporter`.
 """
 
 from __future__ import annotations
 
 import importlib
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
 from importlib import metadata
-from types import ModuleType
+from typing import Any, Protocol, runtime_checkable
 
-_loaded: list[ModuleType] | None = None
-FALLBACK = ("nodes",)
+ENTRY_POINT_GROUP = "btrun.plugins"
+ENV_VAR = "BTRUN_PLUGINS"
 
 
-def load_plugins() -> list[ModuleType]:
-    """Import every plug-in once and return the modules (errors propagate: a broken plug-in
-    must not be silently ignored)."""
-    global _loaded
-    if _loaded is not None:
-        return _loaded
+class Platform(Protocol):
+    """What a run target's platform gives the runner (see ``bt_engine.runner.Hooks``)."""
+
+    vehicle: Any
+
+    def before_tick(self, t_s: float) -> None:
+        """Bring everything up to mission time ``t_s`` (a simulator steps here)."""
+
+    def after_tick(self, t_s: float) -> None:
+        """Called after the tree was ticked at ``t_s``."""
+
+    def shutdown(self, reason: str) -> None:
+        """Bring the vehicle down and release it."""
+
+    def summary(self) -> dict:
+        """End state and ground truth for ``summary.json``."""
+
+    def telemetry_row(self) -> dict:
+        """A small dict of vehicle state for the tick log."""
+
+
+class RunTarget(Protocol):
+    """What a mission flies on, loaded by a plug-in from a rig file and overrides."""
+
+    #: The rig file (shown in messages and the tick-log header), if any.
+    path: str | None
+    #: Mission seconds per wall second if the target runs in real time, else None (lock-step).
+    realtime_factor: float | None
+
+    def make_platform(self, clock: Any, seed: int) -> Platform:
+        """Build the platform on the mission clock; all randomness derives from ``seed``."""
+
+    def resources(self) -> dict[str, Any]:
+        """Objects the target lends the mission's leaves (``mission.ctx.resources``)."""
+
+    def make_hooks(self, platform: Platform, mission: Any) -> list[Any]:
+        """Runner hooks that must run *before* the platform's own (e.g. the safety
+        supervisor, which must land the drone before the platform shuts down)."""
+
+    def run_summary(self, platform: Platform, hooks: list[Any]) -> dict[str, Any]:
+        """The target's part of ``summary.json`` once the run is over (e.g. ``sim``: ground
+        truth, ``safety``: what the supervisor did), by key."""
+
+
+@dataclass(frozen=True)
+class Command:
+    """A ``btrun`` subcommand added by a plug-in."""
+
+    help: str
+    setup: Callable[[Any], None]  # setup(argparse.ArgumentParser)
+    run: Callable[[Any], int]  # run(parsed args) -> exit code
+
+
+@runtime_checkable
+class Plugin(Protocol):
+    """A btrun plug-in: every member is required (return None / {} for what it lacks)."""
+
+    #: A short name (messages).
+    name: str
+
+    def load_target(self, rig_path: str | None, overrides: dict[str, str]) -> RunTarget | None:
+        """Load a rig file (None: the plug-in's default) with ``--set`` overrides. Raises
+        :class:`~bt_engine.spec.MissionError` with located problems; None if this plug-in
+        flies nothing."""
+
+    def write_report(self, run_dir: str, trace: Any, summary: dict, mission: Any) -> str | None:
+        """Write the flight report of a finished run; return its path (None: no report)."""
+
+    def commands(self) -> dict[str, Command]:
+        """Extra ``btrun`` subcommands, by name."""
+
+
+@runtime_checkable
+class RunReporter(Protocol):
+    """A mission resource (``mission.ctx.resources``) that reports on the run: its
+    ``run_summary()`` goes into ``summary.json`` under its resource name and its
+    ``result_lines()`` are printed at the end (e.g. the identified pallet)."""
+
+    def run_summary(self) -> dict[str, Any]:
+        """JSON-friendly figures of the run."""
+
+    def result_lines(self) -> list[str]:
+        """Headline lines for the console."""
+
+
+_loaded: list[Plugin] | None = None
+
+
+def _names() -> list[str]:
     names: list[str] = []
     try:
-        eps = metadata.entry_points(group="btrun.plugins")
-        names = [ep.value for ep in eps]
+        names = [ep.value for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)]
     except Exception:  # pragma: no cover - very old importlib.metadata
         names = []
-    if not names:
-        names = list(FALLBACK)
-    mods = []
-    for name in names:
-        try:
-            mods.append(importlib.import_module(name))
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-    _loaded = mods
-    return mods
+    extra = [n.strip() for n in os.environ.get(ENV_VAR, "").split(",") if n.strip()]
+    return list(dict.fromkeys(names + extra))
 
 
-def rig_loader():
-    """The first plug-in's ``load_rig`` function, or None if no plug-in provides one."""
-    for mod in load_plugins():
-        fn = getattr(mod, "load_rig", None)
-        if fn is not None:
-            return fn
+def _load(spec: str) -> Plugin:
+    module, _, attr = spec.partition(":")
+    obj: Any = importlib.import_module(module)
+    for part in attr.split(".") if attr else ():
+        obj = getattr(obj, part)
+    if not isinstance(obj, Plugin):
+        raise TypeError(
+            f"btrun plug-in {spec!r} is not a plug-in object (needs: name, load_target, "
+            "write_report, commands)"
+        )
+    return obj
+
+
+def load_plugins() -> list[Plugin]:
+    """Import every plug-in once and return them (errors propagate: a broken plug-in must not
+    be silently ignored)."""
+    global _loaded
+    if _loaded is None:
+        _loaded = [_load(spec) for spec in _names()]
+    return _loaded
+
+
+def load_target(rig_path: str | None, overrides: dict[str, str]) -> RunTarget | None:
+    """The run target of the first plug-in that flies something, or None."""
+    for plugin in load_plugins():
+        target = plugin.load_target(rig_path, overrides)
+        if target is not None:
+            return target
     return None
+
+
+def write_report(run_dir: str, trace: Any, summary: dict, mission: Any) -> str | None:
+    """The first report a plug-in writes for the run (its path), or None."""
+    for plugin in load_plugins():
+        path = plugin.write_report(run_dir, trace, summary, mission)
+        if path is not None:
+            return path
+    return None
+
+
+def plugin_commands() -> dict[str, Command]:
+    """Every plug-in's extra subcommands, by name (the first plug-in wins a clash)."""
+    out: dict[str, Command] = {}
+    for plugin in reversed(load_plugins()):
+        out.update(plugin.commands())
+    return out

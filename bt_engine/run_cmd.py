@@ -1,11 +1,16 @@
-"""``btrun run``: load, validate, build, fly (simulated or real), log and summarise."""
+"""``btrun run``: prepare (load, validate, build), fly (tick, log), finish (summarise, report).
+
+Each step is a function: :func:`prepare` refuses bad input before anything flies,
+:func:`fly` ticks the mission, :func:`finish` writes ``summary.json`` (built by
+:func:`bt_engine.summary.build_summary`) and the report.
+"""
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import yaml
@@ -13,11 +18,12 @@ import yaml
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.display import spec_rows
 from bt_engine.mission import Mission, check_file
-from bt_engine.plugins import load_plugins, rig_loader
+from bt_engine.plugins import Platform, RunTarget, load_target, write_report
 from bt_engine.registry import REGISTRY
-from bt_engine.runner import Runner
+from bt_engine.runner import Runner, RunResult
 from bt_engine.spec import Loc, MissionError, Problem
-from bt_engine.ticklog import TickLog, to_jsonable
+from bt_engine.summary import build_summary, result_lines, write_summary
+from bt_engine.ticklog import TickLog
 
 
 def parse_sets(items: list[str]) -> tuple[dict[str, Any], dict[str, str], list[Problem]]:
@@ -57,20 +63,6 @@ def _run_dir(args) -> str:
     return os.path.join("runs", f"{stem}-{time.strftime('%Y%m%d-%H%M%S')}")
 
 
-def _config_problems(exc: Exception) -> list[Problem]:
-    out = []
-    for line in getattr(exc, "problems", [str(exc)]):
-        if isinstance(line, Problem):
-            out.append(line)
-            continue
-        parts = str(line).split(":", 3)
-        if len(parts) == 4 and parts[1].isdigit() and parts[2].isdigit():
-            out.append(Problem(Loc(parts[0], int(parts[1]), int(parts[2])), parts[3].strip()))
-        else:
-            out.append(Problem(Loc("rig", 0, 0), str(line)))
-    return out
-
-
 class _PlainLog:
     """Non-TTY progress: one line per action start/finish and node messages."""
 
@@ -97,39 +89,47 @@ class _PlainLog:
             print(f"[{t:8.2f} s] {m}", flush=True)
 
 
-def run_command(args) -> int:
-    """Run a mission from parsed CLI arguments; return the exit code."""
+@dataclass
+class PreparedRun:
+    """Everything a run needs, built and checked before anything flies."""
+
+    args: Any
+    mission: Mission
+    target: RunTarget | None
+    platform: Platform | None
+    hooks: list[Any]
+    clock: Any
+    factor: float | None
+    run_dir: str
+    rows: list[Any]
+    log: TickLog
+
+
+def prepare(args) -> PreparedRun:
+    """Load and validate the mission, the ``--set`` items and the rig (raises
+    :class:`MissionError` with every located problem: nothing flies), then build the clock,
+    platform, mission, run folder, tick log and hooks."""
     bb, rig_over, problems = parse_sets(args.set)
     spec, mission_problems = check_file(args.mission, REGISTRY)
     problems += mission_problems
     if problems:
         raise MissionError(problems)
-    loader = rig_loader()
-    rig = None
-    if loader is not None:
-        try:
-            rig = loader(args.rig, rig_over)
-        except Exception as exc:  # ConfigError from the rig loader: located problems
-            if not hasattr(exc, "problems"):
-                raise
-            raise MissionError(_config_problems(exc)) from None
-    elif args.rig or rig_over:
-        raise MissionError(
-            [
-                Problem(
-                    Loc(args.rig or "--set", 0, 0), "no vehicle plug-in is installed to use a rig"
-                )
-            ]
-        )
-    factor = args.realtime or getattr(rig, "realtime_factor", None)
+    target = load_target(args.rig, rig_over)
+    if target is None and (args.rig or rig_over):
+        where = Loc(args.rig or "--set", 0, 0)
+        raise MissionError([Problem(where, "no vehicle plug-in is installed to use a rig")])
+    factor = args.realtime or (target.realtime_factor if target is not None else None)
     clock = WallClock(factor) if factor else SimClock()
-    platform = rig.make_platform(clock, args.seed) if rig is not None else None
-    resources = {"platform": platform, "rig": rig, "seed": args.seed}
+    platform = target.make_platform(clock, args.seed) if target is not None else None
     mission = Mission(
         spec,
         clock=clock,
-        vehicle=getattr(platform, "vehicle", None),
-        resources=resources,
+        vehicle=platform.vehicle if platform is not None else None,
+        resources={
+            "platform": platform,
+            "seed": args.seed,
+            **(target.resources() if target is not None else {}),
+        },
         blackboard=bb,
     )
     run_dir = _run_dir(args)
@@ -137,7 +137,7 @@ def run_command(args) -> int:
     rows = spec_rows(spec)
     header = {
         "mission": os.path.abspath(args.mission),
-        "rig": getattr(rig, "path", None),
+        "rig": target.path if target is not None else None,
         "seed": args.seed,
         "rate_hz": args.rate,
         "nodes": [
@@ -146,86 +146,74 @@ def run_command(args) -> int:
         ],
     }
     log = TickLog(os.path.join(run_dir, "ticks.jsonl"), header)
-    telemetry = getattr(platform, "telemetry_row", None)
-    tty = sys.stdout.isatty() and not args.quiet
-    hooks = [platform] if platform is not None else []
-    supervisor = None  # a plug-in's safety supervisor: first hook, so it lands before the platform
-    for mod in load_plugins() if platform is not None else ():
-        make = getattr(mod, "make_supervisor", None)
-        if make is not None:
-            supervisor = make(rig, platform, mission)
-            if supervisor is not None:
-                hooks.insert(0, supervisor)
-            break
-    runner = Runner(mission, args.rate, hooks=hooks, log=log, telemetry=telemetry)
+    hooks: list[Any] = []
+    if target is not None and platform is not None:
+        # the target's hooks (the safety supervisor) go first: they land before the platform
+        hooks = [*target.make_hooks(platform, mission), platform]
+    return PreparedRun(args, mission, target, platform, hooks, clock, factor, run_dir, rows, log)
+
+
+def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
+    """Tick the mission to its end (live tree view on a terminal, one line per action
+    otherwise); the tick log is closed afterwards."""
+    args, mission, clock = run.args, run.mission, run.clock
+    telemetry = run.platform.telemetry_row if run.platform is not None else None
+    runner = Runner(mission, args.rate, hooks=run.hooks, log=run.log, telemetry=telemetry)
     if not args.quiet:
-        where = f"rig {getattr(rig, 'path', '-')}" if rig is not None else "no vehicle"
-        mode = f"real time x{factor:g}" if factor else f"lock-step, seed {args.seed}"
-        print(f"btrun: {args.mission} on {where} ({mode}), {args.rate:g} Hz; run folder {run_dir}")
-    if tty:
-        from bt_engine.display import LiveView
-
-        with LiveView(rows, args.mission) as view:
-
-            def on_tick(r: Runner) -> None:
-                run = [n for n in mission.running_nodes() if not n.children]
-                doing = run[-1].describe() if run else "-"
-                view.update(
-                    [n.bt_status.value for n in mission.nodes],
-                    f"t={clock.now():7.2f} s  tick {mission.ticks}  running: {doing}",
-                )
-
-            runner.on_tick = on_tick
-            result = runner.run(args.max_time)
-            on_tick(runner)
-    else:
-        runner.on_tick = _PlainLog(mission, args.quiet)
-        result = runner.run(args.max_time)
-    log.close()
-    summary: dict[str, Any] = {
-        "status": result.status,
-        "reason": result.reason,
-        "ticks": result.ticks,
-        "mission_time_s": round(result.mission_time_s, 4),
-        "wall_time_s": round(result.wall_time_s, 4),
-        "mission": os.path.abspath(args.mission),
-        "seed": args.seed,
-        "rate_hz": args.rate,
-        "blackboard": to_jsonable(mission.scope.all_items()),
-    }
-    if platform is not None and hasattr(platform, "summary"):
-        summary["sim" if getattr(rig, "kind", "sim") == "sim" else "vehicle"] = to_jsonable(
-            platform.summary()
+        where = f"rig {run.target.path or '-'}" if run.target is not None else "no vehicle"
+        mode = f"real time x{run.factor:g}" if run.factor else f"lock-step, seed {args.seed}"
+        print(
+            f"btrun: {args.mission} on {where} ({mode}), {args.rate:g} Hz; run folder {run.run_dir}"
         )
-    if supervisor is not None and hasattr(supervisor, "summary"):
-        summary["safety"] = to_jsonable(supervisor.summary())
-    for name, res in mission.ctx.resources.items():  # plug-in objects that report on the run
-        if name not in summary and callable(getattr(res, "run_summary", None)):
-            summary[name] = to_jsonable(res.run_summary())
+    try:
+        if sys.stdout.isatty() and not args.quiet:
+            from bt_engine.display import LiveView
+
+            with LiveView(run.rows, args.mission) as view:
+
+                def on_tick(r: Runner) -> None:
+                    leaves = [n for n in mission.running_nodes() if not n.children]
+                    doing = leaves[-1].describe() if leaves else "-"
+                    view.update(
+                        [n.bt_status.value for n in mission.nodes],
+                        f"t={clock.now():7.2f} s  tick {mission.ticks}  running: {doing}",
+                    )
+
+                runner.on_tick = on_tick
+                result = runner.run(args.max_time)
+                on_tick(runner)
+        else:
+            runner.on_tick = _PlainLog(mission, args.quiet)
+            result = runner.run(args.max_time)
+    finally:
+        run.log.close()
+    return runner, result
+
+
+def finish(run: PreparedRun, runner: Runner, result: RunResult) -> int:
+    """Write summary.json (atomically), error.log and the report; print the outcome and the
+    plug-ins' headline lines; return the exit code (0 only for SUCCESS)."""
+    args, mission = run.args, run.mission
+    sections: dict[str, Any] = {}
+    if run.target is not None and run.platform is not None:
+        sections = run.target.run_summary(run.platform, run.hooks)
+    summary = build_summary(
+        result,
+        mission,
+        mission_path=args.mission,
+        seed=args.seed,
+        rate_hz=args.rate,
+        sections=sections,
+    )
     if runner.error_traceback:
-        with open(os.path.join(run_dir, "error.log"), "w") as f:
+        with open(os.path.join(run.run_dir, "error.log"), "w") as f:
             f.write(runner.error_traceback)
         summary["error_log"] = "error.log"
-    report = None
-    if not args.no_report:
-        for mod in load_plugins():
-            fn = getattr(mod, "write_report", None)
-            if fn is not None:
-                report = fn(run_dir, runner.trace, summary, mission)
-                break
+    report = None if args.no_report else write_report(run.run_dir, runner.trace, summary, mission)
     if report:
-        summary["report"] = os.path.relpath(report, run_dir)
-    tmp = os.path.join(run_dir, "summary.json.tmp")
-    with open(tmp, "w") as f:
-        json.dump(summary, f, indent=2)
-    os.replace(tmp, os.path.join(run_dir, "summary.json"))
-    # plug-in objects may give the run's headline (e.g. the identified pallet)
-    headlines = [
-        line
-        for res in mission.ctx.resources.values()
-        if callable(getattr(res, "result_lines", None))
-        for line in res.result_lines()
-    ]
+        summary["report"] = os.path.relpath(report, run.run_dir)
+    write_summary(run.run_dir, summary)
+    headlines = result_lines(mission)
     mission.close()
     speed = result.mission_time_s / result.wall_time_s if result.wall_time_s > 0 else 0.0
     print(
@@ -237,5 +225,12 @@ def run_command(args) -> int:
         print(line)
     if report:
         print(f"report: {report}")
-    print(f"run folder: {run_dir}")
+    print(f"run folder: {run.run_dir}")
     return 0 if result.status == "SUCCESS" else 1
+
+
+def run_command(args) -> int:
+    """Run a mission from parsed CLI arguments; return the exit code."""
+    run = prepare(args)
+    runner, result = fly(run)
+    return finish(run, runner, result)

@@ -43,9 +43,9 @@ def scan_frames(
 ) -> Iterator[tuple[np.ndarray, float]]:
     """Raw frames (and their times) of a camera moving along the world's scan line with
     ``identity`` standing in the scan slot; motion blur from the scan speed."""
-    from drivers.sim.renderer import PalletRenderer
+    from drivers.sim.renderers.pallet import PalletRenderer
     from drivers.sim.world import load_world
-    from drivers.types import Pose
+    from drivers.vehicle.types import Pose
 
     world = load_world(world_path, {"scan_pallet": identity})
     line = world.data["scan_line"]

@@ -277,7 +277,7 @@ class Land(_Motion):
     def start_motion(self):
         if self.vehicle.is_landed:
             self.already = True
-            from drivers.progress import MotionProgress
+            from drivers.vehicle.progress import MotionProgress
 
             return MotionProgress("land", self.vehicle.position, 0.0, 0.0, 0.0, self.now())
         self.already = False

@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _session(args: argparse.Namespace) -> Any:
-    from drivers.rig import load_rig
+    from drivers.rig.loader import load_rig
     from nodes.perception_session import PerceptionSession
 
     return PerceptionSession(load_rig(args.rig), log=print)

@@ -1,6 +1,6 @@
 """Safety conditions: IsSafe, NoFault, FaultActive - let a mission react to a fault first.
 
-The safety supervisor (:mod:`drivers.safety`) checks every fault after each tick and keeps
+The safety supervisor (:mod:`drivers.safety.supervisor`) checks every fault after each tick and keeps
 its state on the blackboard (``safety_state``, ``safety_fault``, ``safety_faults``). These
 conditions read it, so a tree can handle a fault itself within the policy's grace period::
 
@@ -19,12 +19,12 @@ from typing import Any
 from bt_engine.node import BTNode, ConditionNode, NodeRuntimeError
 from bt_engine.ports import PortValueError, StringType, input_port
 from bt_engine.registry import REGISTRY
-from drivers.safety import FAULTS
+from drivers.safety.policies import FAULTS
 from nodes.common import CATEGORY_CHECK
 
 
 class FaultNameType(StringType):
-    """A fault name of :data:`drivers.safety.FAULTS` or ``any`` (checked when loading)."""
+    """A fault name of :data:`drivers.safety.policies.FAULTS` or ``any`` (checked when loading)."""
 
     name = "fault"
     expected = "a fault name (" + ", ".join([*FAULTS, "any"]) + ")"

@@ -8,8 +8,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from drivers.rig import load_rig
-from drivers.sim.sitl import SitlSession
+from drivers.rig.loader import load_rig
+from drivers.sim.emulators.sitl import SitlSession
 
 
 def wait_for(cond: Callable[[], bool], timeout_s: float, step_s: float = 0.005) -> bool:
@@ -38,7 +38,7 @@ def sync_cf(uri: str, timeout_s: float = 5.0) -> Iterator[Any]:
     from cflib.crazyflie import Crazyflie
     from cflib.crazyflie.syncCrazyflie import SyncCrazyflie
 
-    from drivers.crazyflie_link import init_drivers
+    from drivers.crazyflie.cflib_link import init_drivers
 
     init_drivers()
     scf = SyncCrazyflie(uri, cf=Crazyflie())

@@ -6,6 +6,7 @@ import os
 
 from bt_engine import Mission, SimClock
 from bt_engine.xml_io import load_xml
+from drivers.rig.factory import make_platform
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -34,11 +35,11 @@ def sim_mission(
     import nodes  # noqa: F401  (registers the drone leaves)
     from bt_engine import Runner
     from bt_engine.mission import load_spec
-    from drivers.rig import load_rig
+    from drivers.rig.loader import load_rig
 
     clock = SimClock()
     rig = load_rig(None, overrides)
-    platform = rig.make_platform(clock, seed)
+    platform = make_platform(rig, clock, seed)
     if xml_or_path.lstrip().startswith("<"):
         spec = load_xml("inline.xml", text=xml_or_path)
     else:

@@ -11,11 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.aideck_stream import AIDeckStream
-from drivers.cpx import ImageHeader, encode_image
-from drivers.rig import load_rig
-from drivers.sim.aideck_emulator import AIDeckEmulator
-from drivers.types import CameraFrame
+from drivers.crazyflie.aideck_stream import AIDeckStream
+from drivers.crazyflie.cpx import ImageHeader, encode_image
+from drivers.rig.loader import load_rig
+from drivers.sim.emulators.aideck import AIDeckEmulator
+from drivers.vehicle.types import CameraFrame
 from perception.white_balance import preprocess
 
 LOOPBACK = "127.0.0.1"

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from drivers.cpx import (
+from drivers.crazyflie.cpx import (
     MAX_DATA,
     CPXError,
     FrameAssembler,

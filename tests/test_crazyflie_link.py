@@ -1,4 +1,4 @@
-"""drivers/crazyflie_link.py (the real cflib driver) against the emulator on 127.0.0.1."""
+"""drivers/crazyflie/cflib_link.py (the real cflib driver) against the emulator on 127.0.0.1."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 from crtp_helpers import sitl_session, wait_for
 from helpers import REPO
 
-from drivers.crazyflie_link import (
+from drivers.crazyflie.cflib_link import (
     IMU_VARS,
     POSE_VARS,
     STATUS_VARS,

@@ -10,7 +10,7 @@ import time
 
 from crtp_helpers import sitl_session, sync_cf, wait_for
 
-from drivers.sim.crtp_emulator.crtp import Packet, decode
+from drivers.sim.emulators.crtp.crtp import Packet, decode
 
 LOG_NEEDED = [
     f"stateEstimate.{a}" for a in ("x", "y", "z", "vx", "vy", "vz", "qx", "qy", "qz", "qw")
@@ -204,7 +204,7 @@ def _fly(scf, s, seconds: float, each=None) -> None:
 
 
 def test_high_level_commander_takes_off_goes_to_and_lands() -> None:
-    from drivers.sim.crtp_emulator import high_level as hl
+    from drivers.sim.emulators.crtp import high_level as hl
 
     with sitl_session() as s, sync_cf(s.uri) as scf:
         cf, fw, port = scf.cf, s.cf.drone.firmware, s.emulator.high_level

@@ -24,7 +24,7 @@ from bt_engine.registry import REGISTRY  # noqa: E402
 from bt_engine.validate import validate  # noqa: E402
 from bt_engine.xml_io import load_xml  # noqa: E402
 from bt_engine.yaml_io import load_yaml  # noqa: E402
-from drivers.config_schema import ConfigError  # noqa: E402
+from drivers.settings import ConfigError  # noqa: E402
 
 LOCATED = re.compile(r"^.+:\d+:\d+: \S")
 MISSIONS = sorted(glob.glob(os.path.join(REPO, "missions", "*.xml")))
@@ -162,7 +162,7 @@ CONFIGS = _config_files()
 )
 @given(st.sampled_from(sorted(CONFIGS)), OPS)
 def test_fuzzed_rigs_and_worlds_load_or_locate(tmp_path_factory, name: str, ops) -> None:
-    from drivers.rig import load_rig
+    from drivers.rig.loader import load_rig
     from drivers.sim.world import load_world
 
     path, text = CONFIGS[name]
@@ -245,7 +245,7 @@ def test_include_loops_are_refused(tmp_path) -> None:
 
 
 def test_rig_python_tag_executes_nothing(tmp_path) -> None:
-    from drivers.rig import load_rig
+    from drivers.rig.loader import load_rig
 
     marker = tmp_path / "pwned"
     rig = tmp_path / "rig.yaml"
@@ -256,7 +256,7 @@ def test_rig_python_tag_executes_nothing(tmp_path) -> None:
 
 
 def test_rig_python_tag_is_a_located_error(tmp_path) -> None:
-    from drivers.rig import load_rig
+    from drivers.rig.loader import load_rig
 
     rig = tmp_path / "rig.yaml"
     rig.write_text('name: !!python/object/apply:os.system ["true"]\n')
@@ -267,7 +267,7 @@ def test_rig_python_tag_is_a_located_error(tmp_path) -> None:
 def test_yaml_anchor_bomb_in_rig(tmp_path) -> None:
     import time
 
-    from drivers.rig import load_rig
+    from drivers.rig.loader import load_rig
 
     rig = tmp_path / "rig.yaml"
     rig.write_text(

@@ -11,9 +11,9 @@ from typing import Any
 import motioncapture
 import pytest
 
-from drivers.link import PoseSample
-from drivers.mocap import MocapSource, convert_pose
-from drivers.rig import load_rig
+from drivers.crazyflie.mocap import MocapSource, convert_pose
+from drivers.rig.loader import load_rig
+from drivers.vehicle.interfaces import PoseSample
 
 
 def wait_for(cond: Callable[[], bool], timeout_s: float = 5.0) -> bool:

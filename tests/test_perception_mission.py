@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from helpers import REPO, sim_mission
 
-from drivers.sim.camera import register_renderer
+from drivers.sim.renderers import register_renderer
 
 PALLET_SCAN = os.path.join(REPO, "missions", "pallet_scan.xml")
 ENROLL = os.path.join(REPO, "missions", "enroll_pallet.xml")

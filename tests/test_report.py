@@ -11,7 +11,8 @@ import pytest
 
 import nodes  # noqa: F401  (registers the drone leaves)
 from bt_engine import Mission, Runner, SimClock
-from drivers.rig import load_rig
+from drivers.rig.factory import make_platform
+from drivers.rig.loader import load_rig
 from nodes.report import (
     action_spans,
     motion_metrics,
@@ -30,7 +31,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 @pytest.fixture(scope="module")
 def square_flight():
     clock = SimClock()
-    platform = load_rig(None).make_platform(clock, seed=0)
+    platform = make_platform(load_rig(None), clock, seed=0)
     m = Mission.from_file(
         os.path.join(REPO, "missions", "square.xml"), clock=clock, vehicle=platform.vehicle
     )

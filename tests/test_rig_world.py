@@ -5,7 +5,8 @@ import os
 
 import pytest
 
-from drivers.rig import REPO_ROOT, ConfigError, apply_overrides, load_rig
+from drivers.rig.factory import make_platform
+from drivers.rig.loader import REPO_ROOT, ConfigError, apply_overrides, load_rig
 from drivers.sim.world import load_world
 
 WORLD = os.path.join(REPO_ROOT, "worlds", "warehouse.yaml")
@@ -51,7 +52,7 @@ def test_warehouse_reproduces_the_reference_layout():
 
 def test_scan_pallet_is_overridable_by_key():
     rig = load_rig(None, {"world.scan_pallet": "2B"})
-    platform = rig.make_platform(None, seed=0)
+    platform = make_platform(rig, None, seed=0)
     scan = platform.world.pallet_at_scan()
     assert scan.identity == "2B" and scan.shown_side == "B"
     assert platform.summary()["scan_pallet"] == "2B"

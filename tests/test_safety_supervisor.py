@@ -11,14 +11,10 @@ from helpers import sim_mission, wrap
 from bt_engine.node import StatefulActionNode
 from bt_engine.registry import REGISTRY
 from bt_engine.runner import Abort
-from drivers.safety import (
-    FAULTS,
-    FaultMonitor,
-    Observation,
-    Policy,
-    SafetyConfig,
-    SafetySupervisor,
-)
+from drivers.safety.monitor import FaultMonitor, Observation
+from drivers.safety.policies import FAULTS, Policy, SafetyConfig
+from drivers.safety.supervisor import SafetySupervisor
+from nodes.safety_hook import SafetyHook
 
 # ---------------------------------------------------------------------- pure logic
 
@@ -87,7 +83,7 @@ def test_geofence_box_and_nearest_inside() -> None:
 
 
 def test_config_from_rig_data() -> None:
-    from drivers.rig import load_rig
+    from drivers.rig.loader import load_rig
 
     rig = load_rig(None, {"safety.policies.link_lost.hold_s": "0.4", "safety.battery_low_v": "3.5"})
     c = SafetyConfig.from_dict(rig.data["safety"])
@@ -110,12 +106,14 @@ HOP = wrap(
 def flown(xml: str = HOP, overrides: dict | None = None, **kw):
     mission, runner, platform = sim_mission(xml, overrides=overrides, **kw)
     rig_overrides = dict(overrides or {})
-    from drivers.rig import load_rig
+    from drivers.rig.loader import load_rig
 
     config = SafetyConfig.from_dict(load_rig(None, rig_overrides).data["safety"])
-    sup = SafetySupervisor(config, platform.vehicle, platform, mission)
-    runner.hooks.insert(0, sup)
-    return mission, runner, platform, sup
+    hook = SafetyHook(
+        lambda **kw: SafetySupervisor(config, platform.vehicle, platform, **kw), mission
+    )
+    runner.hooks.insert(0, hook)
+    return mission, runner, platform, hook.supervisor
 
 
 def assert_down(sup: SafetySupervisor, fault: str | None) -> dict:

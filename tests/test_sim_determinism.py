@@ -1,7 +1,7 @@
 """Lock-step determinism: same seed -> identical trajectory, different seed -> different."""
 
-from drivers.sim.harness import SimHarness
-from drivers.types import YawMode
+from drivers.rig.harness import SimHarness
+from drivers.vehicle.types import YawMode
 
 
 def trajectory(seed, overrides=None):

@@ -5,14 +5,14 @@ import random
 
 import pytest
 
+from drivers.rig.harness import SimHarness
 from drivers.sim.battery import SimBattery
 from drivers.sim.crazyflie_params import crazyflie_params
 from drivers.sim.drone import SimCrazyflie
 from drivers.sim.estimator import OnboardEstimator
 from drivers.sim.firmware import POSITION
-from drivers.sim.harness import SimHarness
 from drivers.sim.wind import WindModel
-from drivers.types import FlightState, YawMode
+from drivers.vehicle.types import FlightState, YawMode
 
 
 def bare_drone(start=(0.0, 0.0, 0.0)):

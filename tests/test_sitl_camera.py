@@ -15,9 +15,10 @@ from crtp_helpers import wait_for
 from helpers import REPO
 
 from bt_engine.clock import WallClock
-from drivers.crazyflie_platform import CrazyfliePlatform
-from drivers.rig import load_rig
-from drivers.safety import SafetySupervisor
+from drivers.crazyflie.cf_platform import CrazyfliePlatform
+from drivers.rig.factory import make_platform
+from drivers.rig.loader import load_rig
+from drivers.safety.supervisor import SafetySupervisor
 from drivers.sim.camera import SimCamera
 
 SITL_RIG = os.path.join(REPO, "rigs", "sitl.yaml")
@@ -27,7 +28,7 @@ SITL_RIG = os.path.join(REPO, "rigs", "sitl.yaml")
 def sitl_platform(**overrides: str) -> Iterator[tuple[Any, CrazyfliePlatform]]:
     """(rig, platform) of rigs/sitl.yaml on a fresh wall clock, shut down afterwards."""
     rig = load_rig(SITL_RIG, overrides or None)
-    platform = rig.make_platform(WallClock(), 0)
+    platform = make_platform(rig, WallClock(), 0)
     try:
         yield rig, platform
     finally:

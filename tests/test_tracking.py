@@ -9,8 +9,8 @@ import math
 
 import pytest
 
-from drivers.sim.harness import SimHarness
-from drivers.types import YawMode
+from drivers.rig.harness import SimHarness
+from drivers.vehicle.types import YawMode
 
 GOAL = (1.5, 0.0, 0.5)
 

@@ -2,8 +2,8 @@
 
 import pytest
 
-from drivers.sim.harness import SimHarness
-from drivers.types import FlightState
+from drivers.rig.harness import SimHarness
+from drivers.vehicle.types import FlightState
 
 
 def airborne(overrides=None, seed=2):

@@ -4,8 +4,8 @@ import math
 
 import pytest
 
-from drivers.sim.harness import SimHarness
-from drivers.types import FlightState, YawMode
+from drivers.rig.harness import SimHarness
+from drivers.vehicle.types import FlightState, YawMode
 
 D = math.radians
 

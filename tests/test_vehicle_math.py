@@ -4,10 +4,17 @@ import math
 
 import pytest
 
-from drivers.battery import ocv_from_soc, percent_from_voltage
-from drivers.health import HealthTracker
-from drivers.progress import MotionProgress
-from drivers.reference import (
+from drivers.vehicle.angles import (
+    path_facing_yaw_rad,
+    quaternion_from_yaw,
+    wrap_angle_rad,
+    yaw_error_rad,
+    yaw_from_quaternion,
+)
+from drivers.vehicle.battery import ocv_from_soc, percent_from_voltage
+from drivers.vehicle.health import HealthTracker
+from drivers.vehicle.progress import MotionProgress
+from drivers.vehicle.trajectory import (
     Limits,
     LineReference,
     PathReference,
@@ -15,13 +22,6 @@ from drivers.reference import (
     slew_yaw,
     trapezoid_duration_s,
     trapezoid_profile,
-)
-from drivers.yaw import (
-    path_facing_yaw_rad,
-    quaternion_from_yaw,
-    wrap_angle_rad,
-    yaw_error_rad,
-    yaw_from_quaternion,
 )
 
 D = math.radians

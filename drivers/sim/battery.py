@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from drivers.battery import ocv_from_soc
+from drivers.vehicle.battery import ocv_from_soc
 
 
 class SimBattery:

@@ -2,7 +2,7 @@
 
 Without a renderer the camera produces no frames (``poll`` returns None) and the Vehicle's
 camera health stays "no samples". A renderer is a callable ``renderer(pose, t_s,
-previous=None) -> image`` registered by name with :func:`register_renderer` and chosen by the
+previous=None) -> image`` named in :data:`drivers.sim.renderers.RENDERERS` and chosen by the
 rig (``sensors.camera.renderer``), so rig files never name arbitrary code; ``previous`` is
 the ``(t_s, pose)`` of the frame before (for motion blur).
 
@@ -18,41 +18,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from drivers.types import Pose
-
-Renderer = Callable[..., Any]  # renderer(pose, t_s, previous=None) -> image
-RendererFactory = Callable[..., Renderer]
-
-_RENDERERS: dict[str, RendererFactory] = {}
-
-
-def register_renderer(name: str, factory: RendererFactory) -> None:
-    """Make a renderer available to rigs as ``sensors.camera.renderer: <name>``.
-
-    ``factory(world=..., camera=..., rng=...)`` returns the ``renderer(pose, t_s,
-    previous=None)`` callable.
-    """
-    _RENDERERS[name] = factory
-
-
-def renderer_names() -> list[str]:
-    """Names of the registered renderers."""
-    return sorted(_RENDERERS)
-
-
-def make_renderer(name: str | None, **kwargs: Any) -> Renderer | None:
-    """Build the renderer ``name`` (None or "none" -> no renderer)."""
-    if name in (None, "none"):
-        return None
-    import drivers.sim.renderer  # noqa: F401  (registers the "pallet" renderer)
-
-    if name not in _RENDERERS:
-        raise ValueError(f"unknown camera renderer '{name}' (known: {renderer_names()})")
-    return _RENDERERS[name](**kwargs)
+from drivers.sim.renderers import Renderer
+from drivers.vehicle.types import Pose
 
 
 class LazyCameraFrame:
-    """A frame shaped like :class:`~drivers.types.CameraFrame` (``image``, ``t_s``, ``pose``,
+    """A frame shaped like :class:`~drivers.vehicle.types.CameraFrame` (``image``, ``t_s``, ``pose``,
     ``index``, ``meta``) whose image is rendered on the first read of ``image``."""
 
     __slots__ = ("_image", "_render", "t_s", "pose", "index", "meta")

@@ -6,9 +6,9 @@ import math
 import random
 from collections import deque
 
-from drivers.link import PoseSample
 from drivers.sim.dynamics import Quadrotor
-from drivers.yaw import quaternion_from_euler
+from drivers.vehicle.angles import quaternion_from_euler
+from drivers.vehicle.interfaces import PoseSample
 
 
 class SimMocap:

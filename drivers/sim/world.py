@@ -15,7 +15,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from drivers.config_schema import ConfigError, Field, apply_overrides, load_yaml_file
+from drivers.settings import (
+    ConfigError,
+    Field,
+    Marks,
+    SettingProblem,
+    apply_overrides,
+    load_yaml_file,
+    problem_at,
+)
 
 F, M, L = Field, lambda children, doc="": Field("map", children=children, doc=doc), Field
 
@@ -296,40 +304,54 @@ def identities(data: dict) -> list[str]:
     return [f"{p['id']}{s}" for p in data["pallets"] for s in ("A", "B")]
 
 
-def check_world(data: dict, marks: dict[str, str], path: str) -> list[str]:
+def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
     """Semantic checks of validated world data, located with ``marks`` (path -> loc)."""
     problems = []
-    where = lambda key: marks.get(key, f"{path}:1:1")  # noqa: E731
+
+    def where(key: str, message: str) -> SettingProblem:
+        return problem_at(marks, key, path, message)
+
     seen = set()
     for i, p in enumerate(data["pallets"]):
         if p["id"] in seen:
-            problems.append(f"{where(f'pallets[{i}].id')}: duplicate pallet id '{p['id']}'")
+            problems.append(where(f"pallets[{i}].id", f"duplicate pallet id '{p['id']}'"))
         seen.add(p["id"])
     known = identities(data)
     if data["scan_pallet"] not in known:
         problems.append(
-            f"{where('scan_pallet')}: scan_pallet '{data['scan_pallet']}' is not a pallet "
-            f"side of this world (known: {', '.join(known) or 'none'})"
+            where(
+                "scan_pallet",
+                f"scan_pallet '{data['scan_pallet']}' is not a pallet "
+                f"side of this world (known: {', '.join(known) or 'none'})",
+            )
         )
     if len(data["row_slots"]) < max(0, len(data["pallets"]) - 1):
         problems.append(
-            f"{where('row_slots')}: {len(data['pallets']) - 1} pallets need row "
-            f"slots but only {len(data['row_slots'])} are given"
+            where(
+                "row_slots",
+                f"{len(data['pallets']) - 1} pallets need row "
+                f"slots but only {len(data['row_slots'])} are given",
+            )
         )
     return problems
 
 
 def load_world(path: str, overrides: dict[str, str] | None = None) -> World:
     """Load, validate and build the world at ``path``; ``overrides`` are ``--set`` style."""
-    marks: dict[str, str] = {}
+    marks: Marks = {}
     data = load_yaml_file(path, WORLD_SCHEMA, marks=marks)
     problems = check_world(data, marks, path)
     if overrides:
         data = apply_overrides(data, overrides, WORLD_SCHEMA)
         if data["scan_pallet"] not in identities(data):
             problems.append(
-                f"--set world.scan_pallet={data['scan_pallet']}: not a pallet side "
-                f"of {path} (known: {', '.join(identities(data))})"
+                SettingProblem(
+                    "--set",
+                    0,
+                    0,
+                    f"world.scan_pallet={data['scan_pallet']}: not a pallet side "
+                    f"of {path} (known: {', '.join(identities(data))})",
+                )
             )
     if problems:
         raise ConfigError(problems)

@@ -10,7 +10,7 @@ Pure functions (numpy + OpenCV), no knowledge of the simulator:
 - :mod:`perception.synth.dataset`: training samples for the block detector and block crops for
   re-identification, and synthetic identity names.
 
-``drivers/sim/renderer.py`` adapts the simulator's world and poses to these functions.
+``drivers/sim/renderers/pallet.py`` adapts the simulator's world and poses to these functions.
 """
 
 from perception.synth.appearance import SideStyle, block_texture, face_texture, split_identity

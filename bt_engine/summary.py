@@ -1,0 +1,74 @@
+"""``summary.json``: how a run ended, built in one place.
+
+:func:`build_summary` makes the dict that ``btrun`` writes (and tests and benches compare):
+the engine's own keys (``status``, ``reason``, ``ticks``, ``mission_time_s``,
+``wall_time_s``, ``mission``, ``seed``, ``rate_hz``, ``blackboard``), then the run target's
+sections (``sim`` or ``vehicle``, ``safety``) and one section per mission resource that
+reports on the run (:class:`~bt_engine.plugins.RunReporter`, e.g. ``perception``).
+:func:`write_summary` writes it atomically.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+from bt_engine.mission import Mission
+from bt_engine.plugins import RunReporter
+from bt_engine.runner import RunResult
+from bt_engine.ticklog import to_jsonable
+
+
+def build_summary(
+    result: RunResult,
+    mission: Mission,
+    *,
+    mission_path: str,
+    seed: int,
+    rate_hz: float,
+    sections: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The ``summary.json`` dict of a finished run.
+
+    ``sections`` are the run target's parts (``{"sim": ..., "safety": ...}``); resources of
+    the mission that implement :class:`RunReporter` add theirs under their resource names
+    (never replacing a section already there).
+    """
+    summary: dict[str, Any] = {
+        "status": result.status,
+        "reason": result.reason,
+        "ticks": result.ticks,
+        "mission_time_s": round(result.mission_time_s, 4),
+        "wall_time_s": round(result.wall_time_s, 4),
+        "mission": os.path.abspath(mission_path),
+        "seed": seed,
+        "rate_hz": rate_hz,
+        "blackboard": to_jsonable(mission.scope.all_items()),
+    }
+    for key, value in (sections or {}).items():
+        summary[key] = to_jsonable(value)
+    for name, res in mission.ctx.resources.items():
+        if name not in summary and isinstance(res, RunReporter):
+            summary[name] = to_jsonable(res.run_summary())
+    return summary
+
+
+def result_lines(mission: Mission) -> list[str]:
+    """The run's headline lines from the mission's reporting resources (e.g. the pallet)."""
+    return [
+        line
+        for res in mission.ctx.resources.values()
+        if isinstance(res, RunReporter)
+        for line in res.result_lines()
+    ]
+
+
+def write_summary(run_dir: str, summary: dict[str, Any]) -> str:
+    """Write ``summary.json`` in ``run_dir`` atomically (a temporary file, then a rename)."""
+    path = os.path.join(run_dir, "summary.json")
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(summary, f, indent=2)
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,284 @@
+"""The rig schema: every setting a rig file may hold, its type, default and meaning.
+
+One declaration per setting. The ``control`` section comes from
+:class:`drivers.vehicle.config.VehicleConfig` and ``safety`` from
+:class:`drivers.safety.policies.SafetyConfig`, whose fields are declared with
+:func:`drivers.settings.setting`; the others are declared here. ``btrun rig settings`` and
+``docs/rig-settings.md`` list them all.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from drivers.safety.policies import safety_schema
+from drivers.settings import Field, schema_of
+from drivers.vehicle.config import VehicleConfig
+
+
+def _m(children: dict[str, Field], doc: str = "") -> Field:
+    return Field("map", children=children, doc=doc)
+
+
+def _f(kind: str, default: Any, doc: str, **kw: Any) -> Field:
+    return Field(kind, default, doc, **kw)
+
+
+def _fault(doc: str, **params: Field) -> Field:
+    return _m(
+        {
+            "at_s": _f(
+                "float", None, "mission time to fire (null: not scheduled)", nullable=True, min=0.0
+            ),
+            "duration_s": _f(
+                "float", None, "clear after this long (null: never)", nullable=True, min=0.0
+            ),
+            **params,
+        },
+        doc,
+    )
+
+
+RIG_SCHEMA = _m(
+    {
+        "name": _f("str", "sim", "rig name (shown in logs)"),
+        "link": _f(
+            "choice",
+            "sim",
+            "link kind: sim (in-process simulator) or crazyflie (cflib: radio, usb, udp)",
+            choices=("sim", "crazyflie"),
+        ),
+        "world": _m(
+            {
+                "path": _f(
+                    "str", "../worlds/warehouse.yaml", "world file (relative to this rig file)"
+                ),
+                "scan_pallet": _f(
+                    "str", None, "override the world's scan_pallet (e.g. 2B)", nullable=True
+                ),
+            }
+        ),
+        "clock": _m(
+            {
+                "mode": _f(
+                    "choice",
+                    "lockstep",
+                    "lockstep (SimClock) or realtime (WallClock)",
+                    choices=("lockstep", "realtime"),
+                ),
+                "realtime_factor": _f(
+                    "float", 1.0, "realtime mode: mission seconds per wall second", min=0.01
+                ),
+            }
+        ),
+        "control": schema_of(VehicleConfig, "the Vehicle's reference generator and control loop"),
+        "sim": _m(
+            {
+                "physics_rate_hz": _f(
+                    "float", 500.0, "physics step rate (multiple of 100)", min=100.0, max=5000.0
+                ),
+                "start_m": _f("vec", [0.0, 0.0, 0.0], "start position (m)", length=3),
+                "start_yaw_deg": _f("float", 0.0, "start yaw (deg)"),
+                "shutdown_max_s": _f(
+                    "float", 30.0, "shutdown: simulate at most this long to land", min=0.0
+                ),
+                "params": Field(
+                    "dict", {}, "overrides of drivers/sim/crazyflie_params.py", item=Field("float")
+                ),
+                "telemetry_rate_hz": _f("float", 100.0, "link telemetry rate", min=1.0),
+                "link_loss_probability": _f(
+                    "float", 0.0, "probability of losing one packet", min=0.0, max=1.0
+                ),
+            }
+        ),
+        "crazyflie": _m(
+            {
+                "uri": _f(
+                    "str", "radio://0/80/2M/E7E7E7E7E7", "cflib URI (radio://, usb://, udp://)"
+                ),
+                "sitl": _f("bool", False, "start the CRTP emulator in-process (uri ignored)"),
+                "sitl_world": _f("bool", True, "sitl: the simulated drone collides with the world"),
+                "pose_source": _f(
+                    "choice",
+                    "mocap",
+                    "pose forwarded to the drone: mocap (drivers/crazyflie/mocap.py), sitl, none",
+                    choices=("mocap", "sitl", "none"),
+                ),
+                "params": Field(
+                    "dict",
+                    {
+                        "stabilizer.estimator": 2.0,
+                        "stabilizer.controller": 1.0,
+                        "locSrv.extPosStdDev": 0.01,
+                        "locSrv.extQuatStdDev": 4.5e-3,
+                    },
+                    "firmware parameters written after connecting",
+                    item=Field("float"),
+                ),
+                "log": _m(
+                    {
+                        "pose_rate_hz": _f(
+                            "float", 100.0, "stateEstimate pose+velocity", min=1.0, max=100.0
+                        ),
+                        "status_rate_hz": _f(
+                            "float", 50.0, "quaternion, battery, supervisor", min=1.0, max=100.0
+                        ),
+                        "imu_rate_hz": _f("float", 0.0, "gyro+acc (0: off)", min=0.0, max=100.0),
+                    }
+                ),
+                "link_timeout_s": _f("float", 0.5, "link lost after this silence", min=0.05),
+                "connect_timeout_s": _f("float", 10.0, "give up connecting after", min=0.5),
+                "shutdown_max_s": _f(
+                    "float", 15.0, "at shutdown, wait at most this to land", min=0.0
+                ),
+                "toc_cache_dir": _f(
+                    "str", None, "cflib TOC cache (null: a temp folder)", nullable=True
+                ),
+            }
+        ),
+        "mocap": _m(
+            {
+                "type": _f(
+                    "choice",
+                    "vicon",
+                    "motioncapture system (drivers/crazyflie/mocap.py; mock: static test poses)",
+                    choices=("vicon", "optitrack", "qualisys", "vrpn", "mock"),
+                ),
+                "host": _f("str", "127.0.0.1", "mocap server host name or address"),
+                "rigid_body": _f("str", "cf", "rigid-body name of the drone (x axis = front)"),
+                "rate_hz": _f("float", 100.0, "nominal frame rate (drop accounting)", min=1.0),
+                "stale_s": _f("float", 0.1, "driver reports stale after this silence", min=0.0),
+                "up_axis": _f(
+                    "choice",
+                    "z",
+                    "up axis the server streams (y: converted to z-up)",
+                    choices=("z", "y"),
+                ),
+                "freeze_detect": _f("bool", True, "bit-identical repeated frames are stale"),
+                "params": Field(
+                    "dict", {}, "extra motioncapture.connect parameters", item=Field("str")
+                ),
+            },
+            "real motion capture (link: crazyflie with crazyflie.pose_source: mocap)",
+        ),
+        "aideck": _m(
+            {
+                "enabled": _f(
+                    "bool", False, "stream the AI-deck camera (drivers/crazyflie/aideck_stream.py)"
+                ),
+                "host": _f("str", "127.0.0.1", "deck address (its own access point: 192.168.4.1)"),
+                "port": _f("int", 5000, "deck TCP port", min=1, max=65535),
+                "format": _f(
+                    "choice",
+                    "raw",
+                    "what the deck firmware (or emulator) sends; both decode",
+                    choices=("raw", "jpeg"),
+                ),
+                "output": _f(
+                    "choice",
+                    "bayer",
+                    "frame image: bayer (as the sim camera) or bgr",
+                    choices=("bayer", "bgr"),
+                ),
+                "white_balance": _f(
+                    "vec",
+                    None,
+                    "B, G, R factors for bgr (null: sensors.camera.white_balance)",
+                    length=3,
+                    nullable=True,
+                ),
+                "reconnect_initial_s": _f("float", 0.25, "first reconnect back-off", min=0.01),
+                "reconnect_max_s": _f("float", 5.0, "back-off doubles up to this", min=0.01),
+                "connect_timeout_s": _f("float", 2.0, "TCP connect time-out", min=0.1),
+                "idle_timeout_s": _f("float", 3.0, "reconnect after this silence", min=0.1),
+                "emulator": _f(
+                    "bool", False, "start drivers/sim/aideck_emulator on 127.0.0.1 (port 0: free)"
+                ),
+            },
+            "AI-deck camera over WiFi (CPX over TCP)",
+        ),
+        "sensors": _m(
+            {
+                "mocap": _m(
+                    {
+                        "enabled": _f("bool", True, "simulate a mocap system"),
+                        "rate_hz": _f("float", 100.0, "frame rate", min=1.0),
+                        "position_noise_std_m": _f(
+                            "float", 3e-5, "position noise per axis", min=0.0
+                        ),
+                        "orientation_noise_std_deg": _f(
+                            "float", 0.05, "orientation noise", min=0.0
+                        ),
+                        "latency_s": _f("float", 0.005, "capture-to-delivery latency", min=0.0),
+                        "dropout_probability": _f(
+                            "float", 0.0, "probability of losing a frame", min=0.0, max=1.0
+                        ),
+                    }
+                ),
+                "onboard": _m(
+                    {
+                        "yaw_bias_deg": _f("float", 3.0, "onboard yaw minus true yaw (magnitude)"),
+                        "yaw_bias_wander_deg": _f(
+                            "float", 1.0, "slow wander of that bias (std)", min=0.0
+                        ),
+                        "velocity_noise_mps": _f(
+                            "float", 0.005, "velocity estimate noise", min=0.0
+                        ),
+                        "drift_mps_per_sqrt_s": _f(
+                            "float", 0.05, "position drift without mocap", min=0.0
+                        ),
+                    }
+                ),
+                "camera": _m(
+                    {
+                        "rate_hz": _f("float", 15.0, "frame rate (AI-deck: 12-17 fps)", min=0.1),
+                        "latency_s": _f("float", 0.05, "capture-to-delivery latency", min=0.0),
+                        "renderer": _f("str", "none", "registered renderer name, or none"),
+                        "fov_deg": _f(
+                            "float", 87.0, "horizontal field of view (approx.)", min=10.0, max=170.0
+                        ),
+                        "white_balance": _f(
+                            "vec", [1.0, 1.0, 1.0], "B, G, R white-balance factors", length=3
+                        ),
+                    }
+                ),
+            }
+        ),
+        "wind": _m(
+            {
+                "mean_mps": _f("vec", [0.0, 0.0, 0.0], "mean wind (m/s, world frame)", length=3),
+                "gust_std_mps": _f("float", 0.0, "gust strength (std per axis)", min=0.0),
+                "gust_time_constant_s": _f("float", 2.0, "gust correlation time", min=0.01),
+            }
+        ),
+        "battery": _m(
+            {
+                "initial_soc": _f(
+                    "float", 1.0, "state of charge at start (0..1)", min=0.0, max=1.0
+                ),
+                "capacity_mah": _f("float", 250.0, "capacity", min=1.0),
+            }
+        ),
+        "faults": _m(
+            {
+                "link_drop": _fault("the radio link goes down"),
+                "mocap_freeze": _fault("the mocap server repeats its last frame"),
+                "mocap_drop": _fault(
+                    "mocap frames are lost",
+                    probability=_f("float", 1.0, "loss probability", min=0.0, max=1.0),
+                ),
+                "camera_stall": _fault("the camera stops delivering frames"),
+                "battery_sag": _fault(
+                    "the battery voltage drops",
+                    drop_v=_f("float", 0.5, "extra voltage drop (V)", min=0.0),
+                ),
+                "gust": _fault(
+                    "a wind gust", speed_mps=_f("vec", [1.0, 0.0, 0.0], "gust wind (m/s)", length=3)
+                ),
+            }
+        ),
+    }
+)
+
+
+RIG_SCHEMA.children["safety"] = safety_schema()

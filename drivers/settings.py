@@ -1,0 +1,466 @@
+"""A tiny schema language for rig and world files, with located errors.
+
+Rig and world files are YAML. They are validated against a :class:`Field` tree built once per
+file kind (see :mod:`drivers.rig.loader` and :mod:`drivers.sim.world`). Validation walks the nodes
+that PyYAML's ``compose()`` returns, so every problem carries the file, line and column of
+the offending key or value, and all problems are collected before anything is reported::
+
+    rigs/sim.yaml:12:3: unknown key 'setpoint_mod' (did you mean 'setpoint_mode'?)
+    rigs/sim.yaml:14:14: control.rate_hz: expected a number, got 'fast'
+
+:func:`apply_overrides` applies ``--set dotted.key=value`` pairs to validated data with the
+same type checks.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import difflib
+from dataclasses import dataclass, field
+from typing import Any
+
+import yaml
+
+
+def did_you_mean(name: str, candidates: list[str]) -> str:
+    """Return `` (did you mean 'x'?)`` for the closest candidate, or an empty string."""
+    close = difflib.get_close_matches(name, candidates, n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+class SettingProblem(str):
+    """One located problem: reads as ``file:line:col: message`` and keeps its parts.
+
+    ``file`` is ``--set`` (line and column 0) for a problem with a command-line override.
+    """
+
+    file: str
+    line: int
+    col: int
+    message: str
+
+    def __new__(cls, file: str, line: int, col: int, message: str) -> SettingProblem:
+        text = f"--set {message}" if file == "--set" else f"{file}:{line}:{col}: {message}"
+        obj = super().__new__(cls, text)
+        obj.file, obj.line, obj.col, obj.message = file, line, col, message
+        return obj
+
+    @classmethod
+    def at_node(cls, filename: str, node: yaml.Node, message: str) -> SettingProblem:
+        """A problem at a composed YAML node's start."""
+        mark = node.start_mark
+        return cls(filename, mark.line + 1, mark.column + 1, message)
+
+
+class ConfigError(Exception):
+    """A rig or world file (or a ``--set`` override) is invalid.
+
+    ``problems`` lists every problem as a :class:`SettingProblem` (a ``str`` reading
+    ``file:line:col: message``, with the parts as attributes).
+    """
+
+    def __init__(self, problems: list[SettingProblem]) -> None:
+        super().__init__("\n".join(problems))
+        self.problems = list(problems)
+
+
+@dataclass
+class Field:
+    """One setting: its type, default, documentation and limits.
+
+    ``kind`` is one of ``float``, ``int``, ``bool``, ``str``, ``choice``, ``vec``, ``map``
+    (fixed keys in ``children``), ``dict`` (free keys, values of type ``item``), ``list``
+    (items of type ``item``) or ``any``.
+    """
+
+    kind: str
+    default: Any = None
+    doc: str = ""
+    choices: tuple = ()
+    min: float | None = None
+    max: float | None = None
+    children: dict[str, Field] = field(default_factory=dict)
+    item: Field | None = None
+    length: int | None = None
+    nullable: bool = False
+    required: bool = False
+
+
+#: Where each setting was written: ``dotted.path -> (file, line, col)``.
+Marks = dict[str, tuple[str, int, int]]
+
+
+def problem_at(marks: Marks, key: str, default_file: str, message: str) -> SettingProblem:
+    """A problem located where ``key`` was written (else at the file's start)."""
+    file, line, col = marks.get(key, (default_file, 1, 1))
+    return SettingProblem(file, line, col, message)
+
+
+def _at(filename: str, node: yaml.Node, message: str) -> SettingProblem:
+    return SettingProblem.at_node(filename, node, message)
+
+
+def check_value(value: Any, spec: Field, path: str) -> tuple[Any, list[str]]:
+    """Type-check a plain Python ``value`` against ``spec``; return (value, messages)."""
+    if value is None:
+        if spec.nullable or spec.kind == "any":
+            return None, []
+        return value, [f"{path}: a value is required"]
+    kind = spec.kind
+    if kind == "any":
+        return value, []
+    if kind in ("float", "int"):
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if kind == "int":
+            ok = ok and float(value).is_integer()
+        if not ok:
+            want = "an integer" if kind == "int" else "a number"
+            return value, [f"{path}: expected {want}, got {value!r}"]
+        value = int(value) if kind == "int" else float(value)
+        if spec.min is not None and value < spec.min:
+            return value, [f"{path}: {value} is below the minimum {spec.min}"]
+        if spec.max is not None and value > spec.max:
+            return value, [f"{path}: {value} is above the maximum {spec.max}"]
+        return value, []
+    if kind == "bool":
+        if not isinstance(value, bool):
+            return value, [f"{path}: expected true or false, got {value!r}"]
+        return value, []
+    if kind in ("str", "choice"):
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and kind == "str":
+            value = str(value)
+        if not isinstance(value, str):
+            return value, [f"{path}: expected a string, got {value!r}"]
+        if kind == "choice" and value not in spec.choices:
+            hint = did_you_mean(value, [str(c) for c in spec.choices])
+            return value, [f"{path}: {value!r} is not one of {list(spec.choices)}{hint}"]
+        return value, []
+    if kind == "vec":
+        if not isinstance(value, (list, tuple)) or (
+            spec.length is not None and len(value) != spec.length
+        ):
+            return value, [f"{path}: expected a list of {spec.length} numbers, got {value!r}"]
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            return value, [f"{path}: expected numbers, got {value!r}"]
+        return [float(v) for v in value], []
+    if kind in ("map", "dict"):
+        if not isinstance(value, dict):
+            return value, [f"{path}: expected a mapping, got {value!r}"]
+        out, problems = {}, []
+        if kind == "map":
+            for key in value:
+                if key not in spec.children:
+                    hint = did_you_mean(str(key), list(spec.children))
+                    problems.append(f"{path}: unknown key '{key}'{hint}")
+            for key, sub_spec in spec.children.items():
+                if key in value:
+                    out[key], p = check_value(value[key], sub_spec, f"{path}.{key}")
+                    problems += p
+                else:
+                    out[key] = defaults(sub_spec)
+            return out, problems
+        for key, sub in value.items():
+            out[str(key)], p = check_value(sub, spec.item or Field("any"), f"{path}.{key}")
+            problems += p
+        return out, problems
+    if kind == "list":
+        if not isinstance(value, list):
+            return value, [f"{path}: expected a list, got {value!r}"]
+        out, problems = [], []
+        for i, sub in enumerate(value):
+            v, p = check_value(sub, spec.item or Field("any"), f"{path}[{i}]")
+            out.append(v)
+            problems += p
+        return out, problems
+    raise ValueError(f"unknown field kind {kind!r}")
+
+
+def defaults(spec: Field) -> Any:
+    """Return the default value of ``spec`` (a mapping's defaults filled in recursively)."""
+    if spec.kind == "map":
+        return {key: defaults(sub) for key, sub in spec.children.items()}
+    return copy.deepcopy(spec.default)
+
+
+def _validate_node(
+    node: yaml.Node,
+    spec: Field,
+    path: str,
+    filename: str,
+    loader: yaml.SafeLoader,
+    marks: Marks | None = None,
+) -> tuple[Any, list[SettingProblem]]:
+    """Validate a composed YAML node; messages carry the node's file:line:col."""
+    if marks is not None:
+        mark = node.start_mark
+        marks[path] = (filename, mark.line + 1, mark.column + 1)
+    label = path or "(top level)"
+    if spec.kind == "map" and isinstance(node, yaml.MappingNode):
+        out, problems, seen = {}, [], set()
+        for key_node, value_node in node.value:
+            key = key_node.value
+            sub_path = f"{path}.{key}" if path else key
+            if key in seen:
+                problems.append(_at(filename, key_node, f"duplicate key '{key}'"))
+                continue
+            seen.add(key)
+            if key not in spec.children:
+                hint = did_you_mean(str(key), list(spec.children))
+                problems.append(_at(filename, key_node, f"unknown key '{key}'{hint}"))
+                continue
+            out[key], p = _validate_node(
+                value_node, spec.children[key], sub_path, filename, loader, marks
+            )
+            problems += p
+        for key, sub_spec in spec.children.items():
+            if key not in out and key not in seen:
+                if sub_spec.required:
+                    problems.append(_at(filename, node, f"{label}: missing required key '{key}'"))
+                out[key] = defaults(sub_spec)
+        return out, problems
+    if spec.kind == "dict" and isinstance(node, yaml.MappingNode):
+        out, problems = {}, []
+        for key_node, value_node in node.value:
+            key = str(key_node.value)
+            out[key], p = _validate_node(
+                value_node, spec.item or Field("any"), f"{path}.{key}", filename, loader, marks
+            )
+            problems += p
+        return out, problems
+    if spec.kind == "list" and isinstance(node, yaml.SequenceNode):
+        out, problems = [], []
+        for i, item_node in enumerate(node.value):
+            v, p = _validate_node(
+                item_node, spec.item or Field("any"), f"{path}[{i}]", filename, loader, marks
+            )
+            out.append(v)
+            problems += p
+        return out, problems
+    value = loader.construct_object(node, deep=True)
+    value, messages = check_value(value, spec, label)
+    return value, [_at(filename, node, m) for m in messages]
+
+
+_PLAIN_TAGS = {
+    "tag:yaml.org,2002:" + t for t in ("str", "int", "float", "bool", "null", "map", "seq")
+}
+
+
+def _unsafe_nodes(root: yaml.Node, filename: str, limit: int = 100_000) -> list[SettingProblem]:
+    """Refuse what a settings file never needs: object tags and anchors/aliases (whose
+    expansion can blow up), before anything is constructed."""
+    problems: list[SettingProblem] = []
+    seen: set[int] = set()
+    stack = [root]
+    count = 0
+    while stack and len(problems) < 20:
+        node = stack.pop()
+        count += 1
+        if count > limit:
+            problems.append(_at(filename, node, f"more than {limit} values: not a settings file"))
+            break
+        if id(node) in seen:
+            problems.append(_at(filename, node, "YAML anchors and aliases are not allowed here"))
+            continue
+        seen.add(id(node))
+        if node.tag not in _PLAIN_TAGS:
+            problems.append(_at(filename, node, f"YAML tag '{node.tag}' is not allowed here"))
+            continue
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                stack += [v, k]
+        elif isinstance(node, yaml.SequenceNode):
+            stack += list(reversed(node.value))
+    return problems
+
+
+def load_yaml_file(
+    path: str, spec: Field, text: str | None = None, marks: Marks | None = None
+) -> dict:
+    """Read and validate the YAML file at ``path`` against ``spec``.
+
+    Returns the validated data with defaults filled in. Raises :class:`ConfigError` listing
+    every problem (syntax errors included) as ``file:line:col: message``. If ``marks`` is
+    given it receives ``dotted.path -> (file, line, col)`` for every node, so callers can
+    locate their own semantic checks.
+    """
+    if text is None:
+        try:
+            with open(path, encoding="utf-8") as f:
+                text = f.read()
+        except OSError as exc:
+            raise ConfigError(
+                [SettingProblem(path, 1, 1, f"cannot read file: {exc.strerror}")]
+            ) from exc
+    loader = yaml.SafeLoader(text)
+    try:
+        node = loader.get_single_node()
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark
+        line, col = (mark.line + 1, mark.column + 1) if mark else (1, 1)
+        raise ConfigError(
+            [SettingProblem(path, line, col, f"YAML syntax error: {exc.problem}")]
+        ) from exc
+    finally:
+        loader.dispose()
+    if node is None:
+        return defaults(spec)
+    unsafe = _unsafe_nodes(node, path)
+    if unsafe:
+        raise ConfigError(unsafe)
+    if not isinstance(node, yaml.MappingNode):
+        raise ConfigError([_at(path, node, "expected a mapping at the top level")])
+    data, problems = _validate_node(node, spec, "", path, loader, marks)
+    if problems:
+        raise ConfigError(problems)
+    return data
+
+
+def apply_overrides(data: dict, overrides: dict[str, str] | None, spec: Field) -> dict:
+    """Return a copy of validated ``data`` with ``--set`` style overrides applied.
+
+    Each key is a dotted path (``control.rate_hz``); each value is a string parsed as YAML
+    (``"0.5"`` -> 0.5, ``"[1, 0, 0]"`` -> list, ``"null"`` -> None) and type-checked against
+    the schema. Unknown keys get a "did you mean". All problems are raised at once.
+    """
+    out = copy.deepcopy(data)
+    problems: list[SettingProblem] = []
+    for dotted, raw in (overrides or {}).items():
+        where = f"{dotted}={raw}"
+        parts = dotted.split(".")
+        node_spec, target = spec, out
+        ok = True
+        for i, part in enumerate(parts):
+            last = i == len(parts) - 1
+            if node_spec.kind == "map":
+                if part not in node_spec.children:
+                    prefix = ".".join(parts[:i])
+                    names = [f"{prefix}.{k}" if prefix else k for k in node_spec.children]
+                    hint = did_you_mean(".".join(parts[: i + 1]), names)
+                    problems.append(
+                        SettingProblem("--set", 0, 0, f"{where}: unknown key '{dotted}'{hint}")
+                    )
+                    ok = False
+                    break
+                child = node_spec.children[part]
+            elif node_spec.kind == "dict":
+                child = node_spec.item or Field("any")
+            else:
+                problems.append(
+                    SettingProblem(
+                        "--set", 0, 0, f"{where}: '{'.'.join(parts[:i])}' has no sub-keys"
+                    )
+                )
+                ok = False
+                break
+            if last:
+                try:
+                    value = yaml.safe_load(raw) if isinstance(raw, str) else raw
+                except yaml.YAMLError:
+                    value = raw
+                if child.kind in ("str", "choice") and isinstance(value, (int, float)):
+                    value = str(raw)
+                value, messages = check_value(value, child, dotted)
+                if messages:
+                    problems += [SettingProblem("--set", 0, 0, f"{where}: {m}") for m in messages]
+                    ok = False
+                    break
+                target[part] = value
+            else:
+                if target.get(part) is None:
+                    target[part] = {}
+                target = target[part]
+                node_spec = child
+        del ok
+    if problems:
+        raise ConfigError(problems)
+    return out
+
+
+def describe(spec: Field, prefix: str = "") -> list[str]:
+    """List every setting as ``dotted.key (kind, default): doc`` lines (for docs and help)."""
+    lines = []
+    for key, sub in spec.children.items():
+        name = f"{prefix}{key}"
+        if sub.kind == "map":
+            lines += describe(sub, name + ".")
+        else:
+            lines.append(f"{name} ({sub.kind}, default {sub.default!r}): {sub.doc}")
+    return lines
+
+
+# ---------------------------------------------------------------------- settings as dataclasses
+def setting(default: Any, doc: str, **spec: Any) -> Any:
+    """A dataclass field that is also a settings-file entry: one declaration for both.
+
+    ``spec`` holds the :class:`Field` limits (``min``, ``max``, ``choices``, ``nullable``,
+    ``kind``) and ``key``, the dotted key in the file when it differs from the field name
+    (``geofence.min_m`` for ``geofence_min_m``). :func:`schema_of` builds the file's schema
+    from these fields and :func:`from_settings` the dataclass from validated data.
+    """
+    meta = {"setting": {"doc": doc, **spec}}
+    if isinstance(default, (list, dict, tuple)):
+        return dataclasses.field(default_factory=lambda: copy.deepcopy(default), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _kind_of(default: Any, meta: dict[str, Any]) -> str:
+    if meta.get("kind"):
+        return meta["kind"]
+    if meta.get("choices"):
+        return "choice"
+    if isinstance(default, bool):
+        return "bool"
+    if isinstance(default, (int, float)):
+        return "float"
+    if isinstance(default, (list, tuple)):
+        return "vec"
+    return "str"
+
+
+def _settings(cls: type) -> list[tuple[dataclasses.Field, dict[str, Any], Any]]:
+    out = []
+    for f in dataclasses.fields(cls):
+        meta = f.metadata.get("setting")
+        if meta is None:
+            continue
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+        out.append((f, meta, default))
+    return out
+
+
+def schema_of(cls: type, doc: str = "") -> Field:
+    """The ``map`` schema of a settings dataclass (fields declared with :func:`setting`)."""
+    root = Field("map", doc=doc)
+    for f, meta, default in _settings(cls):
+        kind = _kind_of(default, meta)
+        limits = {k: v for k, v in meta.items() if k in ("min", "max", "nullable", "choices")}
+        if kind == "vec":
+            default = list(default)
+            limits["length"] = len(default)
+        spec = Field(kind, default, meta["doc"], **limits)
+        parts = meta.get("key", f.name).split(".")
+        node = root
+        for part in parts[:-1]:
+            node = node.children.setdefault(part, Field("map"))
+        node.children[parts[-1]] = spec
+    return root
+
+
+def from_settings(cls: type, data: dict[str, Any] | None, **extra: Any) -> Any:
+    """Build the settings dataclass ``cls`` from validated data (missing or null keys keep
+    their defaults; vectors become tuples); ``extra`` sets other fields."""
+    kw: dict[str, Any] = dict(extra)
+    for f, meta, default in _settings(cls):
+        value: Any = data or {}
+        for part in meta.get("key", f.name).split("."):
+            value = value.get(part) if isinstance(value, dict) else None
+        if value is None:
+            continue
+        if isinstance(default, tuple):
+            value = tuple(float(v) for v in value)
+        elif isinstance(default, float) and not isinstance(value, bool):
+            value = float(value)
+        kw[f.name] = value
+    return cls(**kw)

@@ -1,0 +1,522 @@
+"""The Vehicle API: what a mission leaf reads from and asks of one drone.
+
+The Vehicle sits between the leaves and a :class:`~drivers.vehicle.interfaces.Link` (plus an optional
+mocap :class:`~drivers.vehicle.interfaces.PoseSource` and :class:`~drivers.vehicle.interfaces.CameraSource`)::
+
+    leaf --go_to()--> Vehicle --reference--> control step (rate_hz) --set-point--> Link
+    leaf <--pose, progress, health-- Vehicle <--telemetry, mocap, frames-- sources
+
+Motion requests never block: each returns a :class:`~drivers.vehicle.progress.MotionProgress` that the
+control step refreshes. :meth:`control_step` (or :meth:`update`) must be called at the
+control rate; the platform does it (lock-step: inside ``before_tick``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from drivers.vehicle.angles import path_facing_yaw_rad, wrap_angle_rad, yaw_error_rad
+from drivers.vehicle.battery import percent_from_voltage
+from drivers.vehicle.config import VehicleConfig
+from drivers.vehicle.health import HealthTracker
+from drivers.vehicle.interfaces import CameraSource, Link, LinkTelemetry, PoseSample, PoseSource
+from drivers.vehicle.progress import MotionProgress
+from drivers.vehicle.trajectory import (
+    Limits,
+    LineReference,
+    PathReference,
+    Reference,
+    RefSample,
+    StopReference,
+)
+from drivers.vehicle.types import (
+    BatteryState,
+    CameraFrame,
+    FlightState,
+    HealthReport,
+    Pose,
+    Velocity,
+    YawMode,
+)
+
+AIRBORNE = (FlightState.TAKING_OFF, FlightState.FLYING, FlightState.LANDING)
+LAND_PRESS_MPS = 0.1  # descent speed asked for below the touch-down height while landing
+
+
+class Vehicle:
+    """One drone as the mission sees it (see the module docstring and docs/vehicle.md)."""
+
+    def __init__(
+        self,
+        link: Link,
+        config: VehicleConfig | None = None,
+        mocap: PoseSource | None = None,
+        camera: CameraSource | None = None,
+        name: str = "cf",
+    ) -> None:
+        self.name = name
+        self.link, self.mocap, self.camera = link, mocap, camera
+        self.config = config or VehicleConfig()
+        c = self.config
+        self.now_s = 0.0
+        self.flight_state = FlightState.LANDED
+        self.link_health = HealthTracker("link", c.link_stale_s)
+        self.mocap_health = HealthTracker("mocap", c.mocap_stale_s)
+        self.camera_health = HealthTracker("camera", c.camera_stale_s)
+        self.mocap_health.connected = mocap is not None
+        self.camera_health.connected = camera is not None
+        self._telemetry: LinkTelemetry | None = None
+        self._mocap: PoseSample | None = None
+        self._mocap_seq = -1
+        self._frame: CameraFrame | None = None
+        self._ref: Reference | None = None
+        self._ref_sample: RefSample | None = None
+        self._motion: MotionProgress | None = None
+        self._armed_cmd = False
+        self._armed_cmd_s = -math.inf
+        self._ground_z = 0.0
+        self._flight_start_s = 0.0
+        self._touchdown_since: float | None = None
+        self._battery_v: float | None = None
+        self._next_step_s = 0.0
+        self.setpoints_sent = 0
+
+    # ------------------------------------------------------------------ reading
+    @property
+    def pose(self) -> Pose:
+        """Best pose: fresh mocap if configured and healthy, else the onboard estimate."""
+        m = self._mocap
+        if (
+            m is not None
+            and self.config.pose_source == "mocap"
+            and self.now_s - self.mocap_health.last_new_s <= self.config.mocap_stale_s
+        ):
+            return Pose(m.x_m, m.y_m, m.z_m, m.yaw_rad, m.quaternion, m.t_s, "mocap")
+        tel = self._telemetry
+        if tel is not None:
+            return Pose(tel.x_m, tel.y_m, tel.z_m, tel.yaw_rad, tel.quaternion, tel.t_s, "onboard")
+        if m is not None:  # stale mocap is still better than nothing
+            return Pose(m.x_m, m.y_m, m.z_m, m.yaw_rad, m.quaternion, m.t_s, "mocap")
+        return Pose(0.0, 0.0, 0.0, 0.0)
+
+    @property
+    def position(self) -> tuple[float, float, float]:
+        """Position (x, y, z) in metres."""
+        return self.pose.position
+
+    @property
+    def yaw_rad(self) -> float:
+        """Yaw in radians, [-pi, pi)."""
+        return self.pose.yaw_rad
+
+    @property
+    def velocity(self) -> Velocity:
+        """World-frame velocity from the onboard estimate."""
+        tel = self._telemetry
+        if tel is None:
+            return Velocity()
+        return Velocity(tel.vx_mps, tel.vy_mps, tel.vz_mps)
+
+    @property
+    def is_flying(self) -> bool:
+        """True while taking off, flying or landing."""
+        return self.flight_state in AIRBORNE
+
+    @property
+    def is_landed(self) -> bool:
+        """True when on the ground with the motors stopped."""
+        return self.flight_state == FlightState.LANDED
+
+    @property
+    def is_crashed(self) -> bool:
+        """True after a crash (hard landing, collision, tumble)."""
+        return self.flight_state == FlightState.CRASHED
+
+    @property
+    def is_armed(self) -> bool:
+        """Armed state as reported by the drone (a newer request wins until confirmed)."""
+        tel = self._telemetry
+        if tel is None or self._armed_cmd_s >= tel.t_s:
+            return self._armed_cmd
+        return tel.armed
+
+    @property
+    def battery(self) -> BatteryState:
+        """Battery voltage (filtered over ~1 s), percentage estimate and low flag."""
+        v = self._battery_v if self._battery_v is not None else 0.0
+        return BatteryState(v, percent_from_voltage(v), 0.0 < v < self.config.low_battery_v)
+
+    @property
+    def health(self) -> HealthReport:
+        """Health of the link, the mocap and the camera at the current time."""
+        t = self.now_s
+        return HealthReport(
+            t,
+            self.link_health.report(t),
+            self.mocap_health.report(t),
+            self.camera_health.report(t),
+        )
+
+    def camera_frame(self) -> CameraFrame | None:
+        """The latest camera frame (with capture time and pose at capture), or None."""
+        return self._frame
+
+    @property
+    def reference(self) -> RefSample | None:
+        """The reference sampled at the last control step (None before the first motion)."""
+        return self._ref_sample
+
+    @property
+    def motion(self) -> MotionProgress | None:
+        """Progress of the current motion request (None if none was made)."""
+        return self._motion
+
+    def telemetry_row(self) -> dict:
+        """Vehicle state for the per-tick log (reported pose, reference, battery, state)."""
+        p = self.pose
+        r = self.reference
+        row = {
+            "x": round(p.x_m, 4),
+            "y": round(p.y_m, 4),
+            "z": round(p.z_m, 4),
+            "yaw": round(p.yaw_rad, 4),
+            "state": self.flight_state.value,
+            "vbat": round(self.battery.voltage_v, 3),
+        }
+        if r is not None:
+            row.update(
+                ref_x=round(r.x_m, 4),
+                ref_y=round(r.y_m, 4),
+                ref_z=round(r.z_m, 4),
+                ref_yaw=round(r.yaw_rad, 4),
+            )
+        return row
+
+    # ------------------------------------------------------------------ asking
+    def arm(self) -> bool:
+        """Arm the motors. Returns True if the request was sent."""
+        self._armed_cmd, self._armed_cmd_s = True, self.now_s
+        return bool(self.link.arm(True))
+
+    def disarm(self) -> bool:
+        """Disarm; refused (False) while airborne."""
+        if self.is_flying:
+            return False
+        self._armed_cmd, self._armed_cmd_s = False, self.now_s
+        return bool(self.link.arm(False))
+
+    def takeoff(self, height_m: float = 1.0, speed_mps: float = 0.5) -> MotionProgress:
+        """Climb ``height_m`` above the current position at ``speed_mps``."""
+        p, yaw = self.position, self.yaw_rad
+        goal = (p[0], p[1], p[2] + height_m)
+        progress = self._new_motion("takeoff", goal, yaw, None, None, None)
+        if self.flight_state in AIRBORNE:
+            progress.fail("already flying")
+            return progress
+        if self.flight_state == FlightState.CRASHED:
+            progress.fail("crashed")
+            return progress
+        if not self.is_armed:
+            if not self.config.auto_arm:
+                progress.fail("not armed")
+                return progress
+            self.arm()
+        self._ground_z = p[2]
+        self._flight_start_s = self.now_s
+        self._ref = LineReference(p, goal, yaw, yaw, self._limits(speed_mps), self.now_s)
+        self.flight_state = FlightState.TAKING_OFF
+        return progress
+
+    def go_to(
+        self,
+        x_m: float,
+        y_m: float,
+        z_m: float,
+        yaw_mode: YawMode | int = YawMode.KEEP_YAW,
+        yaw_rad: float = 0.0,
+        speed_mps: float = 0.5,
+        *,
+        position_tolerance_m: float | None = None,
+        yaw_tolerance_rad: float | None = None,
+        timeout_s: float | None = None,
+    ) -> MotionProgress:
+        """Fly a straight line to (x, y, z) with a yaw chosen by ``yaw_mode``.
+
+        PATH_FACING is computed at activation (current yaw kept if the horizontal distance is
+        below 0.1 m); yaw always turns the shortest way.
+        """
+        start, start_yaw = self._start_state()
+        goal = (float(x_m), float(y_m), float(z_m))
+        goal_yaw = self._goal_yaw(YawMode(int(yaw_mode)), yaw_rad, start, goal, start_yaw)
+        progress = self._new_motion(
+            "go_to", goal, goal_yaw, position_tolerance_m, yaw_tolerance_rad, timeout_s
+        )
+        if self._refuse_unless_flying(progress):
+            return progress
+        self._ref = LineReference(
+            start, goal, start_yaw, goal_yaw, self._limits(speed_mps), self.now_s
+        )
+        return progress
+
+    def follow_path(
+        self,
+        waypoints: Sequence[Sequence[float]],
+        speed_mps: float = 0.5,
+        yaw_mode: YawMode | int = YawMode.KEEP_YAW,
+        yaw_rad: float = 0.0,
+        *,
+        position_tolerance_m: float | None = None,
+        yaw_tolerance_rad: float | None = None,
+        timeout_s: float | None = None,
+    ) -> MotionProgress:
+        """Fly through ``waypoints`` [(x, y, z), ...] at one speed profile along the path."""
+        start, start_yaw = self._start_state()
+        points = [start] + [(float(w[0]), float(w[1]), float(w[2])) for w in waypoints]
+        mode = YawMode(int(yaw_mode))
+        yaws, yaw = [], start_yaw
+        for a, b in zip(points, points[1:], strict=False):
+            yaw = self._goal_yaw(mode, yaw_rad, a, b, yaw)
+            yaws.append(yaw)
+        progress = self._new_motion(
+            "follow_path",
+            points[-1],
+            yaws[-1] if yaws else start_yaw,
+            position_tolerance_m,
+            yaw_tolerance_rad,
+            timeout_s,
+        )
+        if not waypoints:
+            progress.fail("empty path")
+            return progress
+        if self._refuse_unless_flying(progress):
+            return progress
+        self._ref = PathReference(points, yaws, start_yaw, self._limits(speed_mps), self.now_s)
+        return progress
+
+    def hover(self) -> MotionProgress:
+        """Stop smoothly (acceleration-limited) and hold position and yaw."""
+        return self.stop()
+
+    def stop(self) -> MotionProgress:
+        """Cancel the current motion: decelerate at the acceleration limit and hold."""
+        start, yaw = self._start_state()
+        r = self._ref_sample
+        vel = (r.vx_mps, r.vy_mps, r.vz_mps) if r is not None and self._ref else (0, 0, 0)
+        ref = StopReference(start, vel, yaw, self._limits(None), self.now_s)
+        progress = self._new_motion("hold", ref.goal, yaw, None, None, None)
+        if self._refuse_unless_flying(progress):
+            return progress
+        self._ref = ref
+        return progress
+
+    def land(self, speed_mps: float = 0.5) -> MotionProgress:
+        """Descend to the take-off height at ``speed_mps``, then stop the motors."""
+        start, yaw = self._start_state()
+        goal = (start[0], start[1], self._ground_z)
+        progress = self._new_motion("land", goal, yaw, None, None, None)
+        if self._refuse_unless_flying(progress):
+            return progress
+        self._ref = LineReference(start, goal, yaw, yaw, self._limits(speed_mps), self.now_s)
+        self.flight_state = FlightState.LANDING
+        self._touchdown_since = None
+        return progress
+
+    def emergency_stop(self) -> None:
+        """Cut the motors now (the drone falls). The current motion fails."""
+        self.link.emergency_stop()
+        if self._motion is not None:
+            self._motion.fail("emergency stop")
+        self._ref = None
+        if self.flight_state != FlightState.CRASHED:
+            self.flight_state = FlightState.EMERGENCY
+
+    # ------------------------------------------------------------------ loop
+    def update(self, t_s: float) -> None:
+        """Run every control step due up to mission time ``t_s`` (for asynchronous links)."""
+        period = self.config.period_s
+        while self._next_step_s <= t_s + 1e-9:
+            self.control_step(self._next_step_s)
+            self._next_step_s += period
+
+    def control_step(self, t_s: float) -> None:
+        """One control step: read sources, update state and progress, send a set-point."""
+        self.now_s = t_s
+        self._ingest(t_s)
+        self._update_flight_state(t_s)
+        ref = self._ref.sample(t_s) if self._ref is not None else None
+        self._ref_sample = ref
+        self._update_progress(t_s, ref)
+        if ref is not None and self.flight_state in AIRBORNE:
+            self._send(ref)
+
+    def _ingest(self, t_s: float) -> None:
+        for tel in self.link.poll(t_s):
+            self._telemetry = tel
+            self.link_health.sample(t_s)
+            v = tel.battery_v
+            self._battery_v = (
+                v if self._battery_v is None else self._battery_v + 0.01 * (v - self._battery_v)
+            )
+        self.link_health.connected = self.link.connected
+        if self.mocap is not None:
+            for m in self.mocap.poll(t_s):
+                fresh = m.seq > self._mocap_seq
+                if fresh and self._mocap_seq >= 0 and m.seq > self._mocap_seq + 1:
+                    self.mocap_health.drop(m.seq - self._mocap_seq - 1)
+                self.mocap_health.sample(t_s, changed=fresh)
+                if fresh:
+                    self._mocap, self._mocap_seq = m, m.seq
+                    self.link.send_external_pose(m.x_m, m.y_m, m.z_m, m.quaternion)
+        if self.camera is not None:
+            frame = self.camera.poll(t_s)
+            if frame is not None:
+                self._frame = frame
+                self.camera_health.sample(t_s)
+
+    def _update_flight_state(self, t_s: float) -> None:
+        tel = self._telemetry
+        if tel is not None and (tel.crashed or tel.tumbled):
+            if self.flight_state != FlightState.CRASHED and self._motion is not None:
+                self._motion.fail("crashed")
+            self.flight_state = FlightState.CRASHED
+            self._ref = None
+            return
+        state = self.flight_state
+        link_ok = t_s - self.link_health.last_new_s <= self.config.link_stale_s
+        if state in AIRBORNE and self._motion is not None and not link_ok:
+            self._motion.fail("link lost")
+        if state in AIRBORNE and tel is not None and link_ok and not tel.motors_running:
+            # Motors stopped without our asking (firmware watchdog, supervisor).
+            if t_s - self._flight_start_s > 0.5:
+                if self._motion is not None:
+                    self._motion.fail("motors stopped")
+                self.flight_state, self._ref = FlightState.EMERGENCY, None
+                return
+        if state == FlightState.TAKING_OFF and self._motion is not None and self._motion.reached:
+            self.flight_state = FlightState.FLYING
+        if state == FlightState.LANDING and self._ref is not None and tel is not None:
+            r = self._ref.sample(t_s)
+            low = self.position[2] - self._ground_z < self.config.landed_height_m
+            if r.done and low and abs(tel.vz_mps) < 0.1:
+                if self._touchdown_since is None:
+                    self._touchdown_since = t_s
+                elif t_s - self._touchdown_since >= 0.2:
+                    self.link.send_stop_setpoint()
+                    self.flight_state, self._ref = FlightState.LANDED, None
+                    if self._motion is not None:
+                        self._motion.reached = self._motion.settled = True
+                        self._motion.reference_done = True
+            else:
+                self._touchdown_since = None
+        if state == FlightState.EMERGENCY and tel is not None and not tel.motors_running:
+            if abs(tel.vz_mps) < 0.05 and self.position[2] - self._ground_z < 0.05:
+                self.flight_state = FlightState.LANDED
+
+    def _update_progress(self, t_s: float, ref: RefSample | None) -> None:
+        m = self._motion
+        if m is None or not m.active or ref is None or self._ref is None:
+            return
+        pose = self.pose
+        if m.kind == "land":
+            m.update(
+                t_s,
+                self._ref.remaining_m(pose.position),
+                yaw_error_rad(m.goal_yaw_rad, pose.yaw_rad),
+                False,
+            )
+            return
+        m.update(
+            t_s,
+            self._ref.remaining_m(pose.position),
+            yaw_error_rad(m.goal_yaw_rad, pose.yaw_rad),
+            ref.done,
+        )
+
+    def _send(self, ref: RefSample) -> None:
+        c = self.config
+        self.setpoints_sent += 1
+        # Feed-forward velocity: the reference velocity led by the firmware velocity loop's lag
+        # (v_ref + lead * a_ref), so the drone's *actual* velocity follows v_ref.
+        lead_xy, lead_z = c.velocity_lead_s, c.velocity_lead_z_s
+        fx = ref.vx_mps + lead_xy * ref.ax_mps2
+        fy = ref.vy_mps + lead_xy * ref.ay_mps2
+        fz = ref.vz_mps + lead_z * ref.az_mps2
+        # A landing never asks to climb, and below the touch-down height it presses down at
+        # LAND_PRESS_MPS: the braking feed-forward near the floor would otherwise lift a
+        # drone that touched down a little early back off the floor.
+        landing = self.flight_state == FlightState.LANDING
+        low = landing and self.position[2] - self._ground_z < c.landed_height_m
+        if c.setpoint_mode == "velocity":
+            x, y, z = self.position
+            vx = fx + c.velocity_kp * (ref.x_m - x)
+            vy = fy + c.velocity_kp * (ref.y_m - y)
+            vz = fz + c.velocity_kp * (ref.z_m - z)
+            if landing:
+                vz = min(vz, -LAND_PRESS_MPS if low else 0.0)
+            speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+            if speed > c.max_speed_mps:
+                k = c.max_speed_mps / speed
+                vx, vy, vz = vx * k, vy * k, vz * k
+            rate = ref.yaw_rate_radps + c.yaw_kp * yaw_error_rad(ref.yaw_rad, self.yaw_rad)
+            self.link.send_velocity_setpoint(vx, vy, vz, rate)
+            return
+        # Position mode: the firmware sends v_sp = Kp * (sp - p); lead_s = 1 / Kp turns the
+        # offset lead_s * (feed-forward velocity) into exactly that feed-forward velocity.
+        lead = c.lead_s
+        z_sp = ref.z_m + lead * fz
+        self.link.send_position_setpoint(
+            ref.x_m + lead * fx,
+            ref.y_m + lead * fy,
+            min(z_sp, ref.z_m - (lead * LAND_PRESS_MPS if low else 0.0)) if landing else z_sp,
+            ref.yaw_rad,
+        )
+
+    # ------------------------------------------------------------------ helpers
+    def _limits(self, speed_mps: float | None) -> Limits:
+        c = self.config
+        speed = c.max_speed_mps if speed_mps is None else min(float(speed_mps), c.max_speed_mps)
+        return Limits(
+            max(speed, 1e-3),
+            c.accel_mps2,
+            math.radians(c.yaw_rate_dps),
+            math.radians(c.yaw_accel_dps2),
+        )
+
+    def _start_state(self) -> tuple[tuple[float, float, float], float]:
+        """Where a new reference starts: the current reference if any, else the pose."""
+        r = self._ref_sample
+        if r is not None and self._ref is not None and self.flight_state in AIRBORNE:
+            return r.position, r.yaw_rad
+        pose = self.pose
+        return pose.position, pose.yaw_rad
+
+    def _goal_yaw(self, mode: YawMode, yaw_rad: float, start, goal, current: float) -> float:
+        if mode == YawMode.FIXED_YAW:
+            return wrap_angle_rad(float(yaw_rad))
+        if mode == YawMode.PATH_FACING:
+            return path_facing_yaw_rad(start, goal, current, self.config.path_facing_min_distance_m)
+        return current
+
+    def _new_motion(self, kind, goal, goal_yaw, pos_tol, yaw_tol, timeout_s) -> MotionProgress:
+        c = self.config
+        if self._motion is not None:
+            self._motion.cancel(f"replaced by {kind}")
+        self._motion = MotionProgress(
+            kind=kind,
+            goal=tuple(goal),
+            goal_yaw_rad=goal_yaw,
+            position_tolerance_m=c.position_tolerance_m if pos_tol is None else pos_tol,
+            yaw_tolerance_rad=c.yaw_tolerance_rad if yaw_tol is None else yaw_tol,
+            started_s=self.now_s,
+            settle_time_s=c.settle_time_s,
+            timeout_s=timeout_s,
+        )
+        return self._motion
+
+    def _refuse_unless_flying(self, progress: MotionProgress) -> bool:
+        if self.flight_state in AIRBORNE:
+            self.flight_state = FlightState.FLYING
+            return False
+        progress.fail(f"not flying ({self.flight_state.value})")
+        return True

@@ -1,0 +1,120 @@
+"""btrun's own plug-in: the composition root where engine, drivers and perception meet.
+
+Named in ``pyproject.toml``'s ``btrun.plugins`` entry point as ``nodes.plugin:PLUGIN``.
+Importing it imports :mod:`nodes` (which registers every leaf). It gives the engine:
+
+* :meth:`DronePlugin.load_target` - a rig file (``rigs/sim.yaml`` by default) with
+  ``--set`` overrides, as a :class:`RigTarget`: the platform from
+  :mod:`drivers.rig.factory`, the safety supervisor's runner hook
+  (:mod:`nodes.safety_hook`) and the run's ``sim``/``vehicle`` and ``safety`` summaries;
+  rig problems come back as located :class:`~bt_engine.spec.Problem` s;
+* :meth:`DronePlugin.write_report` - the flight report (:mod:`nodes.report`);
+* :meth:`DronePlugin.commands` - ``btrun sim serve ...`` and ``btrun gallery ...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import nodes  # noqa: F401  (registers the leaves)
+from bt_engine.plugins import Command, Platform
+from bt_engine.spec import Loc, MissionError, Problem
+from drivers.rig.factory import make_platform
+from drivers.rig.loader import Rig, load_rig
+from drivers.settings import ConfigError
+from nodes.safety_hook import SafetyHook, make_safety_hook
+
+
+def config_problems(exc: ConfigError) -> list[Problem]:
+    """The located problems of a rig or world error, as the engine's :class:`Problem` s."""
+    return [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
+
+
+class RigTarget:
+    """A validated rig as the engine's :class:`~bt_engine.plugins.RunTarget`."""
+
+    def __init__(self, rig: Rig) -> None:
+        self.rig = rig
+        self.path: str | None = rig.path
+        self.realtime_factor: float | None = rig.realtime_factor
+
+    def resources(self) -> dict[str, Any]:
+        """The validated :class:`~drivers.rig.loader.Rig` as ``rig`` (perception leaves read
+        its camera settings and world)."""
+        return {"rig": self.rig}
+
+    def make_platform(self, clock: Any, seed: int) -> Platform:
+        """The platform of the rig (:func:`drivers.rig.factory.make_platform`)."""
+        try:
+            return make_platform(self.rig, clock, seed)
+        except ConfigError as exc:
+            raise MissionError(config_problems(exc)) from None
+
+    def make_hooks(self, platform: Platform, mission: Any) -> list[Any]:
+        """The safety supervisor's hook (first, so it lands before the platform stops)."""
+        hook = make_safety_hook(self.rig, platform, mission)
+        return [hook] if hook is not None else []
+
+    def run_summary(self, platform: Platform, hooks: list[Any]) -> dict[str, Any]:
+        """``sim`` (simulator ground truth) or ``vehicle`` (a real drone), and ``safety``."""
+        out: dict[str, Any] = {"sim" if self.rig.kind == "sim" else "vehicle": platform.summary()}
+        for hook in hooks:
+            if isinstance(hook, SafetyHook):
+                out["safety"] = hook.summary()
+        return out
+
+
+class DronePlugin:
+    """The :class:`~bt_engine.plugins.Plugin` of btrun's drone leaves."""
+
+    name = "btrun-drone"
+
+    def load_target(self, rig_path: str | None, overrides: dict[str, str]) -> RigTarget:
+        """Load and validate a rig file (None: ``rigs/sim.yaml``) with ``--set`` overrides."""
+        try:
+            return RigTarget(load_rig(rig_path, overrides))
+        except ConfigError as exc:
+            raise MissionError(config_problems(exc)) from None
+
+    def write_report(self, run_dir: str, trace: Any, summary: dict, mission: Any) -> str | None:
+        """Write the flight report of a run; return its path (None if nothing to plot)."""
+        from nodes.report import write_report  # matplotlib: only when a report is wanted
+
+        return write_report(run_dir, trace, summary, mission)
+
+    def commands(self) -> dict[str, Command]:
+        """``btrun sim serve crazyflie|aideck ...`` and ``btrun gallery ...``."""
+        from nodes import gallery_cli
+
+        return {
+            "sim": Command(
+                "simulator tools (btrun sim serve crazyflie|aideck)", _sim_setup, _sim_run
+            ),
+            "gallery": Command(
+                "enrolled pallets: btrun gallery list|enrol|remove|export|evaluate|demo",
+                gallery_cli.setup,
+                gallery_cli.run,
+            ),
+        }
+
+
+def _sim_setup(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="sim_command", metavar="SUBCOMMAND", required=True)
+    serve = sub.add_parser(
+        "serve",
+        help="run a software Crazyflie (CRTP over UDP) or AI-deck (CPX over TCP) on "
+        "loopback, for cfclient or the AI-deck viewers",
+    )
+    serve.add_argument("device", choices=("crazyflie", "aideck"))
+    serve.add_argument("args", nargs=argparse.REMAINDER, help="options of the emulator (--help)")
+
+
+def _sim_run(args: argparse.Namespace) -> int:
+    from drivers.rig.serve import SERVERS
+
+    return int(SERVERS[args.device](list(args.args)) or 0)
+
+
+#: The plug-in object the entry point names.
+PLUGIN = DronePlugin()
