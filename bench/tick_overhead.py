@@ -59,10 +59,10 @@ from py_trees.common import ParallelPolicy
 from py_trees.common import Status as PT
 
 from bt_engine import REGISTRY, RUNNING, SUCCESS, Mission, Runner, SimClock, WallClock
+from bt_engine.loading import load_xml
 from bt_engine.node import ConditionNode, StatefulActionNode
 from bt_engine.registry import Registry
 from bt_engine.ticklog import TickLog
-from bt_engine.xml_io import load_xml
 
 try:
     import behaviortreepy as bt

@@ -5,7 +5,8 @@ The engine knows nothing of drones; leaves register themselves in :data:`REGISTR
 
 from bt_engine import controls, decorators, leaves  # noqa: F401  (register built-ins)
 from bt_engine.clock import SimClock, WallClock
-from bt_engine.mission import Mission, check_file, load_spec
+from bt_engine.loading import load_spec
+from bt_engine.mission import Mission, check_file
 from bt_engine.node import (
     FAILURE,
     IDLE,

@@ -172,8 +172,8 @@ def _cmd_show(args) -> int:
 
 
 def _cmd_convert(args) -> int:
+    from bt_engine.loading import convert_file
     from bt_engine.registry import REGISTRY
-    from bt_engine.yaml_io import convert_file
 
     problems = convert_file(args.source, args.dest, REGISTRY)
     if problems:

@@ -12,40 +12,16 @@ This is the Python face of btrun for tests and tools::
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator, MutableMapping
 from typing import Any
 
 from bt_engine.builder import build_tree
 from bt_engine.clock import Clock, SimClock
+from bt_engine.loading import load_spec
 from bt_engine.node import FAILURE, RUNNING, SKIPPED, SUCCESS, BTNode, MissionContext, NodeStatus
 from bt_engine.registry import REGISTRY, Registry
-from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
+from bt_engine.spec import MissionError, MissionSpec, Problem
 from bt_engine.validate import validate
-
-
-def load_spec(path: str) -> MissionSpec:
-    """Read a mission file (``.xml``, ``.yaml``/``.yml``) into a spec (problems kept inside)."""
-    ext = os.path.splitext(path)[1].lower()
-    if ext in (".yaml", ".yml"):
-        from bt_engine.yaml_io import load_yaml
-
-        return load_yaml(path)
-    from bt_engine.xml_io import load_xml
-
-    if ext != ".xml" and os.path.exists(path):
-        spec = MissionSpec(file=path)
-        spec.load_problems.append(
-            Problem(
-                Loc(path, 1, 1), f"unknown mission file type '{ext}' (expected .xml, .yaml or .yml)"
-            )
-        )
-        return spec
-    if not os.path.exists(path):
-        spec = MissionSpec(file=path)
-        spec.load_problems.append(Problem(Loc(path, 0, 0), "mission file not found"))
-        return spec
-    return load_xml(path)
 
 
 def check_file(path: str, registry: Registry | None = None) -> tuple[MissionSpec, list[Problem]]:

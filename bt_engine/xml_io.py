@@ -15,10 +15,12 @@ from __future__ import annotations
 import bisect
 import os
 import re
+from collections.abc import Callable
 from typing import Any
 
 from lxml import etree
 
+from bt_engine.files import read_text
 from bt_engine.spec import (
     AttrSpec,
     Loc,
@@ -30,7 +32,6 @@ from bt_engine.spec import (
     TreeSpec,
 )
 
-MAX_FILE_BYTES = 5_000_000
 EXPLICIT_TAGS = ("Action", "Condition", "Control", "Decorator")
 PORT_TAGS = {"input_port": "input", "output_port": "output", "inout_port": "inout"}
 
@@ -89,9 +90,21 @@ def _is_element(el: Any) -> bool:
     return isinstance(el.tag, str)
 
 
+#: ``include(ref, loc, including_file, spec, stack)``: resolve and merge an included file.
+Include = Callable[[str, Loc, str, MissionSpec, tuple[str, ...]], None]
+
+
 class _Loader:
-    def __init__(self, file: str, text: str, spec: MissionSpec, stack: tuple[str, ...]) -> None:
+    def __init__(
+        self,
+        file: str,
+        text: str,
+        spec: MissionSpec,
+        stack: tuple[str, ...],
+        include: Include | None = None,
+    ) -> None:
         self.file = file
+        self.include = include
         self.text = text
         self.spec = spec
         self.stack = stack
@@ -283,60 +296,34 @@ class _Loader:
         if el.get("ros_pkg"):
             self.problem(self.attr_loc(el, "ros_pkg"), "ros_pkg includes are not supported")
             return
-        full = os.path.normpath(os.path.join(os.path.dirname(self.file), path))
-        if os.path.abspath(full) in self.stack:
-            chain = " -> ".join(os.path.basename(s) for s in self.stack) + f" -> {path}"
-            self.problem(self.attr_loc(el, "path"), f"include loop: {chain}")
+        if self.include is None:
+            self.problem(loc, "includes are resolved by bt_engine.loading.load_spec")
             return
-        if len(self.stack) > 20:
-            self.problem(self.attr_loc(el, "path"), "includes nested more than 20 deep")
-            return
-        if not os.path.isfile(full):
-            self.problem(self.attr_loc(el, "path"), f"included file not found: {full}")
-            return
-        self.spec.includes.append(full)
-        text = _read(full, self.problems, self.attr_loc(el, "path"))
-        if text is None:
-            return
-        if full.endswith((".yaml", ".yml")):
-            from bt_engine.yaml_io import merge_yaml_include
-
-            merge_yaml_include(full, text, self.spec, self.stack + (os.path.abspath(full),))
-            return
-        _Loader(full, text, self.spec, self.stack + (os.path.abspath(full),)).run()
+        self.include(path, self.attr_loc(el, "path"), self.file, self.spec, self.stack)
 
 
 def _comment_text(node: Any) -> str:
     return (node.text or "").strip() if isinstance(node, etree._Comment) else ""
 
 
-def _read(path: str, problems: list[Problem], loc: Loc | None = None) -> str | None:
-    where = loc or Loc(path, 1, 1)
-    try:
-        size = os.path.getsize(path)
-        if size > MAX_FILE_BYTES:
-            problems.append(Problem(where, f"file is {size} bytes; the limit is {MAX_FILE_BYTES}"))
-            return None
-        with open(path, "rb") as f:
-            data = f.read()
-    except OSError as exc:
-        problems.append(Problem(where, f"cannot read {path}: {exc.strerror or exc}"))
-        return None
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        problems.append(Problem(where, f"file is not UTF-8 text (byte {exc.start})"))
-        return None
+def merge_xml(
+    path: str, text: str, spec: MissionSpec, stack: tuple[str, ...], include: Include | None
+) -> None:
+    """Load the XML file ``path`` (already read into ``text``) into ``spec``; ``stack`` holds
+    the files being loaded, this one last; ``include`` resolves ``<include>`` elements."""
+    _Loader(path, text, spec, stack, include).run()
 
 
-def load_xml(path: str, text: str | None = None) -> MissionSpec:
-    """Load a BehaviorTree.CPP XML mission into a spec; problems land in ``load_problems``."""
+def load_xml(path: str, text: str | None = None, include: Include | None = None) -> MissionSpec:
+    """Load a BehaviorTree.CPP XML mission into a spec; problems land in ``load_problems``.
+
+    Includes need ``include`` (:func:`bt_engine.loading.load_spec` passes it)."""
     spec = MissionSpec(file=path)
     if text is None:
-        text = _read(path, spec.load_problems)
+        text = read_text(path, spec.load_problems)
         if text is None:
             return spec
-    _Loader(path, text, spec, (os.path.abspath(path),)).run()
+    merge_xml(path, text, spec, (os.path.abspath(path),), include)
     return spec
 
 

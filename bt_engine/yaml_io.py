@@ -16,6 +16,7 @@ from typing import Any
 import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
+from bt_engine.files import MAX_FILE_BYTES, read_text
 from bt_engine.ports import BOOL, PortValueError, blackboard_ref
 from bt_engine.registry import DECORATOR, KINDS, REGISTRY, SUBTREE, Registry, suggest_name
 from bt_engine.spec import (
@@ -29,7 +30,7 @@ from bt_engine.spec import (
     TreeSpec,
 )
 from bt_engine.validate import CONDITION_ATTRS, SPECIAL_ATTRS
-from bt_engine.xml_io import MAX_FILE_BYTES, _Loader, _read, dump_xml
+from bt_engine.xml_io import Include
 
 TOP_KEYS = ("btrun", "main", "include", "trees", "models")
 MODEL_KEYS = ("kind", "description", "ports")
@@ -63,8 +64,16 @@ _BAD = object()  # a value that was reported as a problem
 
 
 class _YamlLoader:
-    def __init__(self, file: str, text: str, spec: MissionSpec, stack: tuple[str, ...]) -> None:
+    def __init__(
+        self,
+        file: str,
+        text: str,
+        spec: MissionSpec,
+        stack: tuple[str, ...],
+        include: Include | None = None,
+    ) -> None:
         self.file, self.text, self.spec, self.stack = file, text, spec, stack
+        self.include = include
         self.top = len(stack) <= 1
         self.lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
         self.claimed: set[int] = set()  # 1-based lines already used (comments, scalars)
@@ -378,42 +387,34 @@ class _YamlLoader:
         self.spec.models.setdefault(mid, model)
 
     def _include(self, item: ScalarNode) -> None:
-        path, loc = item.value, self.loc(item)
-        full = os.path.normpath(os.path.join(os.path.dirname(self.file), path))
-        if os.path.abspath(full) in self.stack:
-            chain = " -> ".join(os.path.basename(s) for s in self.stack) + f" -> {path}"
-            self.problem(loc, f"include loop: {chain}")
-        elif len(self.stack) > 20:
-            self.problem(loc, "includes nested more than 20 deep")
-        elif not os.path.isfile(full):
-            self.problem(loc, f"included file not found: {full}")
-        else:
-            self.spec.includes.append(full)
-            text = _read(full, self.spec.load_problems, loc)
-            stack = self.stack + (os.path.abspath(full),)
-            if text is not None and full.endswith((".yaml", ".yml")):
-                merge_yaml_include(full, text, self.spec, stack)
-            elif text is not None:
-                _Loader(full, text, self.spec, stack).run()
+        if self.include is None:
+            self.problem(self.loc(item), "includes are resolved by bt_engine.loading.load_spec")
+            return
+        self.include(item.value, self.loc(item), self.file, self.spec, self.stack)
 
 
-def merge_yaml_include(path: str, text: str, spec: MissionSpec, stack: tuple[str, ...]) -> None:
+def merge_yaml(
+    path: str, text: str, spec: MissionSpec, stack: tuple[str, ...], include: Include | None
+) -> None:
     """Load the YAML file ``path`` (already read into ``text``) into ``spec``.
 
     ``stack`` holds the absolute paths of the files being loaded, this one last; only the
-    first file of the stack sets the main tree and the header comments.
+    first file of the stack sets the main tree and the header comments. ``include``
+    resolves ``include:`` entries.
     """
-    _YamlLoader(path, text, spec, stack).run()
+    _YamlLoader(path, text, spec, stack, include).run()
 
 
-def load_yaml(path: str, text: str | None = None) -> MissionSpec:
-    """Load a YAML mission into a spec; problems land in ``load_problems``, never raised."""
+def load_yaml(path: str, text: str | None = None, include: Include | None = None) -> MissionSpec:
+    """Load a YAML mission into a spec; problems land in ``load_problems``, never raised.
+
+    Includes need ``include`` (:func:`bt_engine.loading.load_spec` passes it)."""
     spec = MissionSpec(file=path)
     if text is None:
-        text = _read(path, spec.load_problems)
+        text = read_text(path, spec.load_problems)
         if text is None:
             return spec
-    merge_yaml_include(path, text, spec, (os.path.abspath(path),))
+    merge_yaml(path, text, spec, (os.path.abspath(path),), include)
     return spec
 
 
@@ -539,41 +540,3 @@ def dump_yaml(spec: MissionSpec, registry: Registry | None = None) -> str:
     ``"1;2;3"`` becomes ``[1.0, 2.0, 3.0]``; values of unknown ports stay text.
     """
     return _Dumper(spec, registry if registry is not None else REGISTRY).dump()
-
-
-def convert_file(src: str, dst: str, registry: Registry | None = None) -> list[Problem]:
-    """Convert a mission between XML and YAML (the format of ``dst`` by its extension).
-
-    Nothing is written if ``src`` has load problems; they are returned. Returns ``[]`` on
-    success.
-    """
-    from bt_engine.mission import load_spec
-
-    spec = load_spec(src)
-    if spec.load_problems:
-        return sorted(spec.load_problems, key=lambda p: (p.loc.file, p.loc.line, p.loc.col))
-    ext = os.path.splitext(dst)[1].lower()
-    if ext in (".yaml", ".yml"):
-        text = dump_yaml(spec, registry)
-    elif ext == ".xml":
-        roots = [r for t in spec.trees.values() for r in [t.root, *t.extra_roots] if r]
-        for holder in [spec, *spec.trees.values(), *(n for r in roots for n in r.walk())]:
-            holder.comments = [_xml_comment(c) for c in holder.comments]
-        text = dump_xml(spec)
-    else:
-        return [
-            Problem(Loc(dst, 0, 0), f"unknown output type '{ext}' (expected .xml, .yaml or .yml)")
-        ]
-    try:
-        with open(dst, "w", encoding="utf-8") as f:
-            f.write(text)
-    except OSError as exc:
-        return [Problem(Loc(dst, 0, 0), f"cannot write {dst}: {exc.strerror or exc}")]
-    return []
-
-
-def _xml_comment(text: str) -> str:
-    """XML comments may not contain ``--`` (common in YAML comments such as ``# --- x ---``)."""
-    while "--" in text:
-        text = text.replace("--", "- -")
-    return text

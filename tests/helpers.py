@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 from bt_engine import Mission, SimClock
-from bt_engine.xml_io import load_xml
+from bt_engine.loading import load_xml
 from drivers.rig.factory import make_platform
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

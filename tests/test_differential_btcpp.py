@@ -39,7 +39,7 @@ from bt_engine import (
     StatefulActionNode,
     SyncActionNode,
 )
-from bt_engine.xml_io import load_xml
+from bt_engine.loading import load_xml
 
 VARS = ("c0", "c1", "c2")
 BLACKBOARD = {v: 0 for v in VARS}

@@ -20,10 +20,9 @@ from hypothesis import strategies as st  # noqa: E402
 
 import nodes  # noqa: E402,F401  (registers the drone leaves)
 from bt_engine import Mission, SimClock  # noqa: E402
+from bt_engine.loading import load_xml, load_yaml  # noqa: E402
 from bt_engine.registry import REGISTRY  # noqa: E402
 from bt_engine.validate import validate  # noqa: E402
-from bt_engine.xml_io import load_xml  # noqa: E402
-from bt_engine.yaml_io import load_yaml  # noqa: E402
 from drivers.settings import ConfigError  # noqa: E402
 
 LOCATED = re.compile(r"^.+:\d+:\d+: \S")

@@ -113,8 +113,8 @@ def test_pallet_scan_xml_and_yaml_fly_identically(tmp_path):
 
 def test_yaml_copy_is_up_to_date(tmp_path):
     """missions/pallet_scan.yaml is generated from the XML: regenerate it when the XML changes."""
+    from bt_engine.loading import convert_file
     from bt_engine.registry import REGISTRY
-    from bt_engine.yaml_io import convert_file
 
     out = tmp_path / "p.yaml"
     assert convert_file(os.path.join(REPO, "missions", "pallet_scan.xml"), str(out), REGISTRY) == []

@@ -9,8 +9,8 @@ from helpers import wrap
 
 from bt_engine import REGISTRY
 from bt_engine.cli import main
+from bt_engine.loading import load_xml
 from bt_engine.validate import validate
-from bt_engine.xml_io import load_xml
 
 
 def problems_of(xml: str) -> list[str]:

@@ -9,13 +9,14 @@ import pytest
 import bt_engine  # noqa: F401  (registers the built-in nodes)
 from bt_engine import yaml_io
 from bt_engine.clock import SimClock
+from bt_engine.loading import convert_file, load_xml, load_yaml
 from bt_engine.mission import Mission, load_spec
 from bt_engine.node import SUCCESS, SyncActionNode
 from bt_engine.ports import FLOAT, PATH, VEC3, EnumType, input_port, output_port
 from bt_engine.registry import REGISTRY
 from bt_engine.validate import validate
-from bt_engine.xml_io import dump_xml, load_xml
-from bt_engine.yaml_io import convert_file, dump_yaml, load_yaml
+from bt_engine.xml_io import dump_xml
+from bt_engine.yaml_io import dump_yaml
 
 YAW = EnumType("YawMode", {"KEEP_YAW": 0, "PATH_FACING": 1, "FIXED_YAW": 2})
 

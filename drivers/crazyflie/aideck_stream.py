@@ -38,35 +38,11 @@ import numpy as np
 from drivers.crazyflie.cpx import AssembledImage, FrameAssembler, StreamParser, Target
 from drivers.vehicle.health import RateWindow
 from drivers.vehicle.types import CameraFrame, Pose
+from perception.white_balance import apply_white_balance, preprocess
 
 log = logging.getLogger(__name__)
 
 _NO_POSE = Pose(0.0, 0.0, 0.0, 0.0, source="none")
-
-
-def decode_bayer(raw: np.ndarray) -> np.ndarray:
-    """Demosaic an AI-deck Bayer frame (BG pattern) to BGR."""
-    import cv2
-
-    return cv2.cvtColor(raw, cv2.COLOR_BayerBG2BGR)
-
-
-def apply_white_balance(bgr: np.ndarray, factors: tuple[float, float, float]) -> np.ndarray:
-    """Multiply each channel (B, G, R) by its factor, saturating at 255."""
-    if all(f == 1.0 for f in factors):
-        return bgr
-    import cv2
-
-    luts = [np.clip(np.arange(256) * f, 0, 255).astype(np.uint8) for f in factors]
-    return cv2.merge([cv2.LUT(bgr[..., i], luts[i]) for i in range(3)])
-
-
-def _white_balanced(raw: np.ndarray, factors: tuple[float, float, float]) -> np.ndarray:
-    try:  # the perception package's pipeline, when present, so sim and rig agree
-        from perception.white_balance import preprocess  # type: ignore[import-not-found]
-    except ImportError:
-        return apply_white_balance(decode_bayer(raw), factors)
-    return preprocess(raw, np.asarray(factors, dtype=np.float32))
 
 
 def decode_image(img: AssembledImage) -> np.ndarray | None:
@@ -341,7 +317,7 @@ class AIDeckStream:
                 return False
         if self.output == "bgr":
             if image.ndim == 2:
-                image = _white_balanced(image, self.white_balance)
+                image = preprocess(image, self.white_balance)
             elif image.ndim == 3 and image.shape[2] == 3:
                 image = apply_white_balance(image, self.white_balance)
         latency = img.complete_time - img.header_time
