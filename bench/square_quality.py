@@ -38,7 +38,7 @@ PASS_FRACTION = 49 / 50
 
 
 def reference_overrides(gust_mps: float) -> dict[str, str]:
-    """The reference imperfections as rig overrides (see rigs/sim.yaml for the keys)."""
+    """The reference imperfections as rig overrides (docs/rig-settings.md lists the keys)."""
     return {
         "sensors.mocap.position_noise_std_m": "0.00005",  # upper end of Vicon on a Crazyflie
         "sensors.mocap.orientation_noise_std_deg": "0.1",

@@ -85,11 +85,16 @@ class DronePlugin:
 
     def commands(self) -> dict[str, Command]:
         """``btrun sim serve crazyflie|aideck ...`` and ``btrun gallery ...``."""
-        from nodes import gallery_cli
+        from nodes.gallery import cli as gallery_cli
 
         return {
             "sim": Command(
                 "simulator tools (btrun sim serve crazyflie|aideck)", _sim_setup, _sim_run
+            ),
+            "rig": Command(
+                "rig files: btrun rig settings [--markdown] | btrun rig check RIG [--set k=v]",
+                _rig_setup,
+                _rig_run,
             ),
             "gallery": Command(
                 "enrolled pallets: btrun gallery list|enrol|remove|export|evaluate|demo",
@@ -114,6 +119,34 @@ def _sim_run(args: argparse.Namespace) -> int:
     from drivers.rig.serve import SERVERS
 
     return int(SERVERS[args.device](list(args.args)) or 0)
+
+
+def _rig_setup(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="rig_command", metavar="SUBCOMMAND", required=True)
+    st = sub.add_parser("settings", help="every rig setting with its type, default and meaning")
+    st.add_argument("--markdown", action="store_true", help="as docs/rig-settings.md")
+    ck = sub.add_parser("check", help="validate a rig file (and its world); exit 2 if invalid")
+    ck.add_argument("rig", help="rig file")
+    ck.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+
+
+def _rig_run(args: argparse.Namespace) -> int:
+    from drivers.rig.schema import RIG_SCHEMA, settings_markdown
+    from drivers.settings import describe
+
+    if args.rig_command == "settings":
+        print(
+            settings_markdown() if args.markdown else "\n".join(describe(RIG_SCHEMA)),
+            end="" if args.markdown else "\n",
+        )
+        return 0
+    overrides = dict(item.split("=", 1) for item in args.set if "=" in item)
+    bad = [item for item in args.set if "=" not in item]
+    if bad:
+        raise MissionError([Problem(Loc("--set", 0, 0), f"expected KEY=VALUE, got {bad[0]!r}")])
+    PLUGIN.load_target(args.rig, overrides)  # raises MissionError with located problems
+    print(f"{args.rig}: ok")
+    return 0
 
 
 #: The plug-in object the entry point names.

@@ -3,7 +3,7 @@
 ``load_rig(path, overrides)`` validates a rig file (every problem located as
 ``file:line:col: message``, unknown keys with a "did you mean"), applies ``--set`` overrides
 and returns a :class:`Rig`; ``drivers.rig.factory.make_platform(rig, clock, seed)`` builds the
-platform the runner drives. ``rigs/sim.yaml`` documents every setting; :data:`RIG_SCHEMA` is the source of truth.
+platform the runner drives. :data:`~drivers.rig.schema.RIG_SCHEMA` declares every setting (docs/rig-settings.md).
 """
 
 from __future__ import annotations

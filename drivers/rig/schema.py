@@ -282,3 +282,38 @@ RIG_SCHEMA = _m(
 
 
 RIG_SCHEMA.children["safety"] = safety_schema()
+
+
+def settings_markdown() -> str:
+    """Every rig setting as a Markdown page (``docs/rig-settings.md`` is this text)."""
+    lines = [
+        "# Rig settings",
+        "",
+        "Generated from the rig schema (`btrun rig settings --markdown > docs/rig-settings.md`;",
+        "a test fails when this page is out of date). A rig file states only what differs from",
+        "these defaults; `--set dotted.key=value` overrides any of them for one run.",
+        "Units are in the names: `_m` metres, `_s` seconds, `_hz` hertz, `_deg` degrees,",
+        "`_mps` m/s, `_v` volts.",
+    ]
+
+    def section(spec: Field, prefix: str) -> None:
+        leaves = [(k, f) for k, f in spec.children.items() if f.kind != "map"]
+        maps = [(k, f) for k, f in spec.children.items() if f.kind == "map"]
+        if leaves:
+            lines.extend(["", f"## `{prefix or '(top level)'}`", ""])
+            if spec.doc:
+                lines.extend([spec.doc, ""])
+            lines.extend(["| key | type | default | meaning |", "|---|---|---|---|"])
+            for key, f in leaves:
+                kind = f.kind if f.kind != "choice" else " \\| ".join(map(str, f.choices))
+                if f.min is not None and f.max is not None:
+                    kind += f" {f.min:g}..{f.max:g}"
+                elif f.min is not None:
+                    kind += f" >= {f.min:g}"
+                doc = f.doc.replace("|", "\\|")
+                lines.append(f"| `{key}` | {kind} | `{f.default!r}` | {doc} |")
+        for key, f in maps:
+            section(f, f"{prefix}.{key}" if prefix else key)
+
+    section(RIG_SCHEMA, "")
+    return "\n".join(lines) + "\n"
