@@ -1,13 +1,13 @@
 """Flight campaign: seeded simulated pallet-scan missions, blocks found and pallets identified.
 
 Each run flies ``missions/pallet_scan.xml`` on the lock-step simulator (``rigs/sim.yaml``)
-with the reference study's imperfections: the Crazyflie's onboard yaw bias and its wander,
+with the imperfections of [study] (docs/references.md): the onboard yaw bias and its wander,
 mocap noise, the 3 cm / 15 deg go-to thresholds, and light gusts (``--gust``, m/s per axis)
 so that the drone holds the scan line only to a few centimetres, as in the study. The side
 standing at the scan slot cycles through the ten demo sides (1A .. 5B); seeds change the
 noise, the gusts, the renderer's light gradient and the sensor noise.
 
-Reported (reference study, FACTS.md section 1: blocks in 8 of 20 flights, 21 of 30 right):
+Reported ([study] in docs/references.md: blocks in 8 of 20 flights, 21 of 30 right):
 
 * blocks: runs whose first scan committed three blocks, and runs with three blocks after the
   one re-scan the mission allows;

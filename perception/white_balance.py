@@ -1,4 +1,4 @@
-"""White balance of the AI-deck's raw Bayer frames (the reference study's method).
+"""White balance of the AI-deck's raw Bayer frames: the method of [study] (docs/references.md).
 
 The raw sensor image looks green (twice as many green photosites, and their higher
 sensitivity). Calibration: point the camera at a uniform white surface once, decode the frame,
@@ -35,7 +35,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-PERCENT = 0.05  # per cent of each channel dropped at each end (reference study)
+PERCENT = 0.05  # per cent of each channel dropped at each end ([study])
 
 Factors = tuple[float, float, float]
 

@@ -11,5 +11,6 @@ import os
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 #: The rig a run uses when none is given: the built-in lock-step simulator.
 DEFAULT_RIG = os.path.join(REPO_ROOT, "rigs", "sim.yaml")
-#: The world of the default rig: the warehouse with the reference study's five pallets.
+#: The world of the default rig: the warehouse with the five pallets of [study]
+#: (docs/references.md).
 DEFAULT_WORLD = os.path.join(REPO_ROOT, "worlds", "warehouse.yaml")

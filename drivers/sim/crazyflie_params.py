@@ -1,7 +1,7 @@
 """Physical and firmware parameters of the simulated Crazyflie 2.x (plain dict, rotorpy-style).
 
 Gains and limits follow the Crazyflie firmware's PID position controller as summarised in
-FACTS.md section 7; values marked (approx.) are estimates, tune them from a rig file with
+[firmware] in docs/references.md; values marked (approx.) are estimates, tune them from a rig file with
 ``sim.params.<name>``.
 """
 

@@ -2,7 +2,7 @@
 
 Not a Kalman filter: a model of its errors. Position follows the truth while external poses
 arrive (mocap forwarded over the link) and random-walks away when they stop; the yaw estimate
-differs from the truth by a slowly wandering bias of a few degrees (FACTS.md section 6),
+differs from the truth by a slowly wandering bias of a few degrees ([study], docs/references.md),
 which rotates the thrust direction the controller asks for and so bends straight moves.
 """
 

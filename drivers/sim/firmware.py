@@ -1,6 +1,6 @@
 """The onboard software of the simulated Crazyflie: commander, watchdog and PID controller.
 
-Mirrors the firmware's cascaded PID position controller (FACTS.md section 7):
+Mirrors the firmware's cascaded PID position controller ([firmware], docs/references.md):
 position (100 Hz) -> velocity -> roll/pitch in degrees (clamped to +-20 deg) and thrust in
 PWM units; yaw angle -> yaw rate. The attitude loop itself is the first-order lag in
 :mod:`drivers.sim.dynamics`. The commander watchdog levels the drone 0.5 s after the last

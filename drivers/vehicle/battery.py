@@ -5,7 +5,7 @@ from __future__ import annotations
 import bisect
 
 FULL_V = 4.2
-LAND_BELOW_V = 3.2  # FACTS.md section 4: land below about 3.2 V
+LAND_BELOW_V = 3.2  # [cflib] (docs/references.md): land below about 3.2 V
 
 # Open-circuit voltage against state of charge (approx., typical 1S LiPo), ascending.
 OCV_CURVE: tuple[tuple[float, float], ...] = (

@@ -15,7 +15,7 @@ class VehicleConfig:
     Each field is declared once, here: the rig schema's ``control`` section is generated from
     these declarations (:func:`drivers.settings.schema_of`).
 
-    Defaults follow FACTS.md: 100 Hz loop, goto thresholds 3 cm / 15 deg of the reference
+    Defaults follow [firmware] and [study] (docs/references.md): 100 Hz loop, goto thresholds 3 cm / 15 deg of the reference
     study would be ``position_tolerance_m=0.03``; the default here is a little looser.
     """
 

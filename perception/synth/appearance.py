@@ -43,7 +43,7 @@ _DARK_BGR = np.array([40.0, 62.0, 92.0], np.float32)  # late wood / shadowed gra
 
 @dataclass(frozen=True)
 class PalletGeometry:
-    """EPAL europallet dimensions in metres (FACTS.md 7b); blocks are [along face, depth]."""
+    """EPAL europallet dimensions in metres ([epal], docs/references.md); blocks are [along face, depth]."""
 
     length_m: float = 1.2
     width_m: float = 0.8

@@ -9,7 +9,7 @@ camera pose. Every frame is a raw 244 x 324 uint8 BayerBG image like the real AI
 
 Per frame: motion blur from the pose change since the previous frame, noise from the given
 random generator (deterministic per seed), and an auto-exposure that re-adapts every 15th
-frame like the reference study's camera firmware. Chosen by the rig with
+frame like the camera firmware of [study] (docs/references.md). Chosen by the rig with
 ``sensors.camera.renderer: pallet``.
 """
 
@@ -30,7 +30,7 @@ from perception.synth.camera_model import CameraModel, CameraPose
 from perception.synth.render import BlockBox, Lighting, block_boxes, render_frame
 from perception.synth.scene import PalletSpec, Scene, SceneLight
 
-AE_PERIOD = 15  # frames between auto-exposure updates (reference study: every 15th frame)
+AE_PERIOD = 15  # frames between auto-exposure updates ([study]: every 15th frame)
 AE_TARGET = 95.0  # mean raw level the auto-exposure aims for
 
 
