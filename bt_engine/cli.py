@@ -58,6 +58,14 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         metavar="FACTOR",
         help="pace the run on the wall clock (optionally FACTOR times real time)",
     )
+    r.add_argument(
+        "--tick-budget",
+        type=float,
+        default=None,
+        metavar="S",
+        help="wall-clock seconds one tick may take before the watchdog stops the tree and "
+        "lands (default: 5 in real time, 300 lock-step)",
+    )
     r.add_argument("--quiet", "-q", action="store_true", help="print only the result")
     r.add_argument("--no-report", action="store_true", help="skip the flight report")
 
@@ -90,12 +98,33 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``btrun`` command; returns the exit code."""
+    from bt_engine.runner import catch_early_interrupts, release_early_interrupts
+
+    early = catch_early_interrupts()  # before anything slow: a Ctrl-C is never lost
+    try:
+        return _main(argv, early)
+    finally:
+        try:
+            release_early_interrupts(early)
+        except KeyboardInterrupt:
+            pass  # the run (if any) already acted on it
+
+
+def _main(argv: list[str] | None, early: dict | None) -> int:
+    from bt_engine.runner import release_early_interrupts
+
     argv = list(sys.argv[1:] if argv is None else argv)
     extra = plugin_commands()
     if argv and argv[0] not in COMMANDS and argv[0] not in extra and not argv[0].startswith("-"):
         argv.insert(0, "run")
     parser = _parser(extra)
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+        if args.command != "run":
+            release_early_interrupts(early)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 1
     if args.command is None:
         parser.print_help()
         return 2

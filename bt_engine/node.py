@@ -101,6 +101,9 @@ class MissionContext:
     messages: list[str] = field(default_factory=list)
     #: set by a node that wants the root ticked again at once (BehaviorTree.CPP wake-up)
     woken: bool = False
+    #: ``_onHalted`` scripts that failed: halting goes on (every node is halted), then the
+    #: runner ends the run with the first of these as its reason
+    halt_errors: list[str] = field(default_factory=list)
 
     def log(self, message: str) -> None:
         """Record a message from a node (shown by the runner, written to the tick log)."""
@@ -108,6 +111,25 @@ class MissionContext:
 
 
 _LITERAL, _REF = 0, 1
+
+#: Status changes recorded between two reads of the tick log before they are compacted
+#: (a loop that never leaves one tick must not grow memory without bound).
+CHANGE_LIMIT = 50_000
+
+
+def compact_changes(changes: list) -> None:
+    """Shrink a list of ``(node, old, new)`` status changes in place to what the tick log
+    and the failure report read: each node's first change (its status before the tick) and
+    each node's last SUCCESS/FAILURE, in the order they happened."""
+    first: dict[Any, tuple[int, tuple]] = {}
+    done: dict[Any, tuple[int, tuple]] = {}
+    for i, (n, old, st) in enumerate(changes):
+        if n not in first:
+            first[n] = (i, (n, old, st))
+        if st is SUCCESS or st is FAILURE:
+            done[n] = (i, (n, st, st))
+    keep = sorted([*first.values(), *done.values()], key=lambda item: item[0])
+    changes[:] = [t for _, t in keep]
 
 
 class BTNode(py_trees.behaviour.Behaviour):
@@ -142,6 +164,8 @@ class BTNode(py_trees.behaviour.Behaviour):
             changes = self._changes
             if changes is not None:
                 changes.append((self, old, status))
+                if len(changes) > CHANGE_LIMIT:  # a loop inside one tick: stay bounded
+                    compact_changes(changes)
 
     def reset_status(self) -> None:
         """Back to IDLE (BehaviorTree.CPP ``resetStatus``)."""
@@ -176,7 +200,14 @@ class BTNode(py_trees.behaviour.Behaviour):
         """Halt, then run the ``_onHalted`` script (BehaviorTree.CPP ``haltNode``)."""
         self.halt()
         if self._post is not None and "_onHalted" in self._post:
-            self._exec(self._post["_onHalted"])
+            try:
+                self._exec(self._post["_onHalted"])
+            except Exception as exc:  # nothing that happens while halting may stop the halt
+                if self.ctx is None:
+                    raise
+                msg = f"{self.describe()} ({self.loc}): _onHalted failed: {exc}"
+                self.ctx.halt_errors.append(msg)
+                self.ctx.log(msg)
 
     def _exec(self, script: Script) -> Any:
         return script.execute(self.scope, self.ctx.enums if self.ctx else None)

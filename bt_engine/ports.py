@@ -76,8 +76,8 @@ class FloatType(PortType):
             out = float(value.strip() if isinstance(value, str) else value)
         except (TypeError, ValueError):
             raise PortValueError(f"expected {self.expected}, got {value!r}") from None
-        if math.isnan(out):
-            raise PortValueError(f"expected {self.expected}, got NaN")
+        if not math.isfinite(out):  # NaN and +-inf never reach a leaf (or a set-point)
+            raise PortValueError(f"expected a finite number, got {value!r}")
         return out
 
     def to_text(self, value: Any) -> str:

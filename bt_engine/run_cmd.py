@@ -89,6 +89,12 @@ class _PlainLog:
             print(f"[{t:8.2f} s] {m}", flush=True)
 
 
+#: Default wall-clock budget of one tick (``--tick-budget``): in real time the drone waits
+#: for the tree; in lock-step the simulated drone cannot drift, only a hang must end.
+REALTIME_TICK_BUDGET_S = 5.0
+LOCKSTEP_TICK_BUDGET_S = 300.0
+
+
 @dataclass
 class PreparedRun:
     """Everything a run needs, built and checked before anything flies."""
@@ -158,7 +164,17 @@ def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
     otherwise); the tick log is closed afterwards."""
     args, mission, clock = run.args, run.mission, run.clock
     telemetry = run.platform.telemetry_row if run.platform is not None else None
-    runner = Runner(mission, args.rate, hooks=run.hooks, log=run.log, telemetry=telemetry)
+    budget = getattr(args, "tick_budget", None)
+    if budget is None:  # real time: the drone is waiting; lock-step: only a hang matters
+        budget = REALTIME_TICK_BUDGET_S if run.factor else LOCKSTEP_TICK_BUDGET_S
+    runner = Runner(
+        mission,
+        args.rate,
+        hooks=run.hooks,
+        log=run.log,
+        telemetry=telemetry,
+        tick_budget_s=budget,
+    )
     if not args.quiet:
         where = f"rig {run.target.path or '-'}" if run.target is not None else "no vehicle"
         mode = f"real time x{run.factor:g}" if run.factor else f"lock-step, seed {args.seed}"

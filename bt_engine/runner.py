@@ -9,6 +9,7 @@ sleeps until the next period. Ctrl-C or SIGTERM halts the tree and runs the shut
 from __future__ import annotations
 
 import signal
+import threading
 import time
 import traceback
 from collections.abc import Callable
@@ -18,6 +19,7 @@ from typing import Any, Protocol
 from bt_engine.mission import Mission
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeRuntimeError, NodeStatus
 from bt_engine.ticklog import TickLog
+from bt_engine.watchdog import TickOverrun, TickWatchdog
 
 
 class Hooks(Protocol):
@@ -56,6 +58,9 @@ class Runner:
         log: where to write one JSON line per tick (optional).
         telemetry: a callable returning a small dict of vehicle state for the tick log.
         on_tick: a callable run after every tick (e.g. the live terminal view).
+        tick_budget_s: wall-clock seconds one tick may take before the watchdog
+            (:mod:`bt_engine.watchdog`) ends the run ABORTED and the hooks land the drone;
+            None: no watchdog (``btrun`` always sets one).
     """
 
     def __init__(
@@ -66,6 +71,7 @@ class Runner:
         log: TickLog | None = None,
         telemetry: Callable[[], dict] | None = None,
         on_tick: Callable[[Runner], None] | None = None,
+        tick_budget_s: float | None = None,
     ) -> None:
         if not rate_hz > 0:
             raise ValueError(f"tick rate must be > 0 Hz, got {rate_hz}")
@@ -80,6 +86,8 @@ class Runner:
             )
         self.telemetry = telemetry
         self.on_tick = on_tick
+        self.tick_budget_s = tick_budget_s
+        self.watchdog: TickWatchdog | None = None
         self.trace: list[dict] = []
         self.keep_trace = True
         self.status: NodeStatus = mission.status
@@ -89,6 +97,10 @@ class Runner:
         self.interrupt_source = "Ctrl-C"
         self.last_record: dict = {}
         self.error_traceback = ""
+        #: exceptions raised by shutdown hooks (each hook still ran)
+        self.shutdown_errors: list[str] = []
+        self._shut: set[int] = set()
+        self._shutdown_lock = threading.RLock()
         self._last_wall: float | None = None
         self._t0 = self.clock.now()
         self._steps = 0
@@ -111,7 +123,15 @@ class Runner:
             fn = getattr(h, "before_tick", None)
             if fn is not None:
                 fn(t)
-        status = self.mission.tick()
+        wd = self.watchdog
+        if wd is not None:
+            wd.start_tick(self.mission.ticks + 1)
+            try:
+                status = self.mission.tick()
+            finally:
+                wd.end_tick()
+        else:
+            status = self.mission.tick()
         try:
             for h in self.hooks:
                 fn = getattr(h, "after_tick", None)
@@ -166,6 +186,17 @@ class Runner:
         reason = ""
         result = "FAILURE"
         old = _install_sigint(self)
+        if self.tick_budget_s is not None and self.watchdog is None:
+            self.watchdog = TickWatchdog(
+                self.tick_budget_s,
+                real_time=not getattr(self.clock, "is_simulated", False),
+                on_stuck=self._shutdown_hooks,
+                running=self._running_leaf,
+            )
+        if PENDING_INTERRUPTS:  # a signal arrived while btrun was still loading
+            self.interrupt_source = PENDING_INTERRUPTS[-1]
+            self._interrupted = 1
+            PENDING_INTERRUPTS.clear()
         try:
             while True:
                 if self._interrupted:
@@ -175,6 +206,11 @@ class Runner:
                     status = self.step()
                 except Abort as exc:
                     result, reason = "ABORTED", str(exc)
+                    break
+                except TickOverrun:
+                    wd = self.watchdog
+                    result, reason = "ABORTED", (wd.reason if wd else None) or "watchdog"
+                    self.mission.ctx.log(reason)
                     break
                 except NodeRuntimeError as exc:
                     result, reason = "ABORTED", str(exc)
@@ -186,6 +222,9 @@ class Runner:
                         "ABORTED",
                         f"internal error{where}: {type(exc).__name__}: {exc}",
                     )
+                    break
+                if self.mission.ctx.halt_errors:
+                    result, reason = "ABORTED", self.mission.ctx.halt_errors[0]
                     break
                 if status is SUCCESS:
                     result, reason = "SUCCESS", "the mission tree returned SUCCESS"
@@ -201,15 +240,27 @@ class Runner:
                     break
         finally:
             try:
+                # Nothing that happens while halting may skip the landing: a failing halt is
+                # recorded, and every shutdown hook still runs.
                 if result != "SUCCESS" or self.mission.root.bt_status is RUNNING:
-                    self.mission.halt()
+                    try:
+                        self.mission.halt()
+                    except Exception as exc:
+                        self.error_traceback += traceback.format_exc()
+                        reason += f"; halting the tree failed: {type(exc).__name__}: {exc}"
+                        result = "ABORTED" if result == "SUCCESS" else result
+                    errors = self.mission.ctx.halt_errors
+                    if errors and result != "ABORTED":
+                        result, reason = "ABORTED", errors[0]
+                    elif errors and errors[0] not in reason:
+                        reason += f"; while halting: {errors[0]}"
                 # Signals stay ours while the shutdown hooks land the drone: a second
                 # SIGINT/SIGTERM raises KeyboardInterrupt there (the supervisor cuts the motors).
-                for h in self.hooks:
-                    fn = getattr(h, "shutdown", None)
-                    if fn is not None:
-                        fn(reason if result != "SUCCESS" else "mission complete")
+                self._shutdown_hooks(reason if result != "SUCCESS" else "mission complete")
             finally:
+                if self.watchdog is not None:
+                    self.watchdog.close()
+                    self.watchdog = None
                 _restore_sigint(old)
                 if self.log is not None:
                     self.log.flush()
@@ -221,6 +272,27 @@ class Runner:
             time.perf_counter() - wall0,
             self.tick_periods_s,
         )
+
+    def _running_leaf(self) -> str:
+        """`` in <node> (<loc>)`` for the deepest running node (the watchdog's report)."""
+        nodes = list(self.mission.running_nodes())
+        return f" in {nodes[-1].describe()} ({nodes[-1].loc})" if nodes else ""
+
+    def _shutdown_hooks(self, why: str) -> None:
+        """Every hook's ``shutdown`` once, in order; one that raises does not stop the next."""
+        with self._shutdown_lock:
+            for h in self.hooks:
+                if id(h) in self._shut:
+                    continue
+                self._shut.add(id(h))
+                fn = getattr(h, "shutdown", None)
+                if fn is None:
+                    continue
+                try:
+                    fn(why)
+                except (Exception, KeyboardInterrupt, TickOverrun) as exc:
+                    self.error_traceback += traceback.format_exc()
+                    self.shutdown_errors.append(f"{type(exc).__name__}: {exc}")
 
     def interrupt(self) -> None:
         """Ask the run to stop at the next tick (what Ctrl-C does)."""
@@ -243,6 +315,42 @@ def _raising_node(exc: BaseException) -> str:
             found = obj
         tb = tb.tb_next
     return f" in {found.describe()} ({found.loc})" if found is not None else ""
+
+
+#: SIGINT/SIGTERM received before a run took the signals over (see :func:`catch_early_interrupts`)
+PENDING_INTERRUPTS: list[str] = []
+
+
+def catch_early_interrupts() -> dict | None:
+    """From now until a :class:`Runner` starts, remember SIGINT/SIGTERM instead of dying;
+    returns the handlers this replaced (for :func:`release_early_interrupts`).
+
+    ``btrun`` calls this first thing: a Ctrl-C while it loads (models, plug-ins, the rig) is
+    then never lost or half-handled by a library; the run that follows starts interrupted
+    (it ends ABORTED at once, nothing flies, the summary says so). Main thread only.
+    """
+
+    def handler(signum, frame):  # noqa: ARG001
+        PENDING_INTERRUPTS.append("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
+
+    PENDING_INTERRUPTS.clear()
+    old: dict = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, handler)
+    except ValueError:  # not in the main thread
+        _restore_sigint(old)
+        return None
+    return old
+
+
+def release_early_interrupts(old: dict | None) -> None:
+    """Give the signals back to the handlers :func:`catch_early_interrupts` replaced; a
+    signal that arrived meanwhile (and no run consumed) is raised now as KeyboardInterrupt."""
+    _restore_sigint(old)
+    if PENDING_INTERRUPTS:
+        PENDING_INTERRUPTS.clear()
+        raise KeyboardInterrupt
 
 
 def _install_sigint(runner: Runner) -> dict | None:

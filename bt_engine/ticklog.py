@@ -7,10 +7,19 @@ vehicle is attached, a small telemetry record. ``btrun replay`` reads it back.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
 from typing import IO, Any
+
+#: A blackboard value or message longer than this (as JSON) is logged as a note with its size
+#: and SHA-1 instead (the full value stays on the blackboard and in summary.json).
+VALUE_LIMIT_BYTES = 16_384
+#: Messages logged per tick at most (the rest are counted).
+MESSAGES_PER_TICK = 100
+#: Past this many bytes the log keeps only tick, time and status per line (and says so).
+LOG_LIMIT_BYTES = 256 * 1024 * 1024
 
 
 def to_jsonable(value: Any, depth: int = 0) -> Any:
@@ -38,19 +47,55 @@ def to_jsonable(value: Any, depth: int = 0) -> Any:
     return repr(value)
 
 
+def _bounded(value: Any) -> Any:
+    """``value`` (already JSON-friendly) or, past :data:`VALUE_LIMIT_BYTES`, a short note."""
+    if isinstance(value, (bool, int, float)) or value is None:
+        return value
+    if isinstance(value, str) and len(value) <= VALUE_LIMIT_BYTES // 4:
+        return value
+    text = json.dumps(value, separators=(",", ":"))
+    if len(text) <= VALUE_LIMIT_BYTES:
+        return value
+    digest = hashlib.sha1(text.encode("utf-8", "replace")).hexdigest()[:12]
+    return f"<{type(value).__name__} of {len(text)} bytes, sha1 {digest}: not logged>"
+
+
 class TickLog:
     """Append-only JSON-lines writer (line-buffered: each tick reaches the OS at once)."""
 
     def __init__(self, path: str, header: dict | None = None) -> None:
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
         self.path = path
+        self.bytes_written = 0
+        self.limited = False  # LOG_LIMIT_BYTES was reached
         self._f: IO[str] = open(path, "w", encoding="utf-8", buffering=1)
         if header is not None:
             self.write({"header": header})
 
     def write(self, record: dict) -> None:
-        """Write one record as a JSON line."""
-        self._f.write(json.dumps(to_jsonable(record), separators=(",", ":")) + "\n")
+        """Write one record as a JSON line (large values bounded, see the module limits)."""
+        rec = to_jsonable(record)
+        if "bb" in rec:
+            rec["bb"] = {k: _bounded(v) for k, v in rec["bb"].items()}
+        msgs = rec.get("messages")
+        if msgs:
+            extra = len(msgs) - MESSAGES_PER_TICK
+            msgs = [_bounded(m) for m in msgs[:MESSAGES_PER_TICK]]
+            if extra > 0:
+                msgs.append(f"... {extra} more messages in this tick not logged")
+            rec["messages"] = msgs
+        if self.bytes_written > LOG_LIMIT_BYTES and "header" not in rec:
+            slim = {k: rec[k] for k in ("tick", "t", "status") if k in rec}
+            if not self.limited:
+                self.limited = True
+                slim["messages"] = [
+                    f"tick log limit of {LOG_LIMIT_BYTES} bytes reached: from here on only "
+                    "tick, time and status are logged"
+                ]
+            rec = slim
+        line = json.dumps(rec, separators=(",", ":")) + "\n"
+        self.bytes_written += len(line)
+        self._f.write(line)
 
     def flush(self) -> None:
         """Flush to the OS."""

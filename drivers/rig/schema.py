@@ -192,7 +192,9 @@ RIG_SCHEMA = _m(
                 "connect_timeout_s": _f("float", 2.0, "TCP connect time-out", min=0.1),
                 "idle_timeout_s": _f("float", 3.0, "reconnect after this silence", min=0.1),
                 "emulator": _f(
-                    "bool", False, "start drivers/sim/emulators/aideck.py on 127.0.0.1 (port 0: free)"
+                    "bool",
+                    False,
+                    "start drivers/sim/emulators/aideck.py on 127.0.0.1 (port 0: free)",
                 ),
             },
             "AI-deck camera over WiFi (CPX over TCP)",

@@ -75,6 +75,8 @@ class SafetySupervisor:
         self.recovered = False
         self.recovery_s = 0.0
         self.interrupted = False
+        #: the motors were cut while the drone was in the air (it fell)
+        self.motors_cut = False
         self._published: dict[str, Any] = {}
         self._publish()
 
@@ -197,6 +199,7 @@ class SafetySupervisor:
                 self._fly(action)
         except KeyboardInterrupt:  # second SIGINT/SIGTERM: emergency stop
             self.interrupted = True
+            self.motors_cut = self.motors_cut or v.is_flying
             v.emergency_stop()
             self._step("emergency stop (second interrupt)")
         self.recovery_s = self._now() - t0
@@ -247,6 +250,7 @@ class SafetySupervisor:
         pol = self.config.policies.get(self.fault or "", Policy(action))
         down = lambda: not v.is_flying  # noqa: E731
         if action == "motors_off":
+            self.motors_cut = self.motors_cut or v.is_flying
             v.emergency_stop()
             self._step("motors off")
             return
@@ -287,6 +291,7 @@ class SafetySupervisor:
                 v.land(c.land_speed_mps)
             self._step("land")
             if not self._wait(down, c.max_recovery_s, deadline) and v.is_flying:
+                self.motors_cut = True
                 v.emergency_stop()
                 self._step(f"motors off: not landed within {fmt_number(c.max_recovery_s)} s")
 
@@ -298,6 +303,8 @@ class SafetySupervisor:
             s = summ()
             if "crashed" in s and "landed" in s:
                 state = "crashed" if s["crashed"] else "landed" if s["landed"] else "flying"
+                if state == "flying" and self.motors_cut:
+                    state = "motors_off"  # cut in the air, still falling when the run ended
                 return state, not s.get("armed", self.vehicle.is_armed)
         v = self.vehicle
         fs = v.flight_state
@@ -322,6 +329,7 @@ class SafetySupervisor:
             "actions": list(self.steps),
             "recovery_s": round(self.recovery_s, 3),
             "final_state": state,
+            "motors_cut": self.motors_cut,
             "disarmed": disarmed,
             "faults_seen": [r.as_dict() for r in self.monitor.history],
         }

@@ -252,6 +252,20 @@ class SimPlatform:
             self.step_to(t)
         if v.is_flying:  # could not land in time (e.g. link down): cut the motors
             v.emergency_stop()
+        # Motors cut in the air (second interrupt, supervisor, this shutdown): simulate the
+        # fall (bounded), so the ground truth says where and how it came down, not "flying".
+        fall_end = max(end, t) + 5.0
+        while self._falling() and t < fall_end:
+            if simulated:
+                t += 0.02
+            else:
+                self.clock.sleep_until(self.clock.now() + 0.02)
+                t = self.clock.now()
+            self.step_to(t)
+
+    def _falling(self) -> bool:
+        d = self.drone
+        return not d.body.on_ground and not d.firmware.motors_running and not d.crashed
 
     # ------------------------------------------------------------------ outputs
     def summary(self) -> dict:

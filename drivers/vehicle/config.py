@@ -55,6 +55,9 @@ class VehicleConfig:
     auto_arm: bool = setting(True, "takeoff arms the motors if needed")
     landed_height_m: float = setting(0.04, "touch-down height above take-off", min=0.0)
     low_battery_v: float = setting(3.2, "battery.low below this voltage", min=0.0)
+    max_altitude_m: float = setting(
+        5.0, "motion requests above this height over the take-off point are refused", min=0.1
+    )
     # not a rig setting: path-facing go-tos keep their yaw for shorter moves
     path_facing_min_distance_m: float = 0.1
 

@@ -81,6 +81,8 @@ class Vehicle:
         self._battery_v: float | None = None
         self._next_step_s = 0.0
         self.setpoints_sent = 0
+        self.refused_requests = 0  # motion requests refused (non-finite, out of envelope)
+        self.refused_setpoints = 0  # non-finite set-points held back (never sent)
 
     # ------------------------------------------------------------------ reading
     @property
@@ -207,8 +209,22 @@ class Vehicle:
         return bool(self.link.arm(False))
 
     def takeoff(self, height_m: float = 1.0, speed_mps: float = 0.5) -> MotionProgress:
-        """Climb ``height_m`` above the current position at ``speed_mps``."""
+        """Climb ``height_m`` above the current position at ``speed_mps``.
+
+        Refused (a failed progress, nothing sent) for a non-finite or non-positive height or
+        speed, or a goal above ``control.max_altitude_m``.
+        """
         p, yaw = self.position, self.yaw_rad
+        why = _bad_numbers(height_m=height_m, speed_mps=speed_mps) or _not_positive(
+            height_m=height_m, speed_mps=speed_mps
+        )
+        if why is None and p[2] + height_m - self._ground_ref_z() > self.config.max_altitude_m:
+            why = (
+                f"height_m={height_m!r} would climb above control.max_altitude_m="
+                f"{self.config.max_altitude_m:g} m"
+            )
+        if why is not None:
+            return self._refused("takeoff", why)
         goal = (p[0], p[1], p[2] + height_m)
         progress = self._new_motion("takeoff", goal, yaw, None, None, None)
         if self.flight_state in AIRBORNE:
@@ -244,8 +260,29 @@ class Vehicle:
         """Fly a straight line to (x, y, z) with a yaw chosen by ``yaw_mode``.
 
         PATH_FACING is computed at activation (current yaw kept if the horizontal distance is
-        below 0.1 m); yaw always turns the shortest way.
+        below 0.1 m); yaw always turns the shortest way. Refused (a failed progress, the
+        current motion goes on) for non-finite numbers, a non-positive speed or tolerance, or a
+        goal above ``control.max_altitude_m``.
         """
+        why = _bad_numbers(
+            x_m=x_m,
+            y_m=y_m,
+            z_m=z_m,
+            yaw_rad=yaw_rad,
+            speed_mps=speed_mps,
+            position_tolerance_m=position_tolerance_m,
+            yaw_tolerance_rad=yaw_tolerance_rad,
+            timeout_s=timeout_s,
+        ) or _not_positive(
+            speed_mps=speed_mps,
+            position_tolerance_m=position_tolerance_m,
+            yaw_tolerance_rad=yaw_tolerance_rad,
+            timeout_s=timeout_s,
+        )
+        if why is None:
+            why = self._above_ceiling(float(z_m))
+        if why is not None:
+            return self._refused("go_to", why)
         start, start_yaw = self._start_state()
         goal = (float(x_m), float(y_m), float(z_m))
         goal_yaw = self._goal_yaw(YawMode(int(yaw_mode)), yaw_rad, start, goal, start_yaw)
@@ -270,7 +307,28 @@ class Vehicle:
         yaw_tolerance_rad: float | None = None,
         timeout_s: float | None = None,
     ) -> MotionProgress:
-        """Fly through ``waypoints`` [(x, y, z), ...] at one speed profile along the path."""
+        """Fly through ``waypoints`` [(x, y, z), ...] at one speed profile along the path
+        (refused like :meth:`go_to` for bad numbers)."""
+        coords = {f"waypoints[{i}][{j}]": w[j] for i, w in enumerate(waypoints) for j in range(3)}
+        why = _bad_numbers(
+            speed_mps=speed_mps,
+            yaw_rad=yaw_rad,
+            position_tolerance_m=position_tolerance_m,
+            yaw_tolerance_rad=yaw_tolerance_rad,
+            timeout_s=timeout_s,
+            **coords,
+        ) or _not_positive(
+            speed_mps=speed_mps,
+            position_tolerance_m=position_tolerance_m,
+            yaw_tolerance_rad=yaw_tolerance_rad,
+            timeout_s=timeout_s,
+        )
+        if why is None:
+            why = next(
+                (w for w in (self._above_ceiling(float(p[2])) for p in waypoints) if w), None
+            )
+        if why is not None:
+            return self._refused("follow_path", why)
         start, start_yaw = self._start_state()
         points = [start] + [(float(w[0]), float(w[1]), float(w[2])) for w in waypoints]
         mode = YawMode(int(yaw_mode))
@@ -311,7 +369,11 @@ class Vehicle:
         return progress
 
     def land(self, speed_mps: float = 0.5) -> MotionProgress:
-        """Descend to the take-off height at ``speed_mps``, then stop the motors."""
+        """Descend to the take-off height at ``speed_mps``, then stop the motors. A bad speed
+        (non-finite, not positive) lands at the default 0.5 m/s instead: a landing is never
+        refused."""
+        if _bad_numbers(speed_mps=speed_mps) or _not_positive(speed_mps=speed_mps):
+            speed_mps = 0.5
         start, yaw = self._start_state()
         goal = (start[0], start[1], self._ground_z)
         progress = self._new_motion("land", goal, yaw, None, None, None)
@@ -435,6 +497,12 @@ class Vehicle:
 
     def _send(self, ref: RefSample) -> None:
         c = self.config
+        if not all(
+            math.isfinite(v)
+            for v in (ref.x_m, ref.y_m, ref.z_m, ref.yaw_rad, ref.vx_mps, ref.vy_mps, ref.vz_mps)
+        ):
+            self._hold_here("non-finite reference")
+            return
         self.setpoints_sent += 1
         # Feed-forward velocity: the reference velocity led by the firmware velocity loop's lag
         # (v_ref + lead * a_ref), so the drone's *actual* velocity follows v_ref.
@@ -459,12 +527,18 @@ class Vehicle:
                 k = c.max_speed_mps / speed
                 vx, vy, vz = vx * k, vy * k, vz * k
             rate = ref.yaw_rate_radps + c.yaw_kp * yaw_error_rad(ref.yaw_rad, self.yaw_rad)
+            if not all(math.isfinite(v) for v in (vx, vy, vz, rate)):
+                self._hold_here("non-finite velocity set-point")
+                return
             self.link.send_velocity_setpoint(vx, vy, vz, rate)
             return
         # Position mode: the firmware sends v_sp = Kp * (sp - p); lead_s = 1 / Kp turns the
         # offset lead_s * (feed-forward velocity) into exactly that feed-forward velocity.
         lead = c.lead_s
         z_sp = ref.z_m + lead * fz
+        if not all(math.isfinite(v) for v in (fx, fy, fz, z_sp)):
+            self._hold_here("non-finite position set-point")
+            return
         self.link.send_position_setpoint(
             ref.x_m + lead * fx,
             ref.y_m + lead * fy,
@@ -473,6 +547,40 @@ class Vehicle:
         )
 
     # ------------------------------------------------------------------ helpers
+    def _refused(self, kind: str, why: str) -> MotionProgress:
+        """A failed progress for a refused request; the current motion is left alone."""
+        self.refused_requests += 1
+        pose = self.pose
+        progress = MotionProgress(
+            kind=kind,
+            goal=pose.position,
+            goal_yaw_rad=pose.yaw_rad,
+            position_tolerance_m=self.config.position_tolerance_m,
+            yaw_tolerance_rad=self.config.yaw_tolerance_rad,
+            started_s=self.now_s,
+            settle_time_s=self.config.settle_time_s,
+        )
+        progress.fail(f"refused: {why}")
+        return progress
+
+    def _ground_ref_z(self) -> float:
+        return self._ground_z if self.flight_state in AIRBORNE else self.position[2]
+
+    def _above_ceiling(self, z_m: float) -> str | None:
+        ceiling = self._ground_ref_z() + self.config.max_altitude_m
+        if z_m > ceiling:
+            return f"z={z_m:g} m is above control.max_altitude_m ({ceiling:g} m here)"
+        return None
+
+    def _hold_here(self, why: str) -> None:
+        """Never send a non-finite set-point: hold at the measured pose instead."""
+        self.refused_setpoints += 1
+        if self._motion is not None and self._motion.active:
+            self._motion.fail(f"refused: {why}")
+        pose = self.pose
+        self._ref = StopReference(pose.position, (0.0, 0.0, 0.0), pose.yaw_rad,
+                                  self._limits(None), self.now_s)  # fmt: skip
+
     def _limits(self, speed_mps: float | None) -> Limits:
         c = self.config
         speed = c.max_speed_mps if speed_mps is None else min(float(speed_mps), c.max_speed_mps)
@@ -487,7 +595,8 @@ class Vehicle:
         """Where a new reference starts: the current reference if any, else the pose."""
         r = self._ref_sample
         if r is not None and self._ref is not None and self.flight_state in AIRBORNE:
-            return r.position, r.yaw_rad
+            if all(math.isfinite(v) for v in (*r.position, r.yaw_rad)):
+                return r.position, r.yaw_rad
         pose = self.pose
         return pose.position, pose.yaw_rad
 
@@ -520,3 +629,27 @@ class Vehicle:
             return False
         progress.fail(f"not flying ({self.flight_state.value})")
         return True
+
+
+def _bad_numbers(**values: object) -> str | None:
+    """Why one of ``values`` (None: not given) is not a finite number, or None."""
+    for name, v in values.items():
+        if v is None:
+            continue
+        if isinstance(v, bool):
+            return f"{name}={v!r} is not a number"
+        try:
+            f = float(v)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            return f"{name}={v!r} is not a number"
+        if not math.isfinite(f):
+            return f"{name}={v!r} is not finite"
+    return None
+
+
+def _not_positive(**values: object) -> str | None:
+    """Why one of ``values`` (None: not given) is not above zero, or None."""
+    for name, v in values.items():
+        if v is not None and float(v) <= 0.0:  # type: ignore[arg-type]
+            return f"{name}={v!r} must be above zero"
+    return None

@@ -1,0 +1,144 @@
+"""The tick watchdog: a thread outside the tree that ends a tick which never returns.
+
+BehaviorTree.CPP semantics allow a tick that loops forever (``Repeat num_cycles="-1"``
+around a child that finishes at once). btrun keeps those semantics but not the danger: the
+runner arms this watchdog around every tick. When a tick overruns its wall-clock budget the
+watchdog
+
+1. names the node the tree is stuck in (from the main thread's stack) and raises
+   :class:`TickOverrun` inside the main thread (an asynchronous exception, delivered at the
+   next Python bytecode), so the runner ends the run ABORTED with that located reason and
+   its shutdown hooks land the drone as after any other fault;
+2. if the main thread still has not come back after a second budget (stuck in native
+   code) and the run is in real time, calls ``on_stuck`` itself (the runner passes the
+   shutdown hooks: the safety supervisor lands the drone from this thread; the real-time
+   platform keeps sending set-points meanwhile).
+
+A lock-step simulation cannot drift while the tree is stuck (its clock does not move), so
+only step 1 applies there.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+
+class TickOverrun(BaseException):  # noqa: N818 - a BaseException: leaves' "except Exception" must not swallow it
+    """Raised in the main thread when one tick ran longer than its budget."""
+
+
+def _raise_in(thread_id: int, exc_type: type[BaseException]) -> bool:
+    done = ctypes.pythonapi.PyThreadState_SetAsyncExc(
+        ctypes.c_ulong(thread_id), ctypes.py_object(exc_type)
+    )
+    if done > 1:  # more than one thread state changed: undo
+        ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(thread_id), None)
+        return False
+    return done == 1
+
+
+def stuck_in(thread_id: int) -> str:
+    """`` in <node> (<file:line:col>)`` for the deepest tree node on ``thread_id``'s stack."""
+    frame = sys._current_frames().get(thread_id)
+    found = None
+    while frame is not None:
+        obj = frame.f_locals.get("self")
+        if obj is not None and hasattr(obj, "describe") and hasattr(obj, "loc"):
+            if found is None:
+                found = obj  # innermost first
+        frame = frame.f_back
+    if found is None:
+        return ""
+    try:
+        return f" in {found.describe()} ({found.loc})"
+    except Exception:  # pragma: no cover - a half-built node
+        return ""
+
+
+class TickWatchdog:
+    """Arm with :meth:`start_tick` before each tick and :meth:`end_tick` after it.
+
+    Args:
+        budget_s: wall-clock seconds one tick may take.
+        real_time: the run is paced by a wall clock (then step 2 applies).
+        on_stuck: called (once, from the watchdog thread) with the reason when the main
+            thread did not return within a second budget after step 1.
+    """
+
+    def __init__(
+        self,
+        budget_s: float,
+        real_time: bool = False,
+        on_stuck: Callable[[str], Any] | None = None,
+        running: Callable[[], str] | None = None,
+    ) -> None:
+        if not budget_s > 0:
+            raise ValueError(f"tick budget must be > 0 s, got {budget_s}")
+        self.budget_s = float(budget_s)
+        self.real_time = real_time
+        self.on_stuck = on_stuck
+        self.running = running
+        self.reason: str | None = None
+        self._main = threading.main_thread().ident or threading.get_ident()
+        self._target = threading.get_ident()
+        self._tick = 0
+        self._started: float | None = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._fired_at: float | None = None
+        self._stuck_called = False
+        self._thread = threading.Thread(target=self._loop, name="tick-watchdog", daemon=True)
+        self._thread.start()
+
+    def start_tick(self, tick: int) -> None:
+        """A tick begins (on the thread that ticks the tree)."""
+        with self._lock:
+            self._target = threading.get_ident()
+            self._tick = tick
+            self._started = time.monotonic()
+
+    def end_tick(self) -> None:
+        """The tick returned in time (or was ended): disarm."""
+        with self._lock:
+            self._started = None
+
+    def close(self) -> None:
+        """Stop the watchdog thread."""
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+
+    def _loop(self) -> None:
+        period = min(0.05, self.budget_s / 10.0)
+        while not self._stop.wait(period):
+            with self._lock:
+                started, tick, target = self._started, self._tick, self._target
+            now = time.monotonic()
+            if started is None:
+                continue
+            if self._fired_at is None and now - started > self.budget_s:
+                where = stuck_in(target)
+                if not where and self.running is not None:
+                    try:
+                        where = self.running()
+                    except Exception:  # pragma: no cover - the tree is mid-change
+                        where = ""
+                self.reason = (
+                    f"watchdog: tick {tick} did not return within {self.budget_s:g} s{where}; "
+                    "the tree was stopped and the drone landed"
+                )
+                self._fired_at = now
+                _raise_in(target, TickOverrun)
+            elif (
+                self._fired_at is not None
+                and self.real_time
+                and not self._stuck_called
+                and now - self._fired_at > self.budget_s
+                and self.on_stuck is not None
+            ):
+                self._stuck_called = True
+                self.on_stuck(self.reason or "watchdog")
