@@ -5,7 +5,8 @@ and the run folder is exactly what a user gets). The fault is injected at a rand
 mission time through the rig's ``faults.*`` settings, except:
 
 * ``geofence``: the geofence's far x wall is moved to a random x on the way to the pallet;
-* ``camera_stall``: the child process registers a blank renderer so that the camera runs;
+* ``camera_stall``: the rig's own ``pallet`` renderer streams (as in the default rig), then
+  the camera stops delivering frames;
 * ``leaf_exception``: the child process makes ``GoTo`` raise once the mission time passes;
 * ``sigint`` / ``sigterm``: the real ``btrun`` executable, paced at ``--realtime`` times real
   time, receives the signal at a random wall time after its tick log appears (a signal during
@@ -76,7 +77,7 @@ def plan(fault: str, i: int, base_seed: int) -> dict[str, Any]:
     elif fault == "mocap_freeze":
         sets += [f"faults.mocap_freeze.at_s={at}"]
     elif fault == "camera_stall":
-        sets += [f"faults.camera_stall.at_s={at}", "sensors.camera.renderer=campaign_blank"]
+        sets += [f"faults.camera_stall.at_s={at}", "sensors.camera.renderer=pallet"]
     elif fault == "battery_sag":
         sets += [
             f"faults.battery_sag.at_s={at}",
@@ -211,9 +212,7 @@ def run_one(job: dict[str, Any], out: str, realtime: float) -> dict[str, Any]:
 def child(job: dict[str, Any], argv: list[str]) -> int:
     """Child mode: install the job's test-only patches, then run ``btrun``."""
     from bt_engine.cli import main
-    from drivers.sim.renderers import register_renderer
 
-    register_renderer("campaign_blank", lambda **_: lambda pose, t_s: b"frame")
     if job["fault"] == "leaf_exception":
         import nodes.flight as flight
 
