@@ -45,6 +45,38 @@ log = logging.getLogger(__name__)
 _NO_POSE = Pose(0.0, 0.0, 0.0, 0.0, source="none")
 
 
+_SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+
+def jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's start-of-frame segment, without decoding; None if the
+    markers before it are malformed or there is none (linear in the header length)."""
+    i, n = 2, len(data)
+    while i + 4 <= n:
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a length
+            i += 2
+            continue
+        if marker == 0xDA or marker == 0xD9:  # scan data or end before any frame header
+            return None
+        length = (data[i + 2] << 8) | data[i + 3]
+        if length < 2:
+            return None
+        if marker in _SOF_MARKERS:
+            if i + 9 > n:
+                return None
+            height = (data[i + 5] << 8) | data[i + 6]
+            width = (data[i + 7] << 8) | data[i + 8]
+            return width, height
+        i += 2 + length
+    return None
+
+
 def decode_image(img: AssembledImage) -> np.ndarray | None:
     """The image array of an assembled frame, or None if it does not decode.
 
@@ -63,6 +95,10 @@ def decode_image(img: AssembledImage) -> np.ndarray | None:
         )
     p = img.payload
     if len(p) < 4 or p[:2] != b"\xff\xd8" or b"\xff\xd9" not in p[-16:]:
+        return None
+    # Decode only what the header announced: a tiny JPEG may declare 30000 x 30000 pixels
+    # (gigabytes once decoded); its frame size must be the header's (itself bounded by CPX).
+    if jpeg_size(p) != (h.width, h.height):
         return None
     import cv2
 
