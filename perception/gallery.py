@@ -18,9 +18,11 @@ Safety of the file:
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sqlite3
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -86,35 +88,29 @@ class Gallery:
             if not exist_ok:
                 raise GalleryError(f"{path}: a gallery already exists (remove it or open it)")
             return cls.open(path, model_version)
-        conn = _connect(path)
-        with conn:
-            conn.executescript(
-                """
-                CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-                CREATE TABLE entries (
-                    identity TEXT PRIMARY KEY,
-                    embeddings BLOB NOT NULL,
-                    created REAL NOT NULL,
-                    source TEXT NOT NULL DEFAULT ''
-                );
-                CREATE TABLE crops (
-                    identity TEXT NOT NULL REFERENCES entries(identity) ON DELETE CASCADE,
-                    block INTEGER NOT NULL,
-                    png BLOB NOT NULL,
-                    PRIMARY KEY (identity, block)
-                );
-                """
-            )
-            conn.executemany(
-                "INSERT INTO meta VALUES (?, ?)",
-                [
-                    ("schema_version", str(SCHEMA_VERSION)),
-                    ("model_version", model_version),
-                    ("dim", str(dim)),
-                    ("created", repr(time.time())),
-                ],
-            )
-        return cls(conn, path, model_version, dim)
+        if path == ":memory:":
+            conn = _connect(path)
+            _write_schema(conn, model_version, dim)
+            return cls(conn, path, model_version, dim)
+        # Built under a temporary name, then renamed: a process killed while creating leaves
+        # no half-made gallery behind (the next create or open sees no file at all).
+        folder = os.path.dirname(os.path.abspath(path))
+        tmp = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.creating")
+        try:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+            conn = _connect(tmp)
+            _write_schema(conn, model_version, dim)
+            conn.close()
+            os.replace(tmp, path)
+        except (OSError, sqlite3.Error) as exc:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+            raise GalleryError(
+                f"{path}: cannot create the gallery ({exc}): check that the folder exists "
+                "and is writable"
+            ) from None
+        return cls.open(path, model_version)
 
     @classmethod
     def open(cls, path: str, model_version: str | None = None) -> Gallery:
@@ -128,6 +124,13 @@ class Gallery:
             ok = conn.execute("PRAGMA quick_check").fetchone()[0]
             if ok != "ok":
                 raise GalleryError(f"{path}: the gallery file is damaged ({ok}); restore a backup")
+            tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master")}
+            missing = sorted({"meta", "entries", "crops"} - tables)
+            if missing:
+                raise GalleryError(
+                    f"{path}: not a complete btrun gallery (table {', '.join(missing)} "
+                    "missing); restore a backup or enrol into a new file"
+                )
             meta = dict(conn.execute("SELECT key, value FROM meta").fetchall())
         except sqlite3.DatabaseError as exc:
             raise GalleryError(f"{path}: not a readable gallery file ({exc})") from None
@@ -141,6 +144,10 @@ class Gallery:
             raise GalleryError(
                 f"{path}: gallery schema {schema}, this btrun reads {SCHEMA_VERSION}"
             )
+        if dim <= 0 or dim > 65536:
+            raise GalleryError(f"{path}: embedding size {dim} in its metadata is not valid")
+        _check_contents(conn, path, dim)
+        _parse_thresholds(meta, path)
         if model_version is not None and stored_version != model_version:
             raise GalleryError(
                 f"{path}: written by model '{stored_version}', but the embedder is "
@@ -178,7 +185,7 @@ class Gallery:
             raise GalleryError(f"enrol {identity}: embeddings contain NaN or infinity")
         if not identity or len(identity) > 64:
             raise GalleryError(f"enrol: identity must be 1-64 characters, got {identity!r}")
-        with self.conn:  # one transaction: all of it, or (if killed) none of it
+        with self._writing(f"enrol {identity}"), self.conn:  # one transaction: all or none
             exists = self.conn.execute(
                 "SELECT 1 FROM entries WHERE identity = ?", (identity,)
             ).fetchone()
@@ -195,14 +202,14 @@ class Gallery:
 
     def remove(self, identity: str) -> bool:
         """Remove ``identity``; return False if it was not enrolled."""
-        with self.conn:
+        with self._writing(f"remove {identity}"), self.conn:
             n = self.conn.execute("DELETE FROM entries WHERE identity = ?", (identity,)).rowcount
         self._cache = None
         return n > 0
 
     def set_thresholds(self, thresholds: Thresholds) -> None:
         """Store the "unknown" thresholds (calibrated on a validation set) in the file."""
-        with self.conn:
+        with self._writing("set thresholds"), self.conn:
             self.conn.executemany(
                 "INSERT OR REPLACE INTO meta VALUES (?, ?)",
                 [
@@ -214,9 +221,21 @@ class Gallery:
 
     def _load_thresholds(self) -> Thresholds:
         meta = dict(self.conn.execute("SELECT key, value FROM meta").fetchall())
-        return Thresholds(
-            float(meta.get("max_distance", "inf")), float(meta.get("min_margin", "0"))
-        )
+        return _parse_thresholds(meta, self.path)
+
+    @contextlib.contextmanager
+    def _writing(self, what: str) -> Iterator[None]:
+        """Turn SQLite's write errors into one clear :class:`GalleryError` (nothing written:
+        the transaction is rolled back)."""
+        try:
+            yield
+        except sqlite3.Error as exc:
+            hint = (
+                "the file or its folder is read-only: check the permissions"
+                if "readonly" in str(exc) or "read-only" in str(exc)
+                else "the file may be damaged or locked by another process"
+            )
+            raise GalleryError(f"{self.path}: cannot {what} ({exc}); {hint}") from None
 
     # -- reading ---------------------------------------------------------------------------
     def identities(self) -> list[str]:
@@ -330,3 +349,71 @@ def _connect(path: str) -> sqlite3.Connection:
     # FULL sync: a committed enrolment survives a power cut, not only a killed process.
     conn.execute("PRAGMA synchronous = FULL")
     return conn
+
+
+def _write_schema(conn: sqlite3.Connection, model_version: str, dim: int) -> None:
+    """Create the tables and the metadata of an empty gallery (one transaction)."""
+    with conn:
+        conn.executescript(
+            """
+            CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+            CREATE TABLE entries (
+                identity TEXT PRIMARY KEY,
+                embeddings BLOB NOT NULL,
+                created REAL NOT NULL,
+                source TEXT NOT NULL DEFAULT ''
+            );
+            CREATE TABLE crops (
+                identity TEXT NOT NULL REFERENCES entries(identity) ON DELETE CASCADE,
+                block INTEGER NOT NULL,
+                png BLOB NOT NULL,
+                PRIMARY KEY (identity, block)
+            );
+            """
+        )
+        conn.executemany(
+            "INSERT INTO meta VALUES (?, ?)",
+            [
+                ("schema_version", str(SCHEMA_VERSION)),
+                ("model_version", model_version),
+                ("dim", str(dim)),
+                ("created", repr(time.time())),
+            ],
+        )
+
+
+def _check_contents(conn: sqlite3.Connection, path: str, dim: int) -> None:
+    """Every entry holds exactly three embeddings of ``dim`` float32 numbers."""
+    want = BLOCKS * dim * 4
+    try:
+        bad = conn.execute(
+            "SELECT identity, length(embeddings) FROM entries WHERE length(embeddings) != ? "
+            "OR typeof(embeddings) != 'blob' LIMIT 1",
+            (want,),
+        ).fetchone()
+    except sqlite3.DatabaseError as exc:
+        raise GalleryError(f"{path}: the entries table cannot be read ({exc})") from None
+    if bad is not None:
+        raise GalleryError(
+            f"{path}: entry {bad[0]!r} holds {bad[1]} bytes of embeddings, expected {want} "
+            f"(3 blocks x {dim} numbers): the file is damaged or from another model; "
+            "remove the entry (btrun gallery remove) or re-enrol"
+        )
+
+
+def _parse_thresholds(meta: dict[str, str], path: str) -> Thresholds:
+    """The "unknown" thresholds stored in a gallery's metadata (checked: distances >= 0)."""
+    values = []
+    for key, default in (("max_distance", "inf"), ("min_margin", "0")):
+        text = meta.get(key, default)
+        try:
+            v = float(text)
+        except (TypeError, ValueError):
+            v = float("nan")
+        if v != v or v < 0 or (key == "min_margin" and v == float("inf")):
+            raise GalleryError(
+                f"{path}: threshold {key} = {text!r} is not a distance (the file is damaged); "
+                "re-create the gallery (its thresholds come from the embedder) or restore a backup"
+            )
+        values.append(v)
+    return Thresholds(values[0], values[1])

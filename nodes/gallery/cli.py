@@ -1,0 +1,227 @@
+"""``btrun gallery``: enrol, list, remove, export and check the pallets of a gallery file.
+
+::
+
+    btrun gallery list pallets.sqlite
+    btrun gallery enrol pallets.sqlite 7A --crops b1.png b2.png b3.png   # three crops, left to right
+    btrun gallery enrol pallets.sqlite 7A --run runs/20261122-101500      # what a flight scanned
+    btrun gallery enrol pallets.sqlite 2B --world-side 2B                 # a rendered scan (simulator)
+    btrun gallery remove pallets.sqlite 7A
+    btrun gallery export pallets.sqlite out/      # entries.json, embeddings.npy, crops as PNG
+    btrun gallery evaluate pallets.sqlite         # how far apart the enrolled sides are
+    btrun gallery demo                            # build (if needed) and show the demo gallery
+
+``demo`` stands for the demo gallery wherever a gallery is named. Errors are one line each,
+with exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import os
+import sys
+from typing import Any
+
+import numpy as np
+
+
+class GalleryCommandError(Exception):
+    """A user error of ``btrun gallery`` (printed, exit code 2)."""
+
+
+def setup(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``btrun gallery``."""
+    sub = p.add_subparsers(dest="gallery_command", metavar="SUBCOMMAND", required=True)
+    ls = sub.add_parser("list", help="the enrolled pallet sides")
+    ls.add_argument("gallery")
+    en = sub.add_parser("enrol", help="enrol a pallet side from crops, a run or a rendered scan")
+    en.add_argument("gallery", help="gallery file (created if missing)")
+    en.add_argument("name", help="identity, e.g. 7A")
+    src = en.add_mutually_exclusive_group(required=True)
+    src.add_argument("--crops", nargs=3, metavar="PNG", help="three block crops, left to right")
+    src.add_argument("--run", metavar="RUN_DIR", help="a run folder whose scan found 3 blocks")
+    src.add_argument("--world-side", metavar="ID", help="render an enrolment scan of this side")
+    en.add_argument("--no-replace", action="store_true", help="refuse if NAME is enrolled")
+    rm = sub.add_parser("remove", help="remove a pallet side")
+    rm.add_argument("gallery")
+    rm.add_argument("name")
+    ex = sub.add_parser("export", help="write entries.json, embeddings.npy and the crops")
+    ex.add_argument("gallery")
+    ex.add_argument("out_dir")
+    ev = sub.add_parser("evaluate", help="distances between the enrolled sides vs the thresholds")
+    ev.add_argument("gallery")
+    sub.add_parser("demo", help="build (if needed) the demo gallery and print its path")
+    for sp in (ls, en, rm, ex, ev, sub.choices["demo"]):
+        sp.add_argument("--rig", default=None, help="rig (for the camera and world; default sim)")
+        sp.add_argument("--embedder", default="", help="embedder weights (default: shipped)")
+        sp.add_argument("--detector", default="", help="detector weights (default: shipped)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run one ``btrun gallery`` subcommand; return the exit code."""
+    from nodes.perception_session import PerceptionError
+
+    try:
+        return _COMMANDS[args.gallery_command](args)
+    except (GalleryCommandError, PerceptionError) as exc:
+        print(f"btrun gallery: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:
+        from perception.errors import ModelError
+        from perception.gallery import GalleryError
+
+        if isinstance(exc, (GalleryError, ModelError)):
+            print(f"btrun gallery: {exc}", file=sys.stderr)
+            return 2
+        raise
+
+
+def _session(args: argparse.Namespace) -> Any:
+    from drivers.rig.loader import load_rig
+    from nodes.perception_session import PerceptionSession
+
+    return PerceptionSession(load_rig(args.rig), log=print)
+
+
+def _open(args: argparse.Namespace, create: bool = False) -> tuple[Any, Any]:
+    s = _session(args)
+    emb = s.embedder(args.embedder)
+    spec = args.gallery
+    if spec != "demo" and not create and not os.path.exists(spec):
+        raise GalleryCommandError(f"{spec}: no such gallery file")
+    det = s.detector(args.detector) if spec == "demo" else None
+    return s, s.gallery(spec, emb, create=create, detector=det)
+
+
+def _list(args: argparse.Namespace) -> int:
+    _, g = _open(args)
+    th = g.thresholds
+    print(f"{g.path}: {len(g)} pallet sides, model {g.model_version}")
+    print(f"unknown above mean distance {th.max_distance:.3f} or below margin {th.min_margin:.3f}")
+    import time
+
+    for e in g.entries():
+        when = time.strftime("%Y-%m-%d %H:%M", time.localtime(e["created"]))
+        print(f"  {e['identity']:<12} {when}  {e['crops']} crops  {e['source']}")
+    return 0
+
+
+def _read_png(path: str) -> np.ndarray:
+    import cv2
+
+    img = cv2.imread(path, cv2.IMREAD_COLOR)
+    if img is None:
+        raise GalleryCommandError(f"{path}: not a readable image")
+    return img
+
+
+def _crops_of_run(run_dir: str) -> list[np.ndarray]:
+    paths = sorted(glob.glob(os.path.join(run_dir, "perception", "block_*.png")))
+    if len(paths) < 3:
+        raise GalleryCommandError(
+            f"{run_dir}: no scan with three blocks (expected perception/block_1..3.png)"
+        )
+    return [_read_png(p) for p in paths[-3:]]
+
+
+def _enrol(args: argparse.Namespace) -> int:
+    from nodes.gallery.demo import png_bytes, scan_blocks, scan_frames
+
+    if args.gallery == "demo":
+        raise GalleryCommandError("the demo gallery is generated: enrol into your own file")
+    s, g = _open(args, create=True)
+    emb = s.embedder(args.embedder)
+    if args.crops:
+        crops, source = [_read_png(p) for p in args.crops], "crops " + " ".join(args.crops)
+    elif args.run:
+        crops, source = _crops_of_run(args.run), f"run {args.run}"
+    else:
+        world = s.world_path()
+        if world is None:
+            raise GalleryCommandError("--world-side needs a rig with a world")
+        frames = scan_frames(world, args.world_side, s.camera)
+        crops = scan_blocks(frames, s.detector(args.detector), s.factors)
+        source = f"rendered scan of {args.world_side}"
+        if len(crops) < 3:
+            raise GalleryCommandError(
+                f"the scan of {args.world_side} found {len(crops)} of 3 blocks"
+            )
+    g.enrol(args.name, emb.embed(crops), [png_bytes(c) for c in crops], source, not args.no_replace)
+    print(f"enrolled {args.name} in {g.path} ({len(g)} pallet sides)")
+    return 0
+
+
+def _remove(args: argparse.Namespace) -> int:
+    _, g = _open(args)
+    if not g.remove(args.name):
+        raise GalleryCommandError(f"{args.name} is not enrolled in {g.path}")
+    print(f"removed {args.name} from {g.path} ({len(g)} pallet sides left)")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    _, g = _open(args)
+    os.makedirs(args.out_dir, exist_ok=True)
+    ids, matrix = g.matrix()
+    np.save(os.path.join(args.out_dir, "embeddings.npy"), matrix)
+    entries = g.entries()
+    for e in entries:
+        for i, png in enumerate(g.crops(e["identity"])):
+            name = f"{e['identity']}_block_{i + 1}.png"
+            with open(os.path.join(args.out_dir, name), "wb") as f:
+                f.write(png)
+    meta = {
+        "gallery": os.path.abspath(g.path),
+        "model_version": g.model_version,
+        "thresholds": {
+            "max_distance": g.thresholds.max_distance,
+            "min_margin": g.thresholds.min_margin,
+        },
+        "identities": ids,
+        "entries": entries,
+    }
+    with open(os.path.join(args.out_dir, "entries.json"), "w") as f:
+        json.dump(meta, f, indent=1, default=str)
+    print(f"exported {len(ids)} pallet sides of {g.path} to {args.out_dir}")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from perception.gallery import block_distances
+
+    _, g = _open(args)
+    ids, m = g.matrix()
+    if len(ids) < 2:
+        raise GalleryCommandError(f"{g.path}: needs at least two pallet sides to compare")
+    th = g.thresholds
+    print(
+        f"{g.path}: {len(ids)} sides; unknown above {th.max_distance:.3f}, margin {th.min_margin:.3f}"
+    )
+    print(f"  {'side':<10} {'nearest other':<14} {'mean distance':>13}")
+    worst = None
+    for i, ident in enumerate(ids):
+        d = block_distances(m[i], m).mean(axis=1)
+        d[i] = np.inf
+        j = int(np.argmin(d))
+        flag = "  <- closer than the unknown threshold" if d[j] <= th.max_distance else ""
+        print(f"  {ident:<10} {ids[j]:<14} {d[j]:>13.3f}{flag}")
+        worst = d[j] if worst is None else min(worst, d[j])
+    print(f"closest pair: {worst:.3f}")
+    return 0
+
+
+def _demo(args: argparse.Namespace) -> int:
+    args.gallery = "demo"
+    return _list(args)
+
+
+_COMMANDS = {
+    "list": _list,
+    "enrol": _enrol,
+    "remove": _remove,
+    "export": _export,
+    "evaluate": _evaluate,
+    "demo": _demo,
+}
