@@ -155,3 +155,17 @@ def test_overrides_are_type_checked_and_unknown_keys_suggested():
 def test_overrides_schedule_faults():
     rig = load_rig(None, {"faults.link_drop.at_s": "12.5"})
     assert rig.data["faults"]["link_drop"]["at_s"] == 12.5
+
+
+def test_summary_sim_names_every_pallet_and_where_it_stands() -> None:
+    from bt_engine import SimClock
+    from drivers.rig.factory import make_platform
+
+    rig = load_rig(None, {"world.scan_pallet": "2B"})
+    platform = make_platform(rig, SimClock(), seed=0)
+    pallets = platform.summary()["pallets"]
+    assert [p["identity"] for p in pallets] == ["2B", "1A", "3A", "4A", "5A"]
+    scan = pallets[0]
+    assert scan["slot"] == "scan" and scan["face_centre_m"][0] == 9.3
+    assert scan["block_centre_z_m"] == 0.255  # raised on the stand: blocks at scan height
+    assert all(p["block_centre_z_m"] == 0.061 for p in pallets[1:])  # on the floor

@@ -297,6 +297,7 @@ class SimPlatform:
             "collisions": list(d.collisions),
             "faults": self.faults.summary(),
             "scan_pallet": self.world.scan_pallet if self.world is not None else None,
+            "pallets": self.world.ground_truth() if self.world is not None else [],
             "yaw_bias_deg": round(math.degrees(d.estimator.yaw_bias_rad), 3),
             "shutdown_reason": self.shutdown_reason,
         }

@@ -275,6 +275,27 @@ class World:
             )
         self.max_top_z = max((b.top_z for b in self.boxes), default=-math.inf)
 
+    def ground_truth(self) -> list[dict]:
+        """Which pallet side stands where: per pallet its identity (pallet and side shown),
+        footprint centre, base height, facing and the height of its block centre line (for
+        ``summary.json``'s ``sim.pallets``; the first is the scanned pallet)."""
+        g = self.data["pallet_geometry"]
+        out = []
+        for i, p in enumerate(self.pallets):
+            fx, fy, fz = p.face_center_m
+            out.append(
+                {
+                    "identity": p.identity,
+                    "slot": "scan" if i == 0 else f"row[{i - 1}]",
+                    "centre_m": [round(p.x_m, 4), round(p.y_m, 4)],
+                    "base_z_m": round(p.z_m, 4),
+                    "face_centre_m": [round(fx, 4), round(fy, 4), round(fz, 4)],
+                    "facing_deg": round(math.degrees(p.facing_rad), 2),
+                    "block_centre_z_m": round(p.z_m + g["board_m"] + g["block_height_m"] / 2.0, 4),
+                }
+            )
+        return out
+
     def identities(self) -> list[str]:
         """All identities ("1A", "1B", ...) that exist in the world file."""
         return identities(self.data)
