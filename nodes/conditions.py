@@ -13,7 +13,7 @@ import math
 
 from bt_engine.node import ConditionNode, NodeRuntimeError
 from bt_engine.ports import BOOL, FLOAT, VEC3, input_port
-from bt_engine.registry import REGISTRY
+from bt_engine.registry import register
 from nodes.common import CATEGORY_CHECK, angle_input, vehicle_of
 
 
@@ -21,6 +21,7 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
+@register
 class IsFlying(ConditionNode):
     """SUCCESS while the drone is in the air (taking off, flying or landing)."""
 
@@ -31,6 +32,7 @@ class IsFlying(ConditionNode):
         return vehicle_of(self).is_flying
 
 
+@register
 class IsAtPosition(ConditionNode):
     """SUCCESS if the drone is within ``threshold`` metres of ``pose`` ("x;y;z")."""
 
@@ -47,6 +49,7 @@ class IsAtPosition(ConditionNode):
         return math.dist((x, y, z), (px, py, pz)) <= self.get_input("threshold")
 
 
+@register
 class IsYawWithin(ConditionNode):
     """SUCCESS if the yaw is within ``threshold_deg`` of ``angle`` (rad) / ``angle_deg``.
 
@@ -67,8 +70,14 @@ class IsYawWithin(ConditionNode):
         return abs(math.degrees(err)) <= self.get_input("threshold_deg")
 
 
+@register
 class BatteryAbove(ConditionNode):
-    """SUCCESS while the battery is above ``percent`` (0-100) or ``volts``; give one of them."""
+    """SUCCESS while the battery is above ``percent`` (0-100) or ``volts``; give one of them.
+
+    ``percent`` is the Vehicle's state-of-charge estimate, corrected for the voltage sag under
+    load (it does not drop when the motors spin up); ``volts`` is the measured (loaded)
+    voltage. On FAILURE the reason gives the value read.
+    """
 
     bt_id = "BatteryAbove"
     category = CATEGORY_CHECK
@@ -82,9 +91,21 @@ class BatteryAbove(ConditionNode):
         if (pct is None) == (volts is None):
             raise NodeRuntimeError(self, "give exactly one of 'percent' or 'volts'")
         b = vehicle_of(self).battery
-        return b.percent > pct if pct is not None else b.voltage_v > volts
+        ok = b.percent > pct if pct is not None else b.voltage_v > volts
+        self.failure_reason = (
+            ""
+            if ok
+            else (
+                f"battery at {b.percent:.1f} % (state of charge; {b.voltage_v:.2f} V under load), "
+                f"not above {pct:g} %"
+                if pct is not None
+                else f"battery at {b.voltage_v:.2f} V (under load), not above {volts:g} V"
+            )
+        )
+        return ok
 
 
+@register
 class IsHealthy(ConditionNode):
     """SUCCESS if the chosen sources are fresh: ``link`` and ``mocap`` (default), ``camera``."""
 
@@ -101,7 +122,3 @@ class IsHealthy(ConditionNode):
         return all(
             getattr(h, name).healthy for name in ("link", "mocap", "camera") if self.get_input(name)
         )
-
-
-for _cls in (IsFlying, IsAtPosition, IsYawWithin, BatteryAbove, IsHealthy):
-    REGISTRY.register(_cls)

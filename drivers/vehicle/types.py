@@ -68,11 +68,13 @@ class Velocity:
 
 @dataclass(frozen=True, slots=True)
 class BatteryState:
-    """Battery voltage (under load, as measured), charge estimate (0..100) and low flag."""
+    """Battery voltage (under load, as measured), state-of-charge estimate (0..100, corrected
+    for the load sag in flight), low flag, and the load sag (V) the estimate added back."""
 
     voltage_v: float
     percent: float
     low: bool
+    sag_v: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -79,6 +79,8 @@ class Vehicle:
         self._flight_start_s = 0.0
         self._touchdown_since: float | None = None
         self._battery_v: float | None = None
+        self._takeoff_v: float | None = None  # resting voltage just before take-off
+        self._sag_v: float | None = None  # load sag measured early in the flight
         self._next_step_s = 0.0
         self.setpoints_sent = 0
         self.refused_requests = 0  # motion requests refused (non-finite, out of envelope)
@@ -145,9 +147,24 @@ class Vehicle:
 
     @property
     def battery(self) -> BatteryState:
-        """Battery voltage (filtered over ~1 s), percentage estimate and low flag."""
+        """Battery voltage (filtered over ~1 s, as measured under load), state-of-charge
+        estimate and low flag.
+
+        ``percent`` does not sag under load: the Crazyflie reports only the loaded voltage,
+        so in flight the Vehicle adds back the sag it measured over the first
+        :data:`SAG_SETTLE_S` of the flight (resting voltage before take-off minus the hover
+        voltage) and reads the open-circuit curve there (``sag_v`` is that estimate).
+        """
         v = self._battery_v if self._battery_v is not None else 0.0
-        return BatteryState(v, percent_from_voltage(v), 0.0 < v < self.config.low_battery_v)
+        sag = 0.0
+        if self.flight_state in AIRBORNE and v > 0.0:
+            if self._sag_v is not None:
+                sag = self._sag_v
+            elif self._takeoff_v is not None:
+                sag = max(0.0, self._takeoff_v - v)  # settling: read as at take-off
+        return BatteryState(
+            v, percent_from_voltage(v + sag), 0.0 < v < self.config.low_battery_v, sag
+        )
 
     @property
     def health(self) -> HealthReport:
@@ -417,9 +434,17 @@ class Vehicle:
             self._telemetry = tel
             self.link_health.sample(t_s)
             v = tel.battery_v
+            if self._battery_v is None and self._takeoff_v is None:
+                self._takeoff_v = v  # the first sample: the motors have not loaded it yet
             self._battery_v = (
                 v if self._battery_v is None else self._battery_v + 0.01 * (v - self._battery_v)
             )
+        if self.flight_state in AIRBORNE:
+            settled = t_s - self._flight_start_s >= SAG_SETTLE_S
+            if self._sag_v is None and self._takeoff_v is not None and settled:
+                self._sag_v = max(0.0, self._takeoff_v - (self._battery_v or 0.0))
+        else:
+            self._takeoff_v, self._sag_v = self._battery_v, None
         self.link_health.connected = self.link.connected
         if self.mocap is not None:
             for m in self.mocap.poll(t_s):
@@ -629,6 +654,11 @@ class Vehicle:
             return False
         progress.fail(f"not flying ({self.flight_state.value})")
         return True
+
+
+#: Seconds of flight after which the load sag of the battery voltage is measured (the ~1 s
+#: voltage filter has settled on the hover load by then).
+SAG_SETTLE_S = 4.0
 
 
 def _bad_numbers(**values: object) -> str | None:
