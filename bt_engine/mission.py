@@ -50,6 +50,10 @@ def mission_inputs(spec: MissionSpec) -> dict[str, Any]:
     }
 
 
+#: Distinct leaf failures a mission remembers (more are counted in the last one's place).
+MAX_LEAF_FAILURES = 200
+
+
 class _BlackboardView(MutableMapping):
     """Dictionary view of a mission's root blackboard scope."""
 
@@ -133,6 +137,9 @@ class Mission:
         self.last_failure = ""
         self._leaf_failure = ""
         self.finished: dict[str, str] = {}
+        #: every distinct leaf failure of the run (``"<leaf> failed (<loc>): why" -> times``),
+        #: also those a Fallback or a retry handled: ``btrun`` lists them after the result
+        self.leaf_failures: dict[str, int] = {}
         self._drained = True
         self.status: NodeStatus = self.root.bt_status
 
@@ -160,13 +167,14 @@ class Mission:
             status = self.root.execute_tick()
         # The last leaf that failed, in this tick or an earlier one: a tree that handles a
         # failure (a Fallback that flies home, then ForceFailure) still ends on its cause.
-        for node, _, st in reversed(self._changes):
+        last = None
+        for node, _, st in self._changes:
             if st is FAILURE and not node.children:
                 why = getattr(node, "failure_reason", "")  # leaves may say why they failed
-                self._leaf_failure = f"{node.describe()} failed ({node.loc})" + (
-                    f": {why}" if why else ""
-                )
-                break
+                last = f"{node.describe()} failed ({node.loc})" + (f": {why}" if why else "")
+                self._note_failure(last)
+        if last is not None:
+            self._leaf_failure = last
         if status is FAILURE:
             self.last_failure = self._leaf_failure
         if status is not RUNNING and status is not SKIPPED:
@@ -174,6 +182,14 @@ class Mission:
         self.ticks += 1
         self.status = status
         return status
+
+    def _note_failure(self, text: str) -> None:
+        """Remember a leaf failure (each distinct one once, counted; bounded)."""
+        counts = self.leaf_failures
+        if text in counts:
+            counts[text] += 1
+        elif len(counts) < MAX_LEAF_FAILURES:
+            counts[text] = 1
 
     def drain_changes(self) -> dict[str, str]:
         """Statuses that changed since the last call, as ``{path: status}``."""

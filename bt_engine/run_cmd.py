@@ -22,7 +22,12 @@ from bt_engine.plugins import Platform, RunTarget, load_target, write_report
 from bt_engine.registry import REGISTRY
 from bt_engine.runner import Runner, RunResult
 from bt_engine.spec import Loc, MissionError, Problem
-from bt_engine.summary import build_summary, result_lines, write_summary
+from bt_engine.summary import (
+    build_summary,
+    handled_failure_lines,
+    result_lines,
+    write_summary,
+)
 from bt_engine.ticklog import TickLog
 
 
@@ -229,7 +234,7 @@ def finish(run: PreparedRun, runner: Runner, result: RunResult) -> int:
     if report:
         summary["report"] = os.path.relpath(report, run.run_dir)
     write_summary(run.run_dir, summary)
-    headlines = result_lines(mission)
+    headlines = result_lines(mission) + handled_failure_lines(mission, result.reason)
     mission.close()
     speed = result.mission_time_s / result.wall_time_s if result.wall_time_s > 0 else 0.0
     print(

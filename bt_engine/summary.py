@@ -46,6 +46,10 @@ def build_summary(
         "rate_hz": rate_hz,
         "blackboard": to_jsonable(mission.scope.all_items()),
     }
+    if mission.leaf_failures:  # also those the tree handled (a Fallback, a retry)
+        summary["leaf_failures"] = [
+            {"failure": text, "times": n} for text, n in mission.leaf_failures.items()
+        ]
     for key, value in (sections or {}).items():
         summary[key] = to_jsonable(value)
     for name, res in mission.ctx.resources.items():
@@ -62,6 +66,16 @@ def result_lines(mission: Mission) -> list[str]:
         if isinstance(res, RunReporter)
         for line in res.result_lines()
     ]
+
+
+def handled_failure_lines(mission: Mission, reason: str, limit: int = 10) -> list[str]:
+    """Console lines for the leaf failures the run went on after (not the one that ended
+    it): what a "continue anyway" branch swallowed."""
+    items = [(t, n) for t, n in mission.leaf_failures.items() if t not in reason]
+    lines = [f"handled: {t}" + (f" ({n} times)" if n > 1 else "") for t, n in items[:limit]]
+    if len(items) > limit:
+        lines.append(f"handled: ... and {len(items) - limit} more (summary.json leaf_failures)")
+    return lines
 
 
 def write_summary(run_dir: str, summary: dict[str, Any]) -> str:

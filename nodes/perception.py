@@ -25,7 +25,7 @@ from bt_engine.node import (
     SyncActionNode,
 )
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
-from bt_engine.registry import REGISTRY
+from bt_engine.registry import register
 from nodes.common import vehicle_of
 from nodes.perception_session import DEMO, BlockScan, PerceptionError, PerceptionSession
 from perception.errors import ModelError
@@ -61,6 +61,7 @@ def _camera_problem(vehicle: Any) -> str:
     return ""
 
 
+@register
 class PerceptionReady(SyncActionNode):
     """Load the detector and the embedder and open the gallery (building the demo gallery on
     first use); FAILURE with the reason if any of them cannot be used. Put it before the
@@ -96,6 +97,7 @@ class PerceptionReady(SyncActionNode):
         return SUCCESS
 
 
+@register
 class DetectBlocks(StatefulActionNode):
     """Consume camera frames as they arrive, detect the support blocks and commit one crop
     per block, left to right (the block sequencer). RUNNING until ``blocks`` are committed,
@@ -183,6 +185,7 @@ class DetectBlocks(StatefulActionNode):
         return RUNNING
 
 
+@register
 class BlockCount(ConditionNode):
     """SUCCESS if at least ``min`` blocks were committed (``count`` from DetectBlocks)."""
 
@@ -205,6 +208,7 @@ def _scan_crops(node, scan) -> list:
     return scan.crops[:3]
 
 
+@register
 class IdentifyPallet(SyncActionNode):
     """Embed the three block crops and match them against the gallery: ``pallet_id`` is the
     closest enrolled side, or ``unknown`` when its mean block distance is above
@@ -235,6 +239,7 @@ class IdentifyPallet(SyncActionNode):
         from perception.gallery import Thresholds
 
         session = PerceptionSession.of(self.ctx)
+        key = self.output_key("pallet_id") or ""
         try:
             crops = _scan_crops(self, self.get_input("scan"))
             embedder = session.embedder(self.get_input("embedder"))
@@ -247,11 +252,16 @@ class IdentifyPallet(SyncActionNode):
             emb = embedder.embed(crops)
             match = g.match(emb, top_k=self.get_input("top_k"), thresholds=th)
         except (PerceptionError, GalleryError, ModelError) as exc:
+            session.identifications.append(
+                {"t_s": self.now(), "key": key, "node": self.describe(), "failed": str(exc)}
+            )
             return _fail(self, str(exc))
         ranking = [[ident, round(d, 4)] for ident, d, _ in match.ranking]
         session.identifications.append(
             {
                 "t_s": self.now(),
+                "key": key,
+                "node": self.describe(),
                 "pallet_id": match.pallet_id,
                 "best_id": match.best_id,
                 "distance": match.distance,
@@ -275,6 +285,7 @@ class IdentifyPallet(SyncActionNode):
         return SUCCESS
 
 
+@register
 class EnrollPallet(SyncActionNode):
     """Add the scanned pallet side to the gallery as ``identity`` (e.g. 7A), with its three
     crops; creates the gallery file if needed. FAILURE if there are not three crops, or the
@@ -295,7 +306,7 @@ class EnrollPallet(SyncActionNode):
     )
 
     def tick_impl(self) -> NodeStatus:
-        from nodes.demo_gallery import png_bytes
+        from nodes.gallery.demo import png_bytes
 
         session = PerceptionSession.of(self.ctx)
         name = self.get_input("identity").strip()
@@ -318,7 +329,3 @@ class EnrollPallet(SyncActionNode):
         self.set_output("gallery_size", len(g))
         self.ctx.log(f"enrolled {name} in {g.path} ({len(g)} sides)")
         return SUCCESS
-
-
-for _cls in (PerceptionReady, DetectBlocks, BlockCount, IdentifyPallet, EnrollPallet):
-    REGISTRY.register(_cls)

@@ -165,7 +165,7 @@ class PerceptionSession:
             return self._galleries[key]
         try:
             if spec == DEMO:
-                from nodes.demo_gallery import ensure_demo_gallery
+                from nodes.gallery.demo import ensure_demo_gallery
 
                 world = self.world_path()
                 if world is None:
@@ -225,15 +225,20 @@ class PerceptionSession:
         return committed
 
     def result_lines(self) -> list[str]:
-        """The run's headline for the terminal: the last identification's answer and how
-        sure it is, and what was enrolled (``btrun`` prints it after the status line)."""
+        """The run's headline for the terminal: every identification (its blackboard key,
+        unless it is the usual ``pallet_id``), its answer and how sure it is, or why it
+        failed; and what was enrolled (``btrun`` prints these after the status line)."""
         out = []
-        if self.identifications:
-            r = self.identifications[-1]
+        for r in self.identifications:
+            key = r.get("key") or ""
+            label = "pallet:" if key in ("", "pallet_id") else f"pallet {{{key}}}:"
+            if "failed" in r:
+                out.append(f"{label} failed in {r.get('node', 'IdentifyPallet')}: {r['failed']}")
+                continue
             extra = f"distance {r['distance']:.3f}, margin {r['margin']:.3f}"
             if not r["known"]:
                 extra += f", closest {r['best_id']}"
-            out.append(f"pallet: {r['pallet_id']} ({extra})")
+            out.append(f"{label} {r['pallet_id']} ({extra})")
         out += [f"enrolled: {e['name']} in {e['gallery']}" for e in self.enrolments]
         return out
 
