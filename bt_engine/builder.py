@@ -1,4 +1,10 @@
-"""Spec -> running tree of nodes, with one blackboard scope per mission and per SubTree."""
+"""Spec -> running tree of nodes, with one blackboard scope per mission and per SubTree.
+
+Building recurses once per level of the expanded tree; validation bounds that depth
+(:data:`~bt_engine.spec.MAX_NESTING_DEPTH`), and the builder checks it again, so an
+unvalidated spec raises a located :class:`~bt_engine.spec.MissionError`, never a
+``RecursionError``.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +15,8 @@ from bt_engine.node import POST_CONDITIONS, PRE_CONDITIONS, BTNode, MissionConte
 from bt_engine.ports import blackboard_ref
 from bt_engine.registry import SUBTREE, Registry
 from bt_engine.script import parse_script
-from bt_engine.spec import MissionSpec, NodeSpec
+from bt_engine.spec import MAX_NESTING_DEPTH, MissionError, MissionSpec, NodeSpec, Problem
+from bt_engine.spec import nesting_message as _nesting_message
 from bt_engine.validate import SPECIAL_ATTRS
 
 
@@ -21,14 +28,21 @@ class _Builder:
         self.nodes: list[BTNode] = []
         self.changes: list = []
 
-    def build(self, tree_id: str, scope: Scope, path: str) -> BTNode:
+    def build(self, tree_id: str, scope: Scope, path: str, depth: int = 1) -> BTNode:
         root = self.spec.trees[tree_id].root
         assert root is not None
-        return self.node(root, scope, path)
+        return self.node(root, scope, path, None, depth)
 
     def node(
-        self, spec: NodeSpec, scope: Scope, parent_path: str, label: str | None = None
+        self,
+        spec: NodeSpec,
+        scope: Scope,
+        parent_path: str,
+        label: str | None = None,
+        depth: int = 1,
     ) -> BTNode:
+        if depth > MAX_NESTING_DEPTH:
+            raise MissionError([Problem(spec.loc, _nesting_message(depth, " once built"))])
         model = self.registry.get(spec.type)
         assert model is not None, spec.type
         name = spec.name or model.id
@@ -43,7 +57,7 @@ class _Builder:
         self.nodes.append(node)
         self.conditions(node, spec)
         if model.kind == SUBTREE:
-            self.subtree(node, spec, scope, path)
+            self.subtree(node, spec, scope, path, depth)
             return node
         for key, attr in spec.attrs.items():
             if key in SPECIAL_ATTRS or key.startswith("_"):
@@ -56,7 +70,7 @@ class _Builder:
                 node.bind_literal(key, port.type.convert(attr.value))
         labels = _child_labels(spec.children, self.registry)
         for child_spec, child_label in zip(spec.children, labels, strict=True):
-            node.add_child(self.node(child_spec, scope, path, child_label))
+            node.add_child(self.node(child_spec, scope, path, child_label, depth + 1))
         return node
 
     def conditions(self, node: BTNode, spec: NodeSpec) -> None:
@@ -71,7 +85,7 @@ class _Builder:
         node._pre = pre or None
         node._post = post or None
 
-    def subtree(self, node: BTNode, spec: NodeSpec, scope: Scope, path: str) -> None:
+    def subtree(self, node: BTNode, spec: NodeSpec, scope: Scope, path: str, depth: int) -> None:
         target = str(spec.attrs["ID"].value)
         auto_attr = spec.attrs.get("_autoremap")
         autoremap = auto_attr is not None and str(auto_attr.value).strip().lower() in ("true", "1")
@@ -97,7 +111,7 @@ class _Builder:
         for k, v in literals.items():
             child_scope._store[child_scope.prefix + k] = v
         node.subtree_id = target
-        node.add_child(self.build(target, child_scope, path))
+        node.add_child(self.build(target, child_scope, path, depth + 1))
 
 
 def _child_labels(children: list[NodeSpec], registry: Registry) -> list[str]:

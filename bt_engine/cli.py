@@ -24,6 +24,17 @@ def _print_problems(problems: list[Problem], stream=None) -> None:
     print(f"{n} problem{'s' if n != 1 else ''} found; nothing was run.", file=stream)
 
 
+def _include_path(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--include-path",
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="a folder <include>/include: may read from, besides the mission's own folder; "
+        "repeatable",
+    )
+
+
 def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="btrun",
@@ -68,18 +79,36 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     )
     r.add_argument("--quiet", "-q", action="store_true", help="print only the result")
     r.add_argument("--no-report", action="store_true", help="skip the flight report")
+    r.add_argument(
+        "--groot",
+        nargs="?",
+        const=1667,
+        type=int,
+        metavar="PORT",
+        help="serve Groot2 live monitoring on PORT (default 1667) and PORT+1 (docs/monitoring.md)",
+    )
+    r.add_argument(
+        "--groot-address",
+        default="127.0.0.1",
+        metavar="ADDR",
+        help="interface the Groot2 server binds (default 127.0.0.1, loopback only)",
+    )
+    _include_path(r)
 
     v = sub.add_parser("validate", help="check mission files; report every problem")
     v.add_argument("files", nargs="+")
+    _include_path(v)
 
     s = sub.add_parser("show", help="print a mission's tree")
     s.add_argument("mission")
     s.add_argument("--format", choices=("text", "dot", "svg", "png"), default="text")
     s.add_argument("--output", "-o", help="output file (for dot/svg/png)")
+    _include_path(s)
 
     c = sub.add_parser("convert", help="convert a mission between XML and YAML")
     c.add_argument("source")
     c.add_argument("dest")
+    _include_path(c)
 
     n = sub.add_parser("nodes", help="list the nodes missions can use")
     n.add_argument("--kind", choices=("action", "condition", "control", "decorator"))
@@ -128,14 +157,18 @@ def _main(argv: list[str] | None, early: dict | None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    try:
-        if args.command in extra:
-            return extra[args.command].run(args)
-        if args.command == "run":
-            from bt_engine.run_cmd import run_command
+    from bt_engine.loading import default_include_paths
 
-            return run_command(args)
-        return globals()[f"_cmd_{args.command}"](args)
+    try:
+        # --include-path reaches every loader the command calls (run: bt_engine.run_cmd)
+        with default_include_paths(getattr(args, "include_path", None) or ()):
+            if args.command in extra:
+                return extra[args.command].run(args)
+            if args.command == "run":
+                from bt_engine.run_cmd import run_command
+
+                return run_command(args)
+            return globals()[f"_cmd_{args.command}"](args)
     except MissionError as exc:
         _print_problems(exc.problems)
         return 2
@@ -147,13 +180,16 @@ def _main(argv: list[str] | None, early: dict | None) -> int:
 
 
 def _cmd_validate(args) -> int:
-    from bt_engine.mission import check_file
+    from bt_engine.loading import check_mission
     from bt_engine.registry import REGISTRY
 
     worst = 0
     all_problems: list[Problem] = []
     for f in args.files:
-        _, problems = check_file(f, REGISTRY)
+        warnings: list[Problem] = []
+        _, problems = check_mission(f, REGISTRY, args.include_path, warnings)
+        for w in warnings:  # file:line:col: warning: ... (validation still passes)
+            print(str(w), file=sys.stderr)
         if problems:
             all_problems += problems
             worst = 2
@@ -164,11 +200,11 @@ def _cmd_validate(args) -> int:
     return worst
 
 
-def _load_valid(path: str):
-    from bt_engine.mission import check_file
+def _load_valid(path: str, include_paths: list[str]):
+    from bt_engine.loading import check_mission
     from bt_engine.registry import REGISTRY
 
-    spec, problems = check_file(path, REGISTRY)
+    spec, problems = check_mission(path, REGISTRY, include_paths)
     if problems:
         raise MissionError(problems)
     return spec
@@ -177,7 +213,7 @@ def _load_valid(path: str):
 def _cmd_show(args) -> int:
     from bt_engine.display import dot_source, render_dot, spec_rows, tree_lines
 
-    spec = _load_valid(args.mission)
+    spec = _load_valid(args.mission, args.include_path)
     if args.format == "text":
         print(f"{spec.main_tree_id()}  ({args.mission})")
         print("\n".join(tree_lines(spec_rows(spec))))
@@ -204,7 +240,7 @@ def _cmd_convert(args) -> int:
     from bt_engine.loading import convert_file
     from bt_engine.registry import REGISTRY
 
-    problems = convert_file(args.source, args.dest, REGISTRY)
+    problems = convert_file(args.source, args.dest, REGISTRY, args.include_path)
     if problems:
         raise MissionError(problems)
     print(f"wrote {args.dest}")

@@ -2,17 +2,26 @@
 
 :mod:`bt_engine.xml_io` and :mod:`bt_engine.yaml_io` each read and write one format and know
 nothing of each other; an ``<include>`` (XML) or ``include:`` (YAML) of either format is
-resolved here (:func:`include`) and handed to the right loader. :func:`load_spec` reads a
+resolved here (:class:`Includes`) and handed to the right loader. :func:`load_spec` reads a
 mission file of either format, :func:`convert_file` writes one format from the other.
+
+An include may only read files inside the main mission file's folder (and its subfolders)
+or inside an *include path* (``load_spec(path, include_paths=[...])``, ``btrun ...
+--include-path DIR``); symbolic links are resolved before the check, so a mission cannot read
+``/etc/passwd`` or ``/proc/self/environ`` through an include.
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import os
+from collections.abc import Iterable, Iterator
 
 from bt_engine.files import read_text
 from bt_engine.registry import Registry
 from bt_engine.spec import Loc, MissionSpec, Problem
+from bt_engine.validate import validate
 from bt_engine.xml_io import dump_xml, merge_xml
 from bt_engine.xml_io import load_xml as _load_xml
 from bt_engine.yaml_io import dump_yaml, merge_yaml
@@ -22,7 +31,42 @@ from bt_engine.yaml_io import load_yaml as _load_yaml
 MAX_INCLUDE_DEPTH = 20
 
 
-def merge_file(path: str, text: str, spec: MissionSpec, stack: tuple[str, ...]) -> None:
+#: Include paths used when a loader is given none (``btrun --include-path`` sets them for
+#: the command it runs: see :func:`default_include_paths`).
+_DEFAULT_INCLUDE_PATHS: contextvars.ContextVar[tuple[str, ...]] = contextvars.ContextVar(
+    "btrun_include_paths", default=()
+)
+
+
+@contextlib.contextmanager
+def default_include_paths(folders: Iterable[str]) -> Iterator[None]:
+    """Within the ``with`` block, loaders called without ``include_paths`` use ``folders``."""
+    token = _DEFAULT_INCLUDE_PATHS.set(tuple(folders))
+    try:
+        yield
+    finally:
+        _DEFAULT_INCLUDE_PATHS.reset(token)
+
+
+def allowed_folders(path: str, include_paths: Iterable[str] | None = None) -> tuple[str, ...]:
+    """The folders the includes of the mission ``path`` may read from (with subfolders): the
+    mission's own folder, then ``include_paths`` (default: :func:`default_include_paths`),
+    symbolic links resolved."""
+    extra = _DEFAULT_INCLUDE_PATHS.get() if include_paths is None else include_paths
+    folders = [os.path.dirname(os.path.abspath(path)), *extra]
+    return tuple(dict.fromkeys(os.path.realpath(f) for f in folders))
+
+
+def _inside(path: str, folder: str) -> bool:
+    try:
+        return os.path.commonpath([path, folder]) == folder
+    except ValueError:  # another drive (Windows)
+        return False
+
+
+def merge_file(
+    path: str, text: str, spec: MissionSpec, stack: tuple[str, ...], include: Includes
+) -> None:
     """Load ``path`` (read into ``text``) into ``spec`` with the loader of its format."""
     if path.endswith((".yaml", ".yml")):
         merge_yaml(path, text, spec, stack, include)
@@ -30,43 +74,74 @@ def merge_file(path: str, text: str, spec: MissionSpec, stack: tuple[str, ...]) 
         merge_xml(path, text, spec, stack, include)
 
 
-def include(ref: str, loc: Loc, including: str, spec: MissionSpec, stack: tuple[str, ...]) -> None:
-    """Resolve the include ``ref`` written at ``loc`` in the file ``including`` (relative to
-    it) and merge it into ``spec``; loops, depth and missing files become problems."""
-    full = os.path.normpath(os.path.join(os.path.dirname(including), ref))
-    if os.path.abspath(full) in stack:
-        chain = " -> ".join(os.path.basename(s) for s in stack) + f" -> {ref}"
-        spec.load_problems.append(Problem(loc, f"include loop: {chain}"))
-        return
-    if len(stack) > MAX_INCLUDE_DEPTH:
-        spec.load_problems.append(
-            Problem(loc, f"includes nested more than {MAX_INCLUDE_DEPTH} deep")
-        )
-        return
-    if not os.path.isfile(full):
-        spec.load_problems.append(Problem(loc, f"included file not found: {full}"))
-        return
-    spec.includes.append(full)
-    text = read_text(full, spec.load_problems, loc)
-    if text is not None:
-        merge_file(full, text, spec, stack + (os.path.abspath(full),))
+class Includes:
+    """Resolves the includes of one mission, only inside ``folders`` (see
+    :func:`allowed_folders`); called as ``include(ref, loc, including, spec, stack)``."""
+
+    def __init__(self, folders: tuple[str, ...]) -> None:
+        self.folders = folders
+
+    def __call__(
+        self, ref: str, loc: Loc, including: str, spec: MissionSpec, stack: tuple[str, ...]
+    ) -> None:
+        """Resolve the include ``ref`` written at ``loc`` in the file ``including`` (relative
+        to it) and merge it into ``spec``; loops, depth, files outside the allowed folders and
+        missing files become problems."""
+        full = os.path.normpath(os.path.join(os.path.dirname(including), ref))
+        real = os.path.realpath(full)
+        if real in {os.path.realpath(s) for s in stack}:
+            chain = " -> ".join(os.path.basename(s) for s in stack) + f" -> {ref}"
+            spec.load_problems.append(Problem(loc, f"include loop: {chain}"))
+            return
+        if not any(_inside(real, f) for f in self.folders):
+            shown = ref if real == ref else f"{ref} ({real})"
+            spec.load_problems.append(
+                Problem(
+                    loc,
+                    f"include outside the mission folder: {shown} (allowed: "
+                    f"{', '.join(self.folders)}; add --include-path)",
+                )
+            )
+            return
+        if len(stack) > MAX_INCLUDE_DEPTH:
+            spec.load_problems.append(
+                Problem(loc, f"includes nested more than {MAX_INCLUDE_DEPTH} deep")
+            )
+            return
+        if not os.path.exists(full):
+            spec.load_problems.append(Problem(loc, f"included file not found: {full}"))
+            return
+        spec.includes.append(full)
+        text = read_text(full, spec.load_problems, loc)
+        if text is not None:
+            merge_file(full, text, spec, stack + (os.path.abspath(full),), self)
 
 
-def load_xml(path: str, text: str | None = None) -> MissionSpec:
-    """Load an XML mission (includes of either format resolved)."""
-    return _load_xml(path, text, include)
+def load_xml(
+    path: str, text: str | None = None, include_paths: Iterable[str] | None = None
+) -> MissionSpec:
+    """Load an XML mission (includes of either format resolved, inside the mission's folder
+    and ``include_paths``)."""
+    return _load_xml(path, text, Includes(allowed_folders(path, include_paths)))
 
 
-def load_yaml(path: str, text: str | None = None) -> MissionSpec:
-    """Load a YAML mission (includes of either format resolved)."""
-    return _load_yaml(path, text, include)
+def load_yaml(
+    path: str, text: str | None = None, include_paths: Iterable[str] | None = None
+) -> MissionSpec:
+    """Load a YAML mission (includes of either format resolved, inside the mission's folder
+    and ``include_paths``)."""
+    return _load_yaml(path, text, Includes(allowed_folders(path, include_paths)))
 
 
-def load_spec(path: str) -> MissionSpec:
-    """Read a mission file (``.xml``, ``.yaml``/``.yml``) into a spec (problems kept inside)."""
+def load_spec(path: str, include_paths: Iterable[str] | None = None) -> MissionSpec:
+    """Read a mission file (``.xml``, ``.yaml``/``.yml``) into a spec (problems kept inside).
+
+    Includes may read files in the mission's folder (and below) and in ``include_paths``
+    (default: those of :func:`default_include_paths`, normally none).
+    """
     ext = os.path.splitext(path)[1].lower()
     if ext in (".yaml", ".yml"):
-        return load_yaml(path)
+        return load_yaml(path, include_paths=include_paths)
     if ext != ".xml" and os.path.exists(path):
         spec = MissionSpec(file=path)
         spec.load_problems.append(
@@ -79,16 +154,33 @@ def load_spec(path: str) -> MissionSpec:
         spec = MissionSpec(file=path)
         spec.load_problems.append(Problem(Loc(path, 0, 0), "mission file not found"))
         return spec
-    return load_xml(path)
+    return load_xml(path, include_paths=include_paths)
 
 
-def convert_file(src: str, dst: str, registry: Registry | None = None) -> list[Problem]:
+def check_mission(
+    path: str,
+    registry: Registry,
+    include_paths: Iterable[str] | None = None,
+    warnings: list[Problem] | None = None,
+) -> tuple[MissionSpec, list[Problem]]:
+    """Load and validate ``path``: the spec and its errors (warnings appended to
+    ``warnings`` if given)."""
+    spec = load_spec(path, include_paths)
+    return spec, validate(spec, registry, warnings)
+
+
+def convert_file(
+    src: str,
+    dst: str,
+    registry: Registry | None = None,
+    include_paths: Iterable[str] | None = None,
+) -> list[Problem]:
     """Convert a mission between XML and YAML (the format of ``dst`` by its extension).
 
     Nothing is written if ``src`` has load problems; they are returned. Returns ``[]`` on
     success.
     """
-    spec = load_spec(src)
+    spec = load_spec(src, include_paths)
     if spec.load_problems:
         return sorted(spec.load_problems, key=lambda p: (p.loc.file, p.loc.line, p.loc.col))
     ext = os.path.splitext(dst)[1].lower()

@@ -75,9 +75,9 @@ class FloatType(PortType):
         try:
             out = float(value.strip() if isinstance(value, str) else value)
         except (TypeError, ValueError):
-            raise PortValueError(f"expected {self.expected}, got {value!r}") from None
+            raise PortValueError(f"expected {self.expected}, got {_short(value)}") from None
         if not math.isfinite(out):  # NaN and +-inf never reach a leaf (or a set-point)
-            raise PortValueError(f"expected a finite number, got {value!r}")
+            raise PortValueError(f"expected a finite number, got {_short(value)}")
         return out
 
     def to_text(self, value: Any) -> str:
@@ -98,7 +98,7 @@ class IntType(PortType):
         if isinstance(value, float):
             if value.is_integer():
                 return int(value)
-            raise PortValueError(f"expected {self.expected}, got {value!r}")
+            raise PortValueError(f"expected {self.expected}, got {_short(value)}")
         if isinstance(value, str):
             text = value.strip()
             try:
@@ -111,7 +111,7 @@ class IntType(PortType):
                 f = math.nan
             if f.is_integer():
                 return int(f)
-        raise PortValueError(f"expected {self.expected}, got {value!r}")
+        raise PortValueError(f"expected {self.expected}, got {_short(value)}")
 
 
 class BoolType(PortType):
@@ -133,7 +133,7 @@ class BoolType(PortType):
                 return True
             if low in self._FALSE:
                 return False
-        raise PortValueError(f"expected {self.expected}, got {value!r}")
+        raise PortValueError(f"expected {self.expected}, got {_short(value)}")
 
 
 class EnumType(PortType):
@@ -154,7 +154,7 @@ class EnumType(PortType):
 
     def convert(self, value: Any) -> str:
         if isinstance(value, bool):
-            raise PortValueError(f"expected {self.expected}, got {value!r}")
+            raise PortValueError(f"expected {self.expected}, got {_short(value)}")
         if isinstance(value, int) and value in self._by_value:
             return self._by_value[value]
         if isinstance(value, str):
@@ -167,7 +167,7 @@ class EnumType(PortType):
                 number = None
             if number in self._by_value:
                 return self._by_value[number]
-        raise PortValueError(f"expected {self.expected}, got {value!r}")
+        raise PortValueError(f"expected {self.expected}, got {_short(value)}")
 
     def value_of(self, member: str) -> int:
         """Return the integer of a member name."""
@@ -182,9 +182,9 @@ def _floats(parts: Sequence[Any], what: str) -> tuple[float, ...]:
         try:
             f = float(p.strip() if isinstance(p, str) else p)
         except (TypeError, ValueError):
-            raise PortValueError(f"expected {what}, got {p!r} in it") from None
+            raise PortValueError(f"expected {what}, got {_short(p)} in it") from None
         if not math.isfinite(f):
-            raise PortValueError(f"expected {what}, got {p!r} in it")
+            raise PortValueError(f"expected {what}, got {_short(p)} in it")
         out.append(f)
     return tuple(out)
 
@@ -197,14 +197,19 @@ class Vec3Type(PortType):
 
     def convert(self, value: Any) -> tuple[float, float, float]:
         if isinstance(value, str):
+            count = value.count(";") + value.count(",") + 1  # before splitting a huge value
+            if count != 3:
+                raise PortValueError(
+                    f"expected {self.expected}, got {count} value(s) in {_short(value)}"
+                )
             parts: Sequence[Any] = [p for p in re.split(r"[;,]", value)]
         elif isinstance(value, (list, tuple)):
             parts = value
         else:
-            raise PortValueError(f"expected {self.expected}, got {value!r}")
+            raise PortValueError(f"expected {self.expected}, got {_short(value)}")
         if len(parts) != 3:
             raise PortValueError(
-                f"expected {self.expected}, got {len(parts)} value(s) in {value!r}"
+                f"expected {self.expected}, got {len(parts)} value(s) in {_short(value)}"
             )
         x, y, z = _floats(parts, self.expected)
         return (x, y, z)
@@ -228,7 +233,7 @@ class PathType(PortType):
         elif isinstance(value, (list, tuple)):
             chunks = value
         else:
-            raise PortValueError(f"expected {self.expected}, got {value!r}")
+            raise PortValueError(f"expected {self.expected}, got {_short(value)}")
         if not chunks:
             raise PortValueError(f"expected {self.expected}, got an empty path")
         vec = Vec3Type()
@@ -247,7 +252,24 @@ class PathType(PortType):
         return [[float(v) for v in p] for p in value]
 
 
-_DURATION = re.compile(r"^\s*([-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)\s*(ms|s|min)?\s*$")
+# The number of a duration, matched against text already stripped of spaces and unit: no
+# two quantifiers here can match the same characters, so matching is linear (a pattern with
+# ``\s*(unit)?\s*$`` backtracks quadratically on a long run of trailing spaces).
+_DURATION_NUMBER = re.compile(r"[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?")
+_DURATION_UNITS = (("ms", 1e-3), ("min", 60.0), ("s", 1.0))
+
+
+def _duration_seconds(text: str) -> float | None:
+    """Seconds of ``"2.5"``, ``"2.5s"``, ``" 500 ms "``, ``"1min"``; None if not a duration."""
+    t = text.strip()
+    scale = 1.0
+    for unit, factor in _DURATION_UNITS:
+        if t.endswith(unit):
+            t, scale = t[: -len(unit)].rstrip(), factor
+            break
+    if not _DURATION_NUMBER.fullmatch(t):
+        return None
+    return float(t) * scale
 
 
 class DurationType(PortType):
@@ -258,23 +280,28 @@ class DurationType(PortType):
 
     def convert(self, value: Any) -> float:
         if isinstance(value, bool):
-            raise PortValueError(f"expected {self.expected}, got {value!r}")
+            raise PortValueError(f"expected {self.expected}, got {_short(value)}")
         if isinstance(value, (int, float)):
             seconds = float(value)
         elif isinstance(value, str):
-            m = _DURATION.match(value)
-            if not m:
-                raise PortValueError(f"expected {self.expected}, got {value!r}")
-            scale = {"ms": 1e-3, "s": 1.0, "min": 60.0, None: 1.0}[m.group(2)]
-            seconds = float(m.group(1)) * scale
+            parsed = _duration_seconds(value)
+            if parsed is None:
+                raise PortValueError(f"expected {self.expected}, got {_short(value)}")
+            seconds = parsed
         else:
-            raise PortValueError(f"expected {self.expected}, got {value!r}")
+            raise PortValueError(f"expected {self.expected}, got {_short(value)}")
         if not math.isfinite(seconds) or seconds < 0:
-            raise PortValueError(f"expected {self.expected} (not negative), got {value!r}")
+            raise PortValueError(f"expected {self.expected} (not negative), got {_short(value)}")
         return seconds
 
     def to_text(self, value: Any) -> str:
         return _num_text(value)
+
+
+def _short(value: Any, limit: int = 200) -> str:
+    """``repr(value)``, cut to about ``limit`` characters for messages."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + f"... ({len(text)} characters)"
 
 
 def _num_text(v: Any) -> str:

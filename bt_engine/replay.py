@@ -1,7 +1,9 @@
-"""``btrun replay``: step through a tick log and show the tree at each tick."""
+"""``btrun replay``: step through a tick log (or a run's ``run.mcap``) and show the tree at
+each tick."""
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 
@@ -22,6 +24,62 @@ def states_at(header: dict, records: list[dict], tick: int) -> tuple[list[str], 
     return [status[p] for p in paths], bb
 
 
+#: the MCAP channels and metadata the tick records are rebuilt from (see docs/monitoring.md)
+MCAP_STATUS, MCAP_BB, MCAP_VEHICLE, MCAP_HEADER = (
+    "/tree/status",
+    "/blackboard",
+    "/vehicle/telemetry",
+    "btrun.header",
+)
+
+
+def read_mcap(path: str) -> tuple[dict, list[dict]]:
+    """Read a run's ``run.mcap`` back into ``(header, tick_records)`` as
+    :func:`bt_engine.ticklog.read_log` returns them from ``ticks.jsonl`` (tick, t, status,
+    changed, done, bb, messages, vehicle). A file cut short (a killed run) gives the ticks
+    up to its last complete chunk."""
+    from mcap.records import Channel, Message, Metadata
+    from mcap.stream_reader import StreamReader
+
+    header: dict = {}
+    topics: dict[int, str] = {}
+    ticks: dict[int, dict] = {}
+    bb: dict[int, dict] = {}
+    vehicle: dict[int, dict] = {}
+    with open(path, "rb") as f:
+        try:
+            for rec in StreamReader(f).records:
+                if isinstance(rec, Channel):
+                    topics[rec.id] = rec.topic
+                elif isinstance(rec, Metadata) and rec.name == MCAP_HEADER:
+                    header = json.loads(rec.metadata.get("header", "{}"))
+                elif isinstance(rec, Message):
+                    topic = topics.get(rec.channel_id)
+                    if topic == MCAP_STATUS:
+                        msg = json.loads(rec.data)
+                        ticks[msg["tick"]] = msg
+                    elif topic == MCAP_BB:
+                        msg = json.loads(rec.data)
+                        bb.setdefault(msg["tick"], {})[msg["key"]] = msg["value"]
+                    elif topic == MCAP_VEHICLE:
+                        msg = json.loads(rec.data)
+                        vehicle[msg["tick"]] = msg["vehicle"]
+        except Exception:  # noqa: BLE001  (a torn end: keep what was read)
+            pass
+    records = []
+    for tick in sorted(ticks):
+        msg = ticks[tick]
+        rec = {k: msg[k] for k in ("tick", "t", "status", "changed", "done") if k in msg}
+        if tick in bb:
+            rec["bb"] = bb[tick]
+        if "messages" in msg:
+            rec["messages"] = msg["messages"]
+        if tick in vehicle:
+            rec["vehicle"] = vehicle[tick]
+        records.append(rec)
+    return header, records
+
+
 def _rows(header: dict) -> list[Row]:
     return [Row(n[0], n[1], n[2], tuple(n[3])) for n in header.get("nodes", [])]
 
@@ -36,15 +94,18 @@ def _show(header: dict, records: list[dict], tick: int) -> None:
 
 
 def replay(path: str, tick: int | None = None, show_all: bool = False) -> int:
-    """Replay the log at ``path`` (a ``ticks.jsonl`` or a run folder); return an exit code."""
+    """Replay the log at ``path`` (a ``ticks.jsonl``, a run's ``run.mcap`` or a run folder);
+    return an exit code."""
     if os.path.isdir(path):
         path = os.path.join(path, "ticks.jsonl")
     if not os.path.exists(path):
         print(f"{path}:0:0: tick log not found", file=sys.stderr)
         return 2
-    header, records = read_log(path)
+    is_mcap = path.endswith(".mcap")
+    header, records = read_mcap(path) if is_mcap else read_log(path)
     if not header or not records:
-        print(f"{path}:1:1: not a btrun tick log (no header or no ticks)", file=sys.stderr)
+        what = "btrun run.mcap" if is_mcap else "btrun tick log"
+        print(f"{path}:1:1: not a {what} (no header or no ticks)", file=sys.stderr)
         return 2
     last = records[-1]["tick"]
     if tick is not None:

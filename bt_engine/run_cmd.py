@@ -114,6 +114,8 @@ class PreparedRun:
     run_dir: str
     rows: list[Any]
     log: TickLog
+    #: the Groot2 monitoring server (``--groot``), also in ``hooks``; closed by run_command
+    groot: Any = None
 
 
 def prepare(args) -> PreparedRun:
@@ -145,6 +147,8 @@ def prepare(args) -> PreparedRun:
     )
     run_dir = _run_dir(args)
     os.makedirs(run_dir, exist_ok=True)
+    if target is not None:  # a target may write files of its own beside the tick log
+        target.run_dir = run_dir  # type: ignore[attr-defined]
     rows = spec_rows(spec)
     header = {
         "mission": os.path.abspath(args.mission),
@@ -161,7 +165,22 @@ def prepare(args) -> PreparedRun:
     if target is not None and platform is not None:
         # the target's hooks (the safety supervisor) go first: they land before the platform
         hooks = [*target.make_hooks(platform, mission), platform]
-    return PreparedRun(args, mission, target, platform, hooks, clock, factor, run_dir, rows, log)
+    groot = None
+    if getattr(args, "groot", None) is not None:  # after the platform: sees each tick's end
+        from bt_engine.groot2 import Groot2Error, Groot2Server
+
+        address = getattr(args, "groot_address", None) or "127.0.0.1"
+        try:
+            groot = Groot2Server(mission, args.groot, address)
+        except Groot2Error as exc:
+            log.close()
+            raise MissionError([Problem(Loc("--groot", 0, 0), str(exc))]) from None
+        hooks.append(groot)
+        if not args.quiet:
+            print(f"btrun: Groot2 monitor on {address}:{groot.port} (publisher {groot.port + 1})")
+    return PreparedRun(
+        args, mission, target, platform, hooks, clock, factor, run_dir, rows, log, groot
+    )
 
 
 def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
@@ -253,5 +272,9 @@ def finish(run: PreparedRun, runner: Runner, result: RunResult) -> int:
 def run_command(args) -> int:
     """Run a mission from parsed CLI arguments; return the exit code."""
     run = prepare(args)
-    runner, result = fly(run)
-    return finish(run, runner, result)
+    try:
+        runner, result = fly(run)
+        return finish(run, runner, result)
+    finally:
+        if run.groot is not None:
+            run.groot.close()

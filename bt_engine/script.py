@@ -36,6 +36,13 @@ Semantics (BT.CPP stores every number as a double; we keep Python ints where exa
   strings when non-empty; ``None`` is an error.
 * Names resolve to an enum first (as in BT.CPP), then to the blackboard; ``@`` keys are passed
   unchanged to the environment, which maps them to the root blackboard.
+
+Limits (mission files come from users; every one is a :class:`ScriptError` naming it):
+``MAX_SOURCE_LENGTH`` characters of source, ``MAX_DEPTH`` levels of nesting,
+``MAX_NUMBER_LENGTH`` characters in a number (a longer numeric string is text),
+``MAX_STRING_LENGTH`` characters in a string a script builds and ``MAX_TEXT_PER_RUN``
+characters of new text built by one run of a script. Numbers are recognised in linear time
+(no backtracking regular expression). Integers never grow beyond int64 (they become floats).
 """
 
 from __future__ import annotations
@@ -45,6 +52,7 @@ import math
 import numbers
 import operator
 import re
+import threading
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol, runtime_checkable
 
@@ -52,7 +60,9 @@ __all__ = ["DictEnv", "Script", "ScriptEnv", "ScriptError", "parse_script"]
 
 MAX_SOURCE_LENGTH = 10_000
 MAX_DEPTH = 100  # nesting depth of expressions (parentheses, operands, unary chains)
-MAX_STRING_LENGTH = 1_000_000  # longest string a script may build by concatenation
+MAX_STRING_LENGTH = 65_536  # longest string a script may build by concatenation
+MAX_TEXT_PER_RUN = 1_048_576  # characters of new text one run of a script may build in all
+MAX_NUMBER_LENGTH = 400  # longest number literal or numeric string (a double has <= 309 digits)
 _I64 = 1 << 63
 _EPS = 1.1920928955078125e-07  # std::numeric_limits<float>::epsilon(), used by BT.CPP's ==
 
@@ -121,7 +131,13 @@ class Script:
         ``enums`` maps constant names (e.g. ``FIXED_YAW``) to integers; they shadow entries.
         Raises :class:`ScriptError` on runtime errors (unknown entry, type error, ...).
         """
-        return self._run(env, _NO_ENUMS if enums is None else enums)
+        budget = _BUDGET.__dict__
+        outer = budget.get("left")
+        budget["left"] = MAX_TEXT_PER_RUN
+        try:
+            return self._run(env, _NO_ENUMS if enums is None else enums)
+        finally:
+            budget["left"] = outer
 
     def __repr__(self) -> str:
         return f"Script({self.source!r})"
@@ -134,7 +150,13 @@ class _OpError(Exception):
     """Raised by value helpers; converted to ScriptError with the operator's column."""
 
 
-_NUM_RE = re.compile(r"\s*[+-]?(?:0[xX][0-9a-fA-F]+|(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*")
+# Anchored patterns without overlapping quantifiers (``\d+\.?\d*`` backtracks quadratically on
+# a long run of digits): each digit run is followed by something a digit cannot be, so a
+# failed match gives up in linear time. Inputs are also capped at MAX_NUMBER_LENGTH.
+_DEC_RE = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
+_HEX_RE = re.compile(r"[+-]?0[xX][0-9a-fA-F]+")
+#: what is left of the text-building budget of the running script (see Script.execute)
+_BUDGET = threading.local()
 
 
 def _desc(v: Any) -> str:
@@ -144,7 +166,7 @@ def _desc(v: Any) -> str:
 
 
 def _number(text: str) -> int | float:
-    """The value of a (possibly signed) numeric literal already matched by ``_NUM_RE``."""
+    """The value of a (possibly signed) numeric literal already matched by ``_DEC_RE`` or ``_HEX_RE``."""
     t = text.strip().lower()
     if "0x" in t:
         v = int(t, 16) if len(t) <= 20 else _I64
@@ -157,11 +179,25 @@ def _number(text: str) -> int | float:
 
 
 def _str_num(s: str) -> int | float | bool | None:
-    """The number (or bool, for 'true'/'false') a string spells, or None."""
-    if _NUM_RE.fullmatch(s):
-        return _number(s)
-    low = s.strip().lower()
+    """The number (or bool, for 'true'/'false') a string spells, or None.
+
+    Linear in ``len(s)``; a string of more than ``MAX_NUMBER_LENGTH`` characters (once
+    stripped) is never a number.
+    """
+    t = s.strip()
+    if len(t) > MAX_NUMBER_LENGTH:
+        return None
+    if _DEC_RE.fullmatch(t) or _HEX_RE.fullmatch(t):
+        return _number(t)
+    low = t.lower()
     return True if low == "true" else False if low == "false" else None
+
+
+def _too_long(s: str) -> str:
+    """A note for an error about ``s`` if it is too long to be read as a number."""
+    if len(s.strip()) > MAX_NUMBER_LENGTH:
+        return f" (numbers are at most {MAX_NUMBER_LENGTH} characters: MAX_NUMBER_LENGTH)"
+    return ""
 
 
 def _num(v: Any) -> int | float | bool:
@@ -171,7 +207,7 @@ def _num(v: Any) -> int | float | bool:
     if t is str:
         n = _str_num(v)
         if n is None:
-            raise _OpError(f"expected a number, got {_desc(v)}")
+            raise _OpError(f"expected a number, got {_desc(v)}{_too_long(v)}")
         return n
     if isinstance(v, numbers.Integral):
         return int(v)
@@ -223,8 +259,21 @@ def _text(v: Any) -> str:
 
 
 def _cat(a: str, b: str) -> str:
-    if len(a) + len(b) > MAX_STRING_LENGTH:
-        raise _OpError(f"string longer than {MAX_STRING_LENGTH} characters")
+    n = len(a) + len(b)
+    if n > MAX_STRING_LENGTH:
+        raise _OpError(
+            f"string longer than {MAX_STRING_LENGTH} characters (MAX_STRING_LENGTH): the "
+            f"result would have {n}"
+        )
+    budget = _BUDGET.__dict__
+    left = budget.get("left")
+    if left is not None:
+        if n > left:
+            raise _OpError(
+                f"one run of a script may build at most {MAX_TEXT_PER_RUN} characters of "
+                "text (MAX_TEXT_PER_RUN)"
+            )
+        budget["left"] = left - n
     return a + b
 
 
@@ -303,7 +352,7 @@ def _str_cmp(s: str, enums: Mapping[str, int], other: Any) -> Any:
     if n is None:
         n = enums.get(s.strip())
         if n is None:
-            raise _OpError(f"cannot compare {_desc(s)} with number {other!r}")
+            raise _OpError(f"cannot compare {_desc(s)} with number {other!r}{_too_long(s)}")
     return n
 
 
@@ -348,6 +397,9 @@ def _tokenize(code: str) -> list[tuple[str, Any, int]]:
             what = "unterminated string" if text in "'\"" else f"unexpected character {text!r}"
             raise ScriptError(what, col)
         if kind == "num":
+            if len(text) > MAX_NUMBER_LENGTH:
+                msg = f"number longer than {MAX_NUMBER_LENGTH} characters (MAX_NUMBER_LENGTH)"
+                raise ScriptError(msg, col)
             try:
                 tokens.append(("num", _number(text), col))
             except _OpError as e:

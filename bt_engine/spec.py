@@ -10,6 +10,27 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+#: Deepest nesting of nodes, within one tree and in the main tree once SubTrees are expanded
+#: (the root node is level 1). Real missions stay far below; the engine builds, ticks and
+#: halts trees recursively, so this also keeps Python's recursion limit out of reach.
+MAX_NESTING_DEPTH = 200
+#: Longest chain of SubTrees expanded inside each other (Main -> A -> B is 2).
+MAX_SUBTREE_DEPTH = 100
+#: Most nodes in the main tree once SubTrees are expanded (each use of a SubTree is a copy).
+MAX_TREE_NODES = 100_000
+#: Most attributes (ports) on one node or element.
+MAX_ATTRIBUTES = 256
+
+ERROR, WARNING = "error", "warning"
+
+
+def nesting_message(depth: int, how: str = "") -> str:
+    """The problem of a node nested ``depth`` levels deep (more than MAX_NESTING_DEPTH)."""
+    return (
+        f"node nested {depth} levels deep{how}; nodes may nest at most {MAX_NESTING_DEPTH} "
+        "deep (MAX_NESTING_DEPTH)"
+    )
+
 
 @dataclass(frozen=True)
 class Loc:
@@ -25,12 +46,19 @@ class Loc:
 
 @dataclass(frozen=True)
 class Problem:
-    """One thing wrong with an input file."""
+    """One thing wrong with an input file.
+
+    ``severity`` is ``"error"`` (nothing may run) or ``"warning"`` (worth a look, but the
+    mission runs; printed as ``file:line:col: warning: message``).
+    """
 
     loc: Loc
     message: str
+    severity: str = ERROR
 
     def __str__(self) -> str:
+        if self.severity == WARNING:
+            return f"{self.loc}: warning: {self.message}"
         return f"{self.loc}: {self.message}"
 
 
@@ -73,10 +101,20 @@ class NodeSpec:
         return None if a is None else str(a.value)
 
     def walk(self):
-        """Yield this node and all its descendants, depth first."""
-        yield self
-        for c in self.children:
-            yield from c.walk()
+        """Yield this node and all its descendants, depth first (pre-order, no recursion)."""
+        todo = [self]
+        while todo:
+            node = todo.pop()
+            yield node
+            todo.extend(reversed(node.children))
+
+    def walk_depth(self, depth: int = 1):
+        """Yield ``(node, depth)`` pre-order; this node is at ``depth`` (no recursion)."""
+        todo = [(self, depth)]
+        while todo:
+            node, d = todo.pop()
+            yield node, d
+            todo.extend((c, d + 1) for c in reversed(node.children))
 
 
 @dataclass

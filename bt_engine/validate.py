@@ -2,13 +2,38 @@
 
 Every problem is collected (never just the first) and located ``file:line:col``, with the
 offending value and what was expected. Nothing runs while any problem remains.
+
+Besides errors, validation finds *warnings* (:class:`~bt_engine.spec.Problem` with
+``severity="warning"``): things that are legal but probably wrong, such as a script reading
+a blackboard entry nothing writes, or ``Repeat num_cycles="-1"`` around children that never
+return RUNNING. :func:`validate` returns the errors only (a mission with warnings runs);
+pass a list as ``warnings`` to collect the warnings too (``btrun validate`` prints them).
+
+The main tree is checked once SubTrees are expanded: no SubTree may contain itself, SubTrees
+nest at most :data:`~bt_engine.spec.MAX_SUBTREE_DEPTH` deep, nodes at most
+:data:`~bt_engine.spec.MAX_NESTING_DEPTH` deep and the expanded tree has at most
+:data:`~bt_engine.spec.MAX_TREE_NODES` nodes. Every walk here is iterative and linear in
+the size of the spec (a tree used many times is analysed once).
 """
 
 from __future__ import annotations
 
-from bt_engine.ports import NO_DEFAULT, PortValueError, blackboard_ref
+from typing import Any
+
+from bt_engine.node import ConditionNode, SyncActionNode
+from bt_engine.ports import INT, NO_DEFAULT, PortValueError, blackboard_ref
 from bt_engine.registry import CONTROL, DECORATOR, SUBTREE, Registry, suggest_name
-from bt_engine.spec import MissionSpec, NodeSpec, Problem
+from bt_engine.spec import (
+    MAX_NESTING_DEPTH,
+    MAX_SUBTREE_DEPTH,
+    MAX_TREE_NODES,
+    WARNING,
+    Loc,
+    MissionSpec,
+    NodeSpec,
+    Problem,
+    nesting_message,
+)
 
 CONDITION_ATTRS = (
     "_failureIf",
@@ -21,6 +46,35 @@ CONDITION_ATTRS = (
     "_post",
 )
 SPECIAL_ATTRS = ("name", "_description", "_uid", "_fullpath")
+
+#: Blackboard entries written from outside the tree (by runner hooks of plug-ins, such as
+#: the safety supervisor's ``safety_state``): scripts may read them without a warning. A
+#: plug-in adds the entries it writes here.
+KNOWN_ENTRIES: set[str] = set()
+
+#: Built-in controls and decorators that never return RUNNING unless a child does (or only
+#: with a wake-up, which ticks the tree again at once): a loop around them never waits.
+#: (Not RunOnce: it returns SKIPPED after its first run, which ends the loop.)
+_PASS_THROUGH = frozenset(
+    (
+        "Sequence",
+        "SequenceWithMemory",
+        "ReactiveSequence",
+        "Fallback",
+        "ReactiveFallback",
+        "IfThenElse",
+        "WhileDoElse",
+        "Inverter",
+        "ForceSuccess",
+        "ForceFailure",
+        "Repeat",
+        "RetryUntilSuccessful",
+        "Timeout",
+        "SubTree",
+    )
+)
+#: Loop decorators and the port whose ``-1`` means forever.
+_LOOPS = {"Repeat": "num_cycles", "RetryUntilSuccessful": "num_attempts"}
 
 
 def check_script(code: str) -> str | None:
@@ -39,14 +93,41 @@ def _plural(n: int, word: str) -> str:
     return f"{n} {word}" + ("" if n == 1 else "s")
 
 
+def _parsed(code: Any):
+    """The parsed script of ``code``, or None (not text, a reference, or not valid)."""
+    from bt_engine.script import ScriptError, parse_script
+
+    if not isinstance(code, str) or blackboard_ref(code) is not None:
+        return None
+    try:
+        return parse_script(code)
+    except ScriptError:
+        return None
+
+
+def _order(p: Problem) -> tuple:
+    return (p.loc.file, p.loc.line, p.loc.col, p.message)
+
+
+def _chain(names: list[str]) -> str:
+    """``A -> B -> C``, shortened in the middle when long."""
+    if len(names) > 8:
+        names = names[:3] + [f"... {len(names) - 6} more ..."] + names[-3:]
+    return " -> ".join(names)
+
+
 class _Validator:
     def __init__(self, spec: MissionSpec, registry: Registry) -> None:
         self.spec = spec
         self.registry = registry
         self.problems: list[Problem] = list(spec.load_problems)
+        self.warnings: list[Problem] = []
 
     def add(self, loc, message: str) -> None:
         self.problems.append(Problem(loc, message))
+
+    def warn(self, loc, message: str) -> None:
+        self.warnings.append(Problem(loc, message, WARNING))
 
     def run(self) -> list[Problem]:
         spec = self.spec
@@ -73,29 +154,242 @@ class _Validator:
                     "<BehaviorTree> takes exactly one (wrap them in a Sequence)",
                 )
             if tree.root is not None:
-                for node in tree.root.walk():
+                too_deep = False
+                for node, depth in tree.root.walk_depth():
+                    if depth > MAX_NESTING_DEPTH and not too_deep:
+                        too_deep = True  # one problem per tree
+                        self.add(node.loc, nesting_message(depth))
                     self.node(node)
         if main in spec.trees:
-            self.cycles(main, [main])
-        return sorted(
-            set(self.problems), key=lambda p: (p.loc.file, p.loc.line, p.loc.col, p.message)
-        )
+            self.expansion(main)
+        self.unknown_entries()
+        self.unbounded_loops()
+        self.warnings = sorted(set(self.warnings), key=_order)
+        return sorted(set(self.problems), key=_order)
 
-    def cycles(self, tree_id: str, chain: list[str]) -> None:
+    # -- the main tree with SubTrees expanded ---------------------------------------------
+    def subtree_refs(self, tree_id: str) -> list[tuple[NodeSpec, int, str]]:
+        """``(SubTree node, its depth, target tree)`` of every SubTree of a defined tree."""
         root = self.spec.trees[tree_id].root
         if root is None:
-            return
-        for node in root.walk():
-            if node.type != "SubTree":
+            return []
+        return [
+            (node, depth, str(node.attrs["ID"].value))
+            for node, depth in root.walk_depth()
+            if node.type == "SubTree"
+            and "ID" in node.attrs
+            and str(node.attrs["ID"].value) in self.spec.trees
+        ]
+
+    def expansion(self, main: str) -> None:
+        """Recursive SubTrees, and the depth and size of the main tree once expanded.
+
+        One depth-first pass over the trees reachable from ``main`` (each tree once, with an
+        explicit stack: a chain of thousands of SubTrees is fine), then the longest SubTree
+        chain, the deepest node and the node count of every tree, children first.
+        """
+        trees = self.spec.trees
+        refs: dict[str, list[tuple[NodeSpec, int, str]]] = {}
+        state: dict[str, int] = {main: 1}  # 1: on the current path, 2: done
+        order: list[str] = []  # trees in post-order: every tree after the trees it uses
+        loops: set[int] = set()  # SubTree nodes that close a loop (left out below)
+        refs[main] = self.subtree_refs(main)
+        path, stack = [main], [iter(refs[main])]
+        while stack:
+            for node, _depth, target in stack[-1]:
+                seen = state.get(target)
+                if seen == 1:
+                    loops.add(id(node))
+                    self.add(
+                        node.attrs["ID"].loc, "recursive SubTree: " + " -> ".join(path + [target])
+                    )
+                elif seen is None:
+                    state[target] = 1
+                    refs[target] = self.subtree_refs(target)
+                    path.append(target)
+                    stack.append(iter(refs[target]))
+                    break
+            else:
+                stack.pop()
+                done = path.pop()
+                state[done] = 2
+                order.append(done)
+        chain: dict[str, int] = {}  # longest SubTree chain below a tree
+        deep: dict[str, int] = {}  # deepest node once expanded (a tree's root is level 1)
+        size: dict[str, int] = {}  # nodes once expanded (capped just above the limit)
+        for tid in order:
+            root = trees[tid].root
+            local = list(root.walk_depth()) if root is not None else []
+            used = [(n, d, t) for n, d, t in refs[tid] if id(n) not in loops]
+            chain[tid] = max((1 + chain[t] for _, _, t in used), default=0)
+            deep[tid] = max([d for _, d in local] + [d + deep[t] for _, d, t in used], default=0)
+            size[tid] = min(len(local) + sum(size[t] for _, _, t in used), MAX_TREE_NODES + 1)
+        if chain[main] > MAX_SUBTREE_DEPTH:
+            self.too_many_subtrees(main, refs, loops, chain)
+        elif deep[main] > MAX_NESTING_DEPTH:
+            self.too_deep(main, refs, loops, deep)
+        if size[main] > MAX_TREE_NODES:
+            root = trees[main].root
+            self.add(
+                root.loc if root is not None else trees[main].loc,
+                f"tree '{main}' has more than {MAX_TREE_NODES} nodes once its SubTrees are "
+                f"expanded (each use of a SubTree is a copy); the limit is {MAX_TREE_NODES} "
+                "(MAX_TREE_NODES)",
+            )
+
+    def too_many_subtrees(self, main: str, refs, loops: set[int], chain: dict[str, int]) -> None:
+        """Report the SubTree where the longest chain passes MAX_SUBTREE_DEPTH."""
+        names, tid = [main], main
+        while True:
+            node, _, target = max(
+                ((n, d, t) for n, d, t in refs[tid] if id(n) not in loops),
+                key=lambda r: chain[r[2]],
+            )
+            names.append(target)
+            if len(names) - 1 > MAX_SUBTREE_DEPTH:
+                self.add(
+                    node.attrs["ID"].loc,
+                    f"SubTree '{target}' is expanded {len(names) - 1} SubTrees deep "
+                    f"({_chain(names)}, with {chain[target]} more below); SubTrees may nest "
+                    f"at most {MAX_SUBTREE_DEPTH} deep (MAX_SUBTREE_DEPTH)",
+                )
+                return
+            tid = target
+
+    def too_deep(self, main: str, refs, loops: set[int], deep: dict[str, int]) -> None:
+        """Report the first node nested deeper than MAX_NESTING_DEPTH once expanded."""
+        names, tid, base = [main], main, 0
+        while True:
+            root = self.spec.trees[tid].root
+            if root is None:
+                return
+            for node, depth in root.walk_depth():
+                if base + depth > MAX_NESTING_DEPTH:
+                    if base == 0 or any(d > MAX_NESTING_DEPTH for _, d in root.walk_depth()):
+                        return  # too deep in this tree alone: reported with the tree
+                    how = f" once SubTrees are expanded ({_chain(names)})"
+                    self.add(node.loc, nesting_message(base + depth, how))
+                    return
+            _, d, tid = max(
+                ((n, d, t) for n, d, t in refs[tid] if id(n) not in loops),
+                key=lambda r: r[1] + deep[r[2]],
+            )
+            names.append(tid)
+            base += d
+
+    # -- warnings ---------------------------------------------------------------------------
+    def nodes(self):
+        """Every node of every tree."""
+        for tree in self.spec.trees.values():
+            if tree.root is not None:
+                yield from tree.root.walk()
+
+    def scripts(self, node: NodeSpec):
+        """``(attribute, parsed script)`` of every valid script of ``node``."""
+        for key, attr in node.attrs.items():
+            code = key in CONDITION_ATTRS or (
+                key == "code" and node.type in ("Script", "ScriptCondition")
+            )
+            script = _parsed(attr.value) if code else None
+            if script is not None:
+                yield attr, script
+
+    def unknown_entries(self) -> None:
+        """Warn about entries scripts read that nothing in the mission writes or declares.
+
+        Written: script assignments, blackboard references on output/inout ports, on
+        SubTrees (either way) and on unknown nodes, SetBlackboard's ``output_key``;
+        declared: ports of every ``<TreeNodesModel>`` entry (the mission's inputs, SubTree
+        ports), enum names and :data:`KNOWN_ENTRIES`. Scopes are ignored (an entry written
+        anywhere counts), so a warning means the entry can only come from outside the
+        tree: ``--set``, ``Mission(blackboard=...)`` or a plug-in.
+        """
+        known = set(KNOWN_ENTRIES)
+        for m in self.spec.models.values():
+            known.update(m.ports)
+        for model in self.registry.models():
+            for port in model.ports.values():
+                known.update(getattr(port.type, "members", None) or ())
+        reads: list[tuple[Any, str]] = []
+        for node in self.nodes():
+            model = self.registry.get(node.type)
+            for attr, script in self.scripts(node):
+                known.update(script.writes)
+                reads.extend((attr, name) for name in sorted(script.reads))
+            for key, attr in node.attrs.items():
+                ref = blackboard_ref(attr.value)
+                if model is not None and model.id == "SetBlackboard" and key == "output_key":
+                    if ref is not None:
+                        return  # the entry written is chosen at run time: anything may be
+                    known.add(str(attr.value).strip())
+                if ref is None:
+                    continue
+                name = key if ref == "=" else ref
+                if model is None or model.kind == SUBTREE:
+                    known.update((name, key))
+                elif key in model.ports and model.ports[key].writes:
+                    known.add(name)
+        known = {k.lstrip("@") for k in known}
+        for attr, name in reads:
+            if name.lstrip("@") not in known:
+                self.warn(
+                    attr.loc,
+                    f"script reads blackboard entry '{name}', which nothing in this mission "
+                    "writes (no script assignment, output port or SetBlackboard) or declares "
+                    "(<TreeNodesModel> port); unless it is set from outside (--set), the "
+                    "script fails when it runs",
+                )
+
+    def instant(self, root: NodeSpec) -> bool:
+        """True if the subtree at ``root`` can never return RUNNING (and so never waits).
+
+        Leaves: synchronous actions and conditions; controls and decorators: the built-in
+        ones in ``_PASS_THROUGH`` over instant children (SubTrees expanded). Anything else
+        (a node that may run for a while, an unknown one) may wait.
+        """
+        todo, seen = [root], set()
+        while todo:
+            node = todo.pop()
+            model = self.registry.get(node.type)
+            if model is None:
+                return False
+            if model.kind == SUBTREE:
+                target = str(node.attrs["ID"].value) if "ID" in node.attrs else ""
+                tree = self.spec.trees.get(target)
+                if tree is None or tree.root is None:
+                    return False
+                if target not in seen:
+                    seen.add(target)
+                    todo.append(tree.root)
+            elif node.children or model.kind in (CONTROL, DECORATOR):
+                if model.id not in _PASS_THROUGH:
+                    return False
+                todo.extend(node.children)
+            elif not issubclass(model.cls, (SyncActionNode, ConditionNode)):
+                return False
+        return True
+
+    def unbounded_loops(self) -> None:
+        """Warn about ``Repeat``/``RetryUntilSuccessful`` with -1 around instant children."""
+        for node in self.nodes():
+            model = self.registry.get(node.type)
+            port = _LOOPS.get(model.id) if model is not None else None
+            attr = node.attrs.get(port) if port else None
+            if attr is None or len(node.children) != 1:
                 continue
-            sub = node.attrs.get("ID")
-            if sub is None or sub.value not in self.spec.trees:
+            try:
+                forever = blackboard_ref(attr.value) is None and INT.convert(attr.value) == -1
+            except PortValueError:
                 continue
-            target = str(sub.value)
-            if target in chain:
-                self.add(sub.loc, "recursive SubTree: " + " -> ".join(chain + [target]))
-                continue
-            self.cycles(target, chain + [target])
+            if forever and self.instant(node.children[0]):
+                until = "fails" if model.id == "Repeat" else "succeeds"
+                self.warn(
+                    attr.loc,
+                    f'{model.id} {port}="-1" around children that never return RUNNING: '
+                    f"the loop repeats within one tick and never ends unless the child {until} "
+                    "(as in BehaviorTree.CPP); nothing else runs meanwhile, and the tree is not "
+                    "halted on time. Bound the count, or add an action that takes time",
+                )
 
     def node(self, node: NodeSpec) -> None:
         if node.type == "?":
@@ -211,6 +505,8 @@ class _Validator:
                         f"output port '{key}' of SubTree '{target}' is bound to the literal "
                         f"{attr.value!r}; expected a blackboard entry such as {{{key}}}",
                     )
+            elif blackboard_ref(attr.value) is None and not key.startswith("__"):
+                self.literal_through_subtree(target, key, attr)
         if model is not None:
             auto = (
                 str(node.attrs["_autoremap"].value).lower() in ("true", "1")
@@ -231,6 +527,43 @@ class _Validator:
                         f"SubTree '{target}' needs port '{p.name}'"
                         + (f" ({p.description})" if p.description else ""),
                     )
+
+    def literal_through_subtree(self, target: str, key: str, attr: Any) -> None:
+        """A literal given to SubTree port ``key`` must convert to the type of every port
+        that reads ``{key}`` inside ``target`` (through nested SubTrees too): a two-number
+        "vector" handed to a GoTo ``pose`` is an error here, not 7 s into the flight."""
+        seen: set[tuple[str, str]] = set()
+        todo = [(target, key, [target])]
+        while todo:
+            tree_id, entry, chain = todo.pop()
+            if (tree_id, entry) in seen or len(chain) > MAX_SUBTREE_DEPTH:
+                continue
+            seen.add((tree_id, entry))
+            tree = self.spec.trees.get(tree_id)
+            roots = [r for r in ([tree.root, *tree.extra_roots] if tree else []) if r]
+            for node in (n for r in roots for n in r.walk()):
+                for pname, a in node.attrs.items():
+                    if blackboard_ref(a.value) != entry:
+                        continue
+                    if node.type == "SubTree":
+                        inner = node.attrs.get("ID")
+                        if inner is not None and str(inner.value) in self.spec.trees:
+                            todo.append((str(inner.value), pname, [*chain, str(inner.value)]))
+                        continue
+                    model = self.registry.get(node.type)
+                    port = model.ports.get(pname) if model is not None else None
+                    if port is None or not port.reads:
+                        continue
+                    try:
+                        port.type.convert(attr.value)
+                    except PortValueError as exc:
+                        via = " -> ".join(chain)
+                        self.add(
+                            attr.loc,
+                            f"SubTree port '{key}' = {_brief(attr.value)} is read as port "
+                            f"'{pname}' of {node.type} ({a.loc}, in {via}): {exc}",
+                        )
+                        return
 
     def unknown(self, node: NodeSpec) -> None:
         loc = node.type_loc or node.loc
@@ -256,15 +589,28 @@ class _Validator:
         )
 
 
-def _file_loc(spec: MissionSpec):
-    from bt_engine.spec import Loc
-
+def _file_loc(spec: MissionSpec) -> Loc:
     return Loc(spec.file, 1, 1)
 
 
-def validate(spec: MissionSpec, registry: Registry) -> list[Problem]:
-    """Return every problem of ``spec`` (empty if it can run)."""
-    return _Validator(spec, registry).run()
+def validate(
+    spec: MissionSpec, registry: Registry, warnings: list[Problem] | None = None
+) -> list[Problem]:
+    """Return every error of ``spec`` (empty if it can run).
+
+    Warnings (``severity="warning"``: the mission runs) are appended to ``warnings`` if a
+    list is given.
+    """
+    v = _Validator(spec, registry)
+    problems = v.run()
+    if warnings is not None:
+        warnings.extend(v.warnings)
+    return problems
 
 
-__all__ = ["validate", "check_script", "CONDITION_ATTRS", "NO_DEFAULT"]
+__all__ = ["validate", "check_script", "CONDITION_ATTRS", "KNOWN_ENTRIES", "NO_DEFAULT"]
+
+
+def _brief(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."

@@ -8,6 +8,10 @@ giving exact ``file:line:col`` locations.
 Accepted spellings: compact ``<GoTo .../>`` and explicit ``<Action ID="GoTo" .../>``;
 ``<Condition|Control|Decorator ID=...>``; v3 ``SequenceStar``, ``SubTreePlus`` and
 ``__autoremap``; a missing ``BTCPP_format``.
+
+Work is bounded: at most ``MAX_ELEMENTS`` elements per file and
+:data:`~bt_engine.spec.MAX_ATTRIBUTES` attributes per element (checked by the scanner, before
+lxml parses anything), nodes nested at most :data:`~bt_engine.spec.MAX_NESTING_DEPTH` deep.
 """
 
 from __future__ import annotations
@@ -22,6 +26,8 @@ from lxml import etree
 
 from bt_engine.files import read_text
 from bt_engine.spec import (
+    MAX_ATTRIBUTES,
+    MAX_NESTING_DEPTH,
     AttrSpec,
     Loc,
     MissionSpec,
@@ -30,13 +36,20 @@ from bt_engine.spec import (
     PortModel,
     Problem,
     TreeSpec,
+    nesting_message,
 )
 
 EXPLICIT_TAGS = ("Action", "Condition", "Control", "Decorator")
 PORT_TAGS = {"input_port": "input", "output_port": "output", "inout_port": "inout"}
 
+#: Most elements (tags) in one XML file.
+MAX_ELEMENTS = 100_000
+
 _NAME = r"[A-Za-z_:][\w.\-:]*"
-_ATTR = re.compile(r"\s*(" + _NAME + r")\s*=\s*(\"[^\"]*\"|'[^']*')", re.S)
+_NAME_RE = re.compile(_NAME)
+# An attribute value cannot hold "<" (XML forbids it), so a value scan stops at the next tag:
+# an unterminated quote costs the rest of one tag, not the rest of the file per tag.
+_ATTR = re.compile(r"\s*(" + _NAME + r")\s*=\s*(\"[^\"<]*\"|'[^'<]*')", re.S)
 
 
 class _Positions:
@@ -47,6 +60,8 @@ class _Positions:
         self.line_starts = [0] + [m.end() for m in re.finditer("\n", text)]
         self.tags: list[tuple[int, dict[str, int]]] = []
         self.doctype_at: int | None = None
+        #: ``(offset, message)`` if the file has too many elements or attributes on one
+        self.too_much: tuple[int, str] | None = None
         self._scan()
 
     def _scan(self) -> None:
@@ -69,15 +84,32 @@ class _Positions:
             if t.startswith("<?", i) or t.startswith("</", i):
                 i = t.find("<", i + 2)
                 continue
-            m = re.match(_NAME, t[i + 1 : i + 200])
+            m = _NAME_RE.match(t, i + 1)
             attrs: dict[str, int] = {}
-            pos = i + 1 + (m.end() if m else 0)
+            pos = m.end() if m else i + 1
+            count = 0
             while True:
                 am = _ATTR.match(t, pos)
                 if not am:
                     break
+                count += 1
+                if count > MAX_ATTRIBUTES:
+                    name = m.group() if m else "?"
+                    self.too_much = (
+                        i,
+                        f"<{name}> has more than {MAX_ATTRIBUTES} attributes; the limit is "
+                        f"{MAX_ATTRIBUTES} (MAX_ATTRIBUTES)",
+                    )
+                    return
                 attrs[am.group(1)] = am.start(1)
                 pos = am.end()
+            if len(self.tags) >= MAX_ELEMENTS:
+                self.too_much = (
+                    i,
+                    f"the file has more than {MAX_ELEMENTS} elements; the limit is "
+                    f"{MAX_ELEMENTS} (MAX_ELEMENTS)",
+                )
+                return
             self.tags.append((i, attrs))
             i = t.find("<", pos)
 
@@ -122,6 +154,10 @@ class _Loader:
                 "DOCTYPE, DTD and entity declarations are not allowed in mission files",
             )
             return
+        if self.pos.too_much is not None:
+            offset, message = self.pos.too_much
+            self.problem(self.pos.loc(self.file, offset), message + "; refusing to load it")
+            return
         parser = etree.XMLParser(
             resolve_entities=False,
             no_network=True,
@@ -135,7 +171,12 @@ class _Loader:
             root = etree.fromstring(self.text.encode("utf-8"), parser)
         except etree.XMLSyntaxError as exc:
             line, col = exc.position if exc.position else (exc.lineno or 0, 0)
-            msg = re.sub(r",? line \d+, column \d+.*$", "", str(exc.msg or exc))
+            msg = re.sub(r",? line \d+, column \d+.*$", "", str(exc.msg or exc)[:500])
+            if "Excessive depth" in msg:  # libxml2 stops at 256 levels (without XML_PARSE_HUGE)
+                msg = (
+                    "elements nested more than 256 deep; nodes may nest at most "
+                    f"{MAX_NESTING_DEPTH} deep (MAX_NESTING_DEPTH)"
+                )
             self.problem(Loc(self.file, line, col), f"XML syntax error: {msg}")
             return
         elements = [el for el in root.iter() if _is_element(el)]
@@ -220,7 +261,7 @@ class _Loader:
             if not _is_element(child):
                 pending.append(_comment_text(child))
                 continue
-            nodes.append(self._node(child, pending))
+            nodes.append(self._node(child, pending, 1))
             pending = []
         if not nodes:
             self.problem(loc, f"tree '{tid}' is empty: a <BehaviorTree> needs exactly one child")
@@ -229,9 +270,12 @@ class _Loader:
             tree.extra_roots = nodes[1:]
         self.spec.trees[tid] = tree
 
-    def _node(self, el: Any, comments: list[str]) -> NodeSpec:
+    def _node(self, el: Any, comments: list[str], depth: int) -> NodeSpec:
         tag = el.tag
         loc = self.loc(el)
+        if depth > MAX_NESTING_DEPTH:
+            self.problem(loc, nesting_message(depth))
+            return NodeSpec("?", loc, tag=str(tag))  # its children are not read
         attrs = {}
         for name, value in el.attrib.items():
             # v3 spellings of a shared blackboard (Aerostack2 files use __shared_blackboard)
@@ -255,8 +299,10 @@ class _Loader:
             if not _is_element(child):
                 pending.append(_comment_text(child))
                 continue
-            spec.children.append(self._node(child, pending))
+            spec.children.append(self._node(child, pending, depth + 1))
             pending = []
+            if depth == MAX_NESTING_DEPTH:
+                break  # one problem for the first child too deep is enough
         return spec
 
     def _models(self, el: Any) -> None:

@@ -3,7 +3,9 @@
 See ``docs/mission-yaml.md`` for the schema. Parsing uses PyYAML's safe loader only (libyaml's
 ``CSafeLoader`` when available) and walks the composed node graph, so every tree, node and attribute keeps the
 ``file:line:col`` of its key. YAML tags (other than the core scalar ones), anchors and
-aliases are refused, file size, node count and nesting depth are capped. PyYAML drops
+aliases are refused, file size, node count, nesting depth and attributes per node
+(:data:`~bt_engine.spec.MAX_ATTRIBUTES`) are capped. A list item indented differently from
+the items before it is reported as such, not as PyYAML's parser error. PyYAML drops
 comments, so full-line ``#`` comments are recovered from the source text: a run of them
 directly above a node (or tree) is attached to it, and leading ones become the file header.
 """
@@ -20,6 +22,7 @@ from bt_engine.files import MAX_FILE_BYTES, read_text
 from bt_engine.ports import BOOL, PortValueError, blackboard_ref
 from bt_engine.registry import DECORATOR, KINDS, REGISTRY, SUBTREE, Registry, suggest_name
 from bt_engine.spec import (
+    MAX_ATTRIBUTES,
     AttrSpec,
     Loc,
     MissionSpec,
@@ -182,6 +185,47 @@ class _YamlLoader:
             return False
         return True
 
+    # -- list items indented differently from their siblings -------------------------------
+    def _item_col(self, i: int) -> int | None:
+        """The 0-based column of the ``-`` of a list item on line ``i`` (0-based), or None."""
+        text = self.lines[i] if 0 <= i < len(self.lines) else ""
+        rest = text.lstrip(" ")
+        return len(text) - len(rest) if rest == "-" or rest.startswith("- ") else None
+
+    def _misindented(self, i: int) -> Problem | None:
+        """A problem if line ``i`` (0-based) is a list item whose ``-`` lines up with no
+        open list above it (and it does not start a new list under a ``key:`` line)."""
+        col = self._item_col(i)
+        if col is None:
+            return None
+        low, above, first = len(self.lines[i]), None, True
+        for j in range(i - 1, -1, -1):  # up the lines that enclose line i
+            text = self.lines[j]
+            rest = text.lstrip(" ")
+            if not rest or rest.startswith("#"):
+                continue
+            indent = len(text) - len(rest)
+            if first and rest.rstrip().endswith(":") and indent <= col:
+                return None  # the first item of a list under "key:"
+            first = False
+            if indent < low:
+                low = indent
+                item = self._item_col(j)
+                if item == col:
+                    return None  # lines up with the items of an enclosing list
+                if item is not None and above is None:
+                    above = item
+            if low == 0:
+                break
+        if above is None:
+            return None
+        return Problem(
+            Loc(self.file, i + 1, col + 1),
+            f"this list item is indented differently from the ones before it (its '-' is in "
+            f"column {col + 1}, the item above has it in column {above + 1}); the items of "
+            "one list must line up",
+        )
+
     def _syntax(self, exc: yaml.YAMLError) -> None:
         bad = yaml.reader.Reader.NON_PRINTABLE.search(self.text)
         if isinstance(exc, yaml.reader.ReaderError) and bad:
@@ -190,6 +234,11 @@ class _YamlLoader:
             self.problem(loc, f"YAML syntax error: unacceptable character {bad.group()!r}")
             return
         mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        if mark is not None:  # the item itself, or the line before the one YAML stopped at
+            found = self._misindented(mark.line) or self._misindented(mark.line - 1)
+            if found is not None:
+                self.spec.load_problems.append(found)
+                return
         msg = getattr(exc, "problem", None) or str(exc)
         if getattr(exc, "context", None):
             msg += f" ({exc.context})"
@@ -271,6 +320,18 @@ class _YamlLoader:
     def _node(self, n: Node) -> NodeSpec:
         bad = NodeSpec("?", self.loc(n))  # stands in for a wrong node, so parents stay right
         if isinstance(n, ScalarNode) and _text(n):
+            if not n.style and n.end_mark.line > n.start_mark.line:
+                # "- A\n    - B" is the plain text "A - B" to YAML: B is indented too far
+                for j in range(n.start_mark.line + 1, n.end_mark.line + 1):
+                    col = self._item_col(j)
+                    if col is not None:
+                        self.problem(
+                            Loc(self.file, j + 1, col + 1),
+                            "this list item is indented differently from the ones before it "
+                            f"(more than the item above), so YAML reads it as more of the text "
+                            f"{n.value[:60]!r}; the items of one list must line up",
+                        )
+                        return bad
             notes = self._comments_above(n)
             return NodeSpec(n.value, bad.loc, tag=n.value, comments=notes, type_loc=bad.loc)
         if not isinstance(n, MappingNode) or not n.value:
@@ -297,6 +358,13 @@ class _YamlLoader:
         )
         if isinstance(value, SequenceNode):
             node.children = [self._node(c) for c in value.value]
+        elif isinstance(value, MappingNode) and len(value.value) > MAX_ATTRIBUTES:
+            self.problem(
+                value,
+                f"{key.value} has {len(value.value)} attributes; the limit is "
+                f"{MAX_ATTRIBUTES} (MAX_ATTRIBUTES)",
+            )
+            return bad
         elif isinstance(value, MappingNode):
             self._attrs(node, value)
         elif not _null(value):

@@ -199,6 +199,9 @@ def _validate_node(
     if spec.kind == "map" and isinstance(node, yaml.MappingNode):
         out, problems, seen = {}, [], set()
         for key_node, value_node in node.value:
+            if not isinstance(key_node, yaml.ScalarNode):  # e.g. "? [a, b]": a list as a key
+                problems.append(_at(filename, key_node, "a key must be a plain name"))
+                continue
             key = key_node.value
             sub_path = f"{path}.{key}" if path else key
             if key in seen:
@@ -222,6 +225,9 @@ def _validate_node(
     if spec.kind == "dict" and isinstance(node, yaml.MappingNode):
         out, problems = {}, []
         for key_node, value_node in node.value:
+            if not isinstance(key_node, yaml.ScalarNode):
+                problems.append(_at(filename, key_node, "a key must be a plain name"))
+                continue
             key = str(key_node.value)
             out[key], p = _validate_node(
                 value_node, spec.item or Field("any"), f"{path}.{key}", filename, loader, marks

@@ -52,9 +52,15 @@ class RigTarget:
             raise MissionError(config_problems(exc)) from None
 
     def make_hooks(self, platform: Platform, mission: Any) -> list[Any]:
-        """The safety supervisor's hook (first, so it lands before the platform stops)."""
+        """The safety supervisor's hook (first, so it lands before the platform stops), then
+        the ``run.mcap`` recorder (:mod:`nodes.mcap_log`) when the run has a folder
+        (``run_dir``, set by ``btrun``)."""
+        from nodes.mcap_log import make_mcap_recorder
+
         hook = make_safety_hook(self.rig, platform, mission)
-        return [hook] if hook is not None else []
+        hooks: list[Any] = [hook] if hook is not None else []
+        recorder = make_mcap_recorder(getattr(self, "run_dir", None), platform, mission, hook)
+        return hooks + ([recorder] if recorder is not None else [])
 
     def run_summary(self, platform: Platform, hooks: list[Any]) -> dict[str, Any]:
         """``sim`` (simulator ground truth) or ``vehicle`` (a real drone), and ``safety``."""

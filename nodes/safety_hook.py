@@ -16,7 +16,12 @@ from typing import Any
 
 from bt_engine.mission import Mission
 from bt_engine.runner import Abort
+from bt_engine.validate import KNOWN_ENTRIES
 from drivers.safety.supervisor import SafetySupervisor
+
+#: The blackboard entries the hook writes (scripts may read them: validation knows them).
+PUBLISHED = ("safety_state", "safety_fault", "safety_faults")
+KNOWN_ENTRIES.update(PUBLISHED)
 
 
 class SafetyHook:

@@ -69,9 +69,22 @@ TOKENS = [
     "_skipIf",
     "{=}",
 ]
+#: mission-only tokens: long runs for the parsers, list items for the YAML indentation
+#: check, loops and scripts for the validation warnings
+MISSION_TOKENS = TOKENS + [
+    " " * 64,
+    "9" * 450,
+    "\n     - ",
+    "\n        - ",
+    '_onHalted="x = nope + 1" ',
+    '<Repeat num_cycles="-1">',
+    "s := s .. s;",
+]
 
 
-def _mutate(text: str, ops: list[tuple[int, int, int, int]], swap_re: re.Pattern) -> str:
+def _mutate(
+    text: str, ops: list[tuple[int, int, int, int]], swap_re: re.Pattern, tokens=TOKENS
+) -> str:
     for kind, a, b, c in ops:
         n = len(text)
         if n == 0:
@@ -80,7 +93,7 @@ def _mutate(text: str, ops: list[tuple[int, int, int, int]], swap_re: re.Pattern
         if kind == 0:  # delete a few characters
             text = text[:i] + text[i + 1 + b % 8 :]
         elif kind == 1:  # insert a token
-            text = text[:i] + TOKENS[c % len(TOKENS)] + text[i:]
+            text = text[:i] + tokens[c % len(tokens)] + text[i:]
         elif kind == 2:  # replace one character
             text = text[:i] + chr(32 + c % 95) + text[i + 1 :]
         elif kind == 3:  # swap two attribute (or YAML) values
@@ -121,13 +134,15 @@ OPS = st.lists(
 def _check_mission(name: str, text: str) -> None:
     loader = load_yaml if name.endswith(".yaml") else load_xml
     spec = loader(os.path.join(REPO, "missions", name), text=text)
-    problems = validate(spec, REGISTRY)
-    for p in problems:
+    warnings: list = []
+    problems = validate(spec, REGISTRY, warnings)
+    for p in problems + warnings:
         assert LOCATED.match(str(p)), str(p)
     if not problems:  # a valid load must also build
         Mission(spec, clock=SimClock()).close()
 
 
+@pytest.mark.slow
 @settings(
     max_examples=1200,
     deadline=2000,
@@ -137,7 +152,7 @@ def _check_mission(name: str, text: str) -> None:
 @given(st.sampled_from(sorted(TEXTS)), OPS)
 def test_fuzzed_missions_load_or_locate(name: str, ops) -> None:
     swap = YAML_VALUE if name.endswith(".yaml") else ATTR
-    _check_mission(name, _mutate(TEXTS[name], ops, swap))
+    _check_mission(name, _mutate(TEXTS[name], ops, swap, MISSION_TOKENS))
 
 
 def _config_files() -> dict[str, tuple[str, str]]:
@@ -153,6 +168,7 @@ def _config_files() -> dict[str, tuple[str, str]]:
 CONFIGS = _config_files()
 
 
+@pytest.mark.slow
 @settings(
     max_examples=250,
     deadline=3000,
@@ -264,8 +280,6 @@ def test_rig_python_tag_is_a_located_error(tmp_path) -> None:
 
 
 def test_yaml_anchor_bomb_in_rig(tmp_path) -> None:
-    import time
-
     from drivers.rig.loader import load_rig
 
     rig = tmp_path / "rig.yaml"
@@ -277,7 +291,8 @@ def test_yaml_anchor_bomb_in_rig(tmp_path) -> None:
         )
         + "wind: {mean_mps: *g}\n"
     )
-    t0 = time.monotonic()
     with pytest.raises(ConfigError) as info:
         load_rig(str(rig))
-    assert time.monotonic() - t0 < 1.0 and len(str(info.value)) < 10_000
+    # refused at the anchors, before anything is expanded
+    assert "anchors and aliases are not allowed" in str(info.value)
+    assert len(str(info.value)) < 10_000

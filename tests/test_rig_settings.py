@@ -62,3 +62,11 @@ def test_btrun_rig_settings_and_check(capsys, tmp_path) -> None:
     assert main(["rig", "check", str(bad)]) == 2
     err = capsys.readouterr().err
     assert f"{bad}:3:12: control.rate_hz: expected a number" in err and "Traceback" not in err
+
+
+def test_a_key_that_is_not_a_plain_name_is_a_located_problem(tmp_path, capsys) -> None:
+    bad = tmp_path / "listkey.yaml"
+    bad.write_text("control:\n  ? [a, b]\n  : 3\n")
+    assert main(["rig", "check", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}:2:5: a key must be a plain name" in err and "Traceback" not in err

@@ -1,0 +1,500 @@
+"""Groot2 live monitoring: BehaviorTree.CPP's Groot2 protocol over ZeroMQ (``btrun --groot``).
+
+:class:`Groot2Server` is a runner hook: after every tick it updates the status buffer; a
+background thread answers Groot2's requests on a ZeroMQ REP socket (``tcp://127.0.0.1:1667``
+by default) and binds the publisher socket on the next port, as BehaviorTree.CPP's
+``Groot2Publisher`` does (see docs/references.md: BehaviorTree.CPP ``groot2_protocol.h``
+and ``groot2_publisher.cpp``; docs/monitoring.md for the user's side).
+
+Wire format (facts of the protocol, little-endian):
+
+* request: part 1 is a 6-byte header ``protocol (u8 = 2), type (u8), unique_id (u32)``;
+  BLACKBOARD, HOOK_* and TOGGLE_RECORDING carry a second part;
+* reply: part 1 is the 22-byte header (the request header with protocol 2, then a 16-byte
+  tree UUID), part 2 the payload: FULLTREE the tree as XML with ``_uid`` / ``_fullpath``
+  metadata, STATUS ``(uid u16, status u8)`` per node (IDLE after X is ``10 + X``),
+  BLACKBOARD the requested blackboards (``;``-separated names) as a JSON object encoded in
+  MessagePack;
+* errors: ``["error", message]`` (a wrong header, a missing second part, an unknown type).
+
+Breakpoints and hook replacement are not implemented: HOOK_INSERT, HOOK_REMOVE,
+BREAKPOINT_UNLOCK, TOGGLE_RECORDING and GET_TRANSITIONS are refused as BehaviorTree.CPP
+refuses an unknown request; HOOKS_DUMP answers ``[]`` and REMOVE_ALL_HOOKS /
+DISABLE_ALL_HOOKS are acknowledged (there are never hooks to remove).
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+import uuid
+from typing import Any
+
+import zmq
+
+from bt_engine.catalogue import groot_palette
+from bt_engine.mission import Mission
+from bt_engine.node import IDLE, BTNode, NodeStatus
+from bt_engine.ports import NO_DEFAULT
+from bt_engine.registry import SUBTREE
+
+#: the default request port (the publisher binds the next one), as BehaviorTree.CPP
+DEFAULT_PORT = 1667
+PROTOCOL_ID = 2
+REQUEST_HEADER_SIZE = 6
+REPLY_HEADER_SIZE = 22
+
+FULLTREE, STATUS, BLACKBOARD = b"T", b"S", b"B"
+HOOK_INSERT, HOOK_REMOVE, BREAKPOINT_REACHED, BREAKPOINT_UNLOCK = b"I", b"R", b"N", b"U"
+HOOKS_DUMP, REMOVE_ALL_HOOKS, DISABLE_ALL_HOOKS = b"D", b"A", b"X"
+TOGGLE_RECORDING, GET_TRANSITIONS = b"r", b"t"
+
+#: BehaviorTree.CPP's ``NodeStatus`` numbers (the status buffer's byte)
+STATUS_CODE = {"IDLE": 0, "RUNNING": 1, "SUCCESS": 2, "FAILURE": 3, "SKIPPED": 4}
+IDLE_FROM = 10  # IDLE after status X is sent as 10 + X
+_CODE = {st: STATUS_CODE[st.value] for st in NodeStatus}
+_IDLE_AFTER = {st: IDLE_FROM + STATUS_CODE[st.value] for st in NodeStatus}
+
+#: bounds on what one request may cost
+MAX_FRAME_BYTES = 64 * 1024
+MAX_PARTS = 4
+MAX_BLACKBOARDS = 256
+MAX_DEPTH = 8
+MAX_ITEMS = 10_000
+POLL_MS = 100
+MAX_PENDING = 100_000  # queued status changes before the tick's thread folds them itself
+
+
+class Groot2Error(RuntimeError):
+    """The server could not start (e.g. the port is in use)."""
+
+
+# -- the tree as Groot2 expects it ---------------------------------------------------------
+def _esc(text: str) -> str:
+    return (
+        text.replace("&", "&amp;")
+        .replace("<", "&lt;")
+        .replace(">", "&gt;")
+        .replace('"', "&quot;")
+        .replace("'", "&apos;")
+    )
+
+
+def _text(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return ";".join(_text(v) for v in value)
+    return str(value)
+
+
+def _default(port) -> str | None:
+    d = port.default
+    if d is None or d is NO_DEFAULT:
+        return None
+    try:
+        return d if isinstance(d, str) else port.type.to_text(d)
+    except Exception:  # a default without a text form: leave it out
+        return None
+
+
+class _Subtree:
+    """One SubTree instance (or the main tree): its ID, full path, nodes and scope."""
+
+    def __init__(self, tree_id: str, fullpath: str, scope: Any) -> None:
+        self.tree_id = tree_id
+        self.fullpath = fullpath
+        self.scope = scope
+        self.nodes: list[BTNode] = []
+        self.xml: list[str] = []
+
+
+def describe_tree(mission: Mission) -> tuple[str, list[_Subtree]]:
+    """The FULLTREE XML of ``mission`` (as BehaviorTree.CPP's ``WriteTreeToXML`` with metadata
+    and built-in models) and its SubTree instances in BehaviorTree.CPP's order.
+
+    Node UIDs are BehaviorTree.CPP's: pre-order over the expanded tree, from 1.
+    """
+    spec, registry, nodes = mission.spec, mission.registry, mission.nodes
+    main = spec.main_tree_id()
+    subtrees: list[_Subtree] = []
+    counter = [0]
+
+    def visit(node_spec, sub: _Subtree, depth: int) -> None:
+        model = registry.get(node_spec.type)
+        node = nodes[counter[0]]
+        counter[0] += 1
+        uid = node.uid + 1
+        sub.nodes.append(node)
+        pad = "    " * depth
+        attrs: dict[str, str] = {}
+        if model.kind == SUBTREE:
+            target = str(node_spec.attrs["ID"].value)
+            own = node_spec.name or f"{target}::{uid}"
+            fullpath = f"{sub.fullpath}/{own}" if sub.fullpath else own
+            attrs["ID"] = target
+            attrs["_fullpath"] = fullpath
+        else:
+            attrs["name"] = node_spec.name or model.id
+        attrs["_uid"] = str(uid)
+        for key, attr in node_spec.attrs.items():
+            if key in ("name", "ID", "_autoremap", "_description", "_uid", "_fullpath"):
+                continue
+            attrs[key] = _text(attr.value)
+        if model.kind != SUBTREE:
+            for port in model.ports.values():
+                if port.name not in attrs and port.direction != "output":
+                    d = _default(port)
+                    if d is not None:
+                        attrs[port.name] = d
+        head = f"{pad}<{model.id}" + "".join(f' {k}="{_esc(v)}"' for k, v in attrs.items())
+        if model.kind == SUBTREE:
+            sub.xml.append(head + "/>")
+            child = _Subtree(target, fullpath, node.children[0].scope)
+            subtrees.append(child)
+            visit(spec.trees[target].root, child, 2)
+        elif node_spec.children:
+            sub.xml.append(head + ">")
+            for c in node_spec.children:
+                visit(c, sub, depth + 1)
+            sub.xml.append(f"{pad}</{model.id}>")
+        else:
+            sub.xml.append(head + "/>")
+
+    top = _Subtree(main, "", mission.scope)
+    subtrees.append(top)
+    visit(spec.trees[main].root, top, 2)
+    if counter[0] != len(nodes):  # the builder and this walk must agree on the pre-order
+        raise Groot2Error(f"tree walk found {counter[0]} nodes, the mission has {len(nodes)}")
+    lines = ['<root BTCPP_format="4">']
+    for sub in subtrees:
+        lines.append(
+            f'    <BehaviorTree ID="{_esc(sub.tree_id)}" _fullpath="{_esc(sub.fullpath)}">'
+        )
+        lines += sub.xml
+        lines.append("    </BehaviorTree>")
+    palette = groot_palette(registry, include_builtins=True)
+    start, end = palette.find("<TreeNodesModel"), palette.rfind("</TreeNodesModel>")
+    if start >= 0 and end > start:
+        lines.append("    " + palette[start : end + len("</TreeNodesModel>")].strip())
+    elif start >= 0:
+        lines.append("    <TreeNodesModel/>")
+    lines.append("</root>")
+    return "\n".join(lines) + "\n", subtrees
+
+
+# -- MessagePack (the subset JSON needs), as nlohmann::json::to_msgpack writes it ------------
+def _to_json(value: Any, depth: int = 0, budget: list[int] | None = None) -> Any:
+    """A JSON-able copy of a blackboard value (bounded); None for what has no JSON form."""
+    budget = budget if budget is not None else [MAX_ITEMS]
+    budget[0] -= 1
+    if budget[0] < 0 or depth > MAX_DEPTH:
+        return None
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, NodeStatus):
+        return value.value
+    if isinstance(value, (list, tuple)):
+        return [_to_json(v, depth + 1, budget) for v in value[:MAX_ITEMS]]
+    if isinstance(value, dict):
+        return {str(k): _to_json(v, depth + 1, budget) for k, v in list(value.items())[:MAX_ITEMS]}
+    tolist = getattr(value, "tolist", None)  # numpy arrays and scalars
+    if callable(tolist):
+        try:
+            return _to_json(tolist(), depth + 1, budget)
+        except Exception:
+            return None
+    return None
+
+
+def msgpack_encode(obj: Any) -> bytes:
+    """Encode a JSON value in MessagePack (smallest forms; floats as float32 when exact)."""
+    out = bytearray()
+    _pack(obj, out)
+    return bytes(out)
+
+
+def _pack(obj: Any, out: bytearray) -> None:
+    if obj is None:
+        out += b"\xc0"
+    elif obj is True:
+        out += b"\xc3"
+    elif obj is False:
+        out += b"\xc2"
+    elif isinstance(obj, int):
+        _pack_int(obj, out)
+    elif isinstance(obj, float):
+        single = struct.unpack("<f", struct.pack("<f", obj))[0] if abs(obj) < 3.4e38 else None
+        if single == obj or obj != obj:
+            out += b"\xca" + struct.pack(">f", obj)
+        else:
+            out += b"\xcb" + struct.pack(">d", obj)
+    elif isinstance(obj, str):
+        data = obj.encode("utf-8", "replace")
+        n = len(data)
+        if n < 32:
+            out.append(0xA0 | n)
+        elif n < 0x100:
+            out += b"\xd9" + bytes([n])
+        elif n < 0x10000:
+            out += b"\xda" + struct.pack(">H", n)
+        else:
+            out += b"\xdb" + struct.pack(">I", n)
+        out += data
+    elif isinstance(obj, list):
+        _pack_len(len(obj), 0x90, b"\xdc", b"\xdd", out)
+        for v in obj:
+            _pack(v, out)
+    elif isinstance(obj, dict):
+        _pack_len(len(obj), 0x80, b"\xde", b"\xdf", out)
+        for k, v in obj.items():
+            _pack(str(k), out)
+            _pack(v, out)
+    else:
+        out += b"\xc0"
+
+
+def _pack_len(n: int, fix: int, m16: bytes, m32: bytes, out: bytearray) -> None:
+    if n < 16:
+        out.append(fix | n)
+    elif n < 0x10000:
+        out += m16 + struct.pack(">H", n)
+    else:
+        out += m32 + struct.pack(">I", n)
+
+
+def _pack_int(n: int, out: bytearray) -> None:
+    if 0 <= n < 0x80:
+        out.append(n)
+    elif -32 <= n < 0:
+        out += struct.pack(">b", n)
+    elif 0 <= n < 0x100:
+        out += b"\xcc" + bytes([n])
+    elif 0 <= n < 0x10000:
+        out += b"\xcd" + struct.pack(">H", n)
+    elif 0 <= n < 0x100000000:
+        out += b"\xce" + struct.pack(">I", n)
+    elif 0 <= n < 1 << 64:
+        out += b"\xcf" + struct.pack(">Q", n)
+    elif -0x80 <= n:
+        out += b"\xd0" + struct.pack(">b", n)
+    elif -0x8000 <= n:
+        out += b"\xd1" + struct.pack(">h", n)
+    elif -0x80000000 <= n:
+        out += b"\xd2" + struct.pack(">i", n)
+    elif -(1 << 63) <= n:
+        out += b"\xd3" + struct.pack(">q", n)
+    else:
+        out += b"\xcb" + struct.pack(">d", float(n))
+
+
+# -- the server ------------------------------------------------------------------------------
+class Groot2Server:
+    """Serve a running mission to Groot2; use it as a runner hook (``after_tick``).
+
+    Args:
+        mission: the built mission.
+        port: the request port (the publisher binds ``port + 1``); 0 picks a free pair.
+        address: the interface to bind (default loopback only).
+        max_heartbeat_delay_s: how long after its last request a client counts as connected.
+
+    Raises:
+        Groot2Error: if the ports cannot be bound.
+    """
+
+    def __init__(
+        self,
+        mission: Mission,
+        port: int = DEFAULT_PORT,
+        address: str = "127.0.0.1",
+        max_heartbeat_delay_s: float = 5.0,
+    ) -> None:
+        self.mission = mission
+        self.address = address
+        self.max_heartbeat_delay_s = max_heartbeat_delay_s
+        self.tree_xml, self.subtrees = describe_tree(mission)
+        self._scopes = {s.fullpath or s.tree_id: s.scope for s in self.subtrees}
+        order = [n for s in self.subtrees for n in s.nodes]
+        self._buffer = bytearray(3 * len(order))
+        self._offset: dict[BTNode, int] = {}
+        for i, node in enumerate(order):
+            self._buffer[3 * i : 3 * i + 2] = struct.pack("<H", (node.uid + 1) & 0xFFFF)
+            self._offset[node] = 3 * i + 2
+        self._lock = threading.Lock()
+        self._pending: list[tuple[BTNode, NodeStatus, NodeStatus]] = []
+        self.tree_uuid = uuid.uuid4().bytes
+        self.requests = 0
+        self.errors = 0
+        self.last_request: float | None = None
+        self._stop = threading.Event()
+        self._ctx = zmq.Context()
+        self._server, self._publisher, self.port = self._bind(port)
+        self.publisher_port = self.port + 1
+        self.update()
+        self._thread = threading.Thread(target=self._loop, name="groot2-server", daemon=True)
+        self._thread.start()
+
+    # -- sockets ---------------------------------------------------------------------------
+    def _bind(self, port: int) -> tuple[zmq.Socket, zmq.Socket, int]:
+        tries = 50 if port == 0 else 1
+        last: Exception | None = None
+        for _ in range(tries):
+            server = self._ctx.socket(zmq.REP)
+            publisher = self._ctx.socket(zmq.PUB)
+            for s in (server, publisher):
+                s.setsockopt(zmq.LINGER, 0)
+                s.setsockopt(zmq.SNDTIMEO, 1000)
+                s.setsockopt(zmq.MAXMSGSIZE, MAX_FRAME_BYTES)
+            try:
+                if port == 0:
+                    p = server.bind_to_random_port(f"tcp://{self.address}")
+                else:
+                    server.bind(f"tcp://{self.address}:{port}")
+                    p = port
+                publisher.bind(f"tcp://{self.address}:{p + 1}")
+                return server, publisher, p
+            except zmq.ZMQError as exc:
+                last = exc
+                server.close(0)
+                publisher.close(0)
+        self._ctx.term()
+        raise Groot2Error(
+            f"cannot bind Groot2 ports {port or 'any'} and the next one on {self.address}: {last}"
+        )
+
+    # -- runner hook -----------------------------------------------------------------------
+    def after_tick(self, t_s: float) -> None:  # noqa: ARG002
+        self.update()
+
+    def shutdown(self, reason: str) -> None:  # noqa: ARG002
+        self.update()  # the halted tree (the server stays up until close())
+
+    def update(self) -> None:
+        """Queue this tick's status changes for the status buffer.
+
+        The tick's thread only copies references (one C-level ``extend``); the server thread
+        folds them into the buffer when a client asks for STATUS, or every POLL_MS.
+        """
+        changes = getattr(self.mission, "_changes", None)
+        if changes is None:  # no change list: read every node
+            changes = [(n, n.bt_status, n.bt_status) for n in self.mission.nodes]
+        with self._lock:
+            self._pending.extend(changes)
+            if len(self._pending) > MAX_PENDING:  # nobody folds (no client): stay bounded
+                self._fold_locked()
+
+    def _fold_locked(self) -> None:
+        buf, offset, code, idle_after = self._buffer, self._offset, _CODE, _IDLE_AFTER
+        for n, old, new in self._pending:
+            i = offset.get(n)
+            if i is None:
+                continue
+            if new is IDLE:
+                if old is not IDLE:
+                    buf[i] = idle_after[old]
+            else:
+                buf[i] = code[new]
+        self._pending.clear()
+
+    def status_buffer(self) -> bytes:
+        """The STATUS payload now."""
+        with self._lock:
+            if self._pending:
+                self._fold_locked()
+            return bytes(self._buffer)
+
+    @property
+    def connected(self) -> bool:
+        """True if a client sent a request within ``max_heartbeat_delay_s`` (its heartbeat)."""
+        last = self.last_request
+        return last is not None and time.monotonic() - last < self.max_heartbeat_delay_s
+
+    def blackboards(self, names: str) -> dict[str, Any]:
+        """The named blackboards (``Main;sub``) as a JSON object; unknown names are left out,
+        an empty blackboard is null (as BehaviorTree.CPP's ``ExportBlackboardToJSON``)."""
+        out: dict[str, Any] = {}
+        budget = [MAX_ITEMS]
+        for name in names.split(";")[:MAX_BLACKBOARDS]:
+            scope = self._scopes.get(name)
+            if scope is None or name in out:
+                continue
+            entries = {}
+            for key, value in scope.local_items():
+                if budget[0] <= 0:
+                    break
+                entries[key] = _to_json(value, 0, budget)
+            out[name] = dict(sorted(entries.items())) or None
+        return out
+
+    # -- requests --------------------------------------------------------------------------
+    def handle(self, parts: list[bytes]) -> list[bytes]:
+        """The reply to one request (multipart in, multipart out)."""
+        if not parts or len(parts[0]) != REQUEST_HEADER_SIZE:
+            return [b"error", b"wrong request header"]
+        header = parts[0]
+        kind = header[1:2]
+        reply = [bytes([PROTOCOL_ID]) + header[1:6] + self.tree_uuid]
+        if kind == FULLTREE:
+            reply.append(self.tree_xml.encode())
+        elif kind == STATUS:
+            reply.append(self.status_buffer())
+        elif kind in (BLACKBOARD,):
+            if len(parts) != 2:
+                return [b"error", b"must be 2 parts message"]
+            names = parts[1].decode("utf-8", "replace")
+            reply.append(msgpack_encode(self.blackboards(names)))
+        elif kind == HOOKS_DUMP:
+            reply.append(b"[]")
+        elif kind in (REMOVE_ALL_HOOKS, DISABLE_ALL_HOOKS):
+            pass  # no hooks are ever installed
+        else:  # breakpoints, hook replacement, recording: refused as unknown requests
+            return [b"error", b"Request not recognized"]
+        return reply
+
+    def _loop(self) -> None:
+        sock = self._server
+        poller = zmq.Poller()
+        poller.register(sock, zmq.POLLIN)
+        while not self._stop.is_set():
+            try:
+                if not poller.poll(POLL_MS):
+                    self.status_buffer()  # fold the queued changes (bounds the queue)
+                    continue
+                parts = sock.recv_multipart()
+            except zmq.ZMQError:
+                if self._stop.is_set():
+                    return
+                continue
+            self.last_request = time.monotonic()
+            self.requests += 1
+            try:
+                reply = (
+                    self.handle(parts)
+                    if len(parts) <= MAX_PARTS
+                    else [b"error", b"too many message parts"]
+                )
+            except Exception as exc:  # never let a request end the thread (or the mission)
+                reply = [b"error", f"internal error: {type(exc).__name__}".encode()]
+            if reply[0] == b"error":
+                self.errors += 1
+            try:
+                sock.send_multipart(reply)
+            except zmq.ZMQError:
+                pass  # the client went away; REP resets on the next request
+
+    def close(self) -> None:
+        """Stop the thread and close the sockets (idempotent)."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join(2.0)
+        self._server.close(0)
+        self._publisher.close(0)
+        self._ctx.term()
+
+    def __enter__(self) -> Groot2Server:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

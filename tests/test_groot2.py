@@ -1,0 +1,441 @@
+"""Groot2 live monitoring (``bt_engine.groot2``) against BehaviorTree.CPP's own Groot2Publisher.
+
+The same XML runs in BT.CPP (behaviortreepy, its ``Groot2Publisher`` on one port) and in
+btrun (Mission + Runner on a SimClock, ``Groot2Server`` on another); a ZeroMQ client written
+here from BT.CPP's ``groot2_protocol.h`` queries both and the replies are compared field by
+field: reply headers, the FULLTREE XML (structure, attributes, UIDs), the STATUS buffer after
+the same ticks, the BLACKBOARD dump (MessagePack, decoded here) and the error replies.
+Everything is on 127.0.0.1, with free ports and bounded waits.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import socket
+import struct
+import xml.etree.ElementTree as ET
+
+import pytest
+from helpers import REPO, wait_until, wrap, xml_mission
+
+zmq = pytest.importorskip("zmq")
+
+from bt_engine import Runner  # noqa: E402
+from bt_engine.groot2 import Groot2Server, msgpack_encode  # noqa: E402
+
+TIMEOUT_MS = 2000
+
+XML = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <Sequence name="seq">
+      <SetBlackboard name="sb" output_key="a" value="42"/>
+      <Script name="sc" code="b := 3.5; n := 7; s := 'hi'"/>
+      <Fallback name="fb">
+        <AlwaysFailure name="af"/>
+        <SubTree ID="Sub" name="sub" x="{n}"/>
+      </Fallback>
+      <SubTree ID="Sub"/>
+      <Parallel name="par"><AlwaysSuccess name="pa"/></Parallel>
+      <Repeat name="rep" num_cycles="2"><AlwaysSuccess name="ra"/></Repeat>
+      <Sleep name="sl" msec="100000"/>
+    </Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="Sub">
+    <Sequence name="ss">
+      <Script name="ssc" code="loc := 5; x := 8" _skipIf="false"/>
+      <SubTree ID="Leaf" _autoremap="true"/>
+    </Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="Leaf"><AlwaysSuccess name="leaf"/></BehaviorTree>
+</root>
+"""
+BLACKBOARDS = b"Main;sub;Sub::8;sub/Leaf::6;nope"
+
+
+# -- a Groot2 client written from groot2_protocol.h -----------------------------------------
+def header(kind: bytes, request_id: int = 0x1234ABCD, protocol: int = 2) -> bytes:
+    return struct.pack("<BcI", protocol, kind, request_id)
+
+
+class Client:
+    """A REQ client; a reply that does not come within TIMEOUT_MS fails the test."""
+
+    def __init__(self, ctx, port: int) -> None:
+        self.sock = ctx.socket(zmq.REQ)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.setsockopt(zmq.RCVTIMEO, TIMEOUT_MS)
+        self.sock.setsockopt(zmq.SNDTIMEO, TIMEOUT_MS)
+        self.sock.connect(f"tcp://127.0.0.1:{port}")
+
+    def ask(self, *parts: bytes) -> list[bytes]:
+        self.sock.send_multipart(list(parts))
+        return self.sock.recv_multipart()
+
+    def request(self, kind: bytes, *extra: bytes) -> list[bytes]:
+        return self.ask(header(kind), *extra)
+
+    def close(self) -> None:
+        self.sock.close(0)
+
+
+def check_reply_header(part: bytes, kind: bytes, request_id: int = 0x1234ABCD) -> bytes:
+    assert len(part) == 22
+    protocol, k, rid = struct.unpack("<BcI", part[:6])
+    assert (protocol, k, rid) == (2, kind, request_id)
+    return part[6:]  # the tree UUID
+
+
+def msgpack_decode(data: bytes):
+    """Decode MessagePack (the subset JSON uses); the whole buffer must be consumed."""
+
+    def dec(i: int):
+        b = data[i]
+        if b <= 0x7F:
+            return b, i + 1
+        if b >= 0xE0:
+            return b - 0x100, i + 1
+        if 0x80 <= b <= 0x8F or b in (0xDE, 0xDF):
+            n, i = (b & 0x0F, i + 1) if b <= 0x8F else _length(b == 0xDE, i)
+            out = {}
+            for _ in range(n):
+                k, i = dec(i)
+                out[k], i = dec(i)
+            return out, i
+        if 0x90 <= b <= 0x9F or b in (0xDC, 0xDD):
+            n, i = (b & 0x0F, i + 1) if b <= 0x9F else _length(b == 0xDC, i)
+            out = []
+            for _ in range(n):
+                v, i = dec(i)
+                out.append(v)
+            return out, i
+        if 0xA0 <= b <= 0xBF or b in (0xD9, 0xDA, 0xDB):
+            if b <= 0xBF:
+                n, i = b & 0x1F, i + 1
+            else:
+                size = {0xD9: 1, 0xDA: 2, 0xDB: 4}[b]
+                n, i = int.from_bytes(data[i + 1 : i + 1 + size], "big"), i + 1 + size
+            return data[i : i + n].decode(), i + n
+        simple = {0xC0: None, 0xC2: False, 0xC3: True}
+        if b in simple:
+            return simple[b], i + 1
+        fmt = {
+            0xCA: ">f", 0xCB: ">d", 0xCC: ">B", 0xCD: ">H", 0xCE: ">I", 0xCF: ">Q",
+            0xD0: ">b", 0xD1: ">h", 0xD2: ">i", 0xD3: ">q",
+        }[b]  # fmt: skip
+        size = struct.calcsize(fmt)
+        return struct.unpack(fmt, data[i + 1 : i + 1 + size])[0], i + 1 + size
+
+    def _length(short: bool, i: int):
+        size = 2 if short else 4
+        return int.from_bytes(data[i + 1 : i + 1 + size], "big"), i + 1 + size
+
+    value, end = dec(0)
+    assert end == len(data)
+    return value
+
+
+def normal(value):
+    """Blackboard values as both engines may type them: numbers by value (bools as 0/1)."""
+    if isinstance(value, dict):
+        return {k: normal(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [normal(v) for v in value]
+    if isinstance(value, (bool, int, float)):
+        return round(float(value), 6)
+    return value
+
+
+def tree_shape(xml: str) -> tuple[list, dict]:
+    """(every BehaviorTree as (ID, _fullpath, nested node tuples), TreeNodesModel by ID)."""
+    root = ET.fromstring(xml)
+    assert root.tag == "root" and root.get("BTCPP_format") == "4"
+
+    def node(el):
+        return (el.tag, dict(el.attrib), [node(c) for c in el])
+
+    trees = [
+        (t.get("ID"), t.get("_fullpath"), [node(c) for c in t]) for t in root.iter("BehaviorTree")
+    ]
+    models = {}
+    for m in root.iter("TreeNodesModel"):
+        for el in m:
+            models[el.get("ID")] = (el.tag, sorted(p.get("name") for p in el if "port" in p.tag))
+    return trees, models
+
+
+def uids_of(trees: list) -> list[int]:
+    out: list[int] = []
+
+    def walk(n):
+        out.append(int(n[1]["_uid"]))
+        for c in n[2]:
+            walk(c)
+
+    for _, _, nodes in trees:
+        for n in nodes:
+            walk(n)
+    return out
+
+
+def status_pairs(buf: bytes) -> list[tuple[int, int]]:
+    assert len(buf) % 3 == 0
+    return [(struct.unpack("<H", buf[i : i + 2])[0], buf[i + 2]) for i in range(0, len(buf), 3)]
+
+
+def free_port_pair() -> int:
+    """A port p with p and p + 1 free on 127.0.0.1 (BT.CPP needs an explicit port)."""
+    for _ in range(50):
+        with socket.socket() as a:
+            a.bind(("127.0.0.1", 0))
+            p = a.getsockname()[1]
+            if p >= 65535:
+                continue
+            with socket.socket() as b:
+                try:
+                    b.bind(("127.0.0.1", p + 1))
+                except OSError:
+                    continue
+        return p
+    raise RuntimeError("no free port pair")
+
+
+@pytest.fixture
+def ctx():
+    c = zmq.Context()
+    yield c
+    c.term()
+
+
+@pytest.fixture
+def btcpp():
+    """behaviortreepy with its Groot2Publisher, or a clean skip."""
+    bt = pytest.importorskip("behaviortreepy")
+    if not getattr(bt, "GROOT2_AVAILABLE", False) or not hasattr(bt, "Groot2Publisher"):
+        pytest.skip("behaviortreepy was built without Groot2 support")
+    return bt
+
+
+# -- the differential test -------------------------------------------------------------------
+def test_replies_equal_btcpp_publisher(ctx, btcpp):
+    tree = btcpp.BehaviorTreeFactory().create_tree_from_text(XML)
+    bt_port = free_port_pair()
+    publisher = btcpp.Groot2Publisher(tree, bt_port)
+    mission = xml_mission(XML)
+    runner = Runner(mission, 50.0)
+    server = Groot2Server(mission, port=0)
+    runner.hooks.append(server)
+    assert server.address == "127.0.0.1" and server.publisher_port == server.port + 1
+    theirs, ours = Client(ctx, bt_port), Client(ctx, server.port)
+    try:
+        # the tree, before any tick
+        t_reply, o_reply = theirs.request(b"T"), ours.request(b"T")
+        assert len(t_reply) == len(o_reply) == 2
+        check_reply_header(t_reply[0], b"T")
+        uuid = check_reply_header(o_reply[0], b"T")
+        t_trees, t_models = tree_shape(t_reply[1].decode())
+        o_trees, o_models = tree_shape(o_reply[1].decode())
+        assert o_trees == t_trees  # IDs, _fullpath, tags, names, _uid, ports, conditions
+        assert sorted(uids_of(o_trees)) == list(range(1, len(mission.nodes) + 1))
+        used = {tag for _, _, nodes in t_trees for tag in _tags(nodes)} - {"SubTree"}
+        for tag in used:
+            assert o_models[tag] == t_models[tag], tag
+        # the status buffer, before and after the same ticks
+        for tick in range(4):
+            if tick:
+                assert tree.tick_once().name == runner.step().value
+            t_reply, o_reply = theirs.request(b"S"), ours.request(b"S")
+            check_reply_header(t_reply[0], b"S")
+            assert check_reply_header(o_reply[0], b"S") == uuid  # one UUID per tree
+            assert status_pairs(o_reply[1]) == status_pairs(t_reply[1]), f"after tick {tick}"
+        # the blackboards
+        t_reply, o_reply = theirs.request(b"B", BLACKBOARDS), ours.request(b"B", BLACKBOARDS)
+        check_reply_header(t_reply[0], b"B")
+        check_reply_header(o_reply[0], b"B")
+        t_bb, o_bb = msgpack_decode(t_reply[1]), msgpack_decode(o_reply[1])
+        assert set(o_bb) == set(t_bb) and "Main" in o_bb
+        assert normal(o_bb) == normal(t_bb)
+        # the same answer to the same odd requests
+        odd = [
+            [b"abc"],  # truncated header
+            [header(b"S") + b"\x00"],  # one byte too long
+            [header(b"Z")],  # unknown request type
+            [header(b"N")],  # BREAKPOINT_REACHED is sent by the executor, never asked
+            [header(b"B")],  # BLACKBOARD without its second part
+            [header(b"D")],  # HOOKS_DUMP: no hooks
+            [header(b"A")],  # REMOVE_ALL_HOOKS
+            [header(b"X")],  # DISABLE_ALL_HOOKS
+            [header(b"S", protocol=9)],  # BT.CPP answers with its own protocol id
+        ]
+        for parts in odd:
+            t_reply, o_reply = theirs.ask(*parts), ours.ask(*parts)
+            assert [p[:6] for p in o_reply] == [p[:6] for p in t_reply], parts
+            assert [len(p) for p in o_reply] == [len(p) for p in t_reply], parts
+    finally:
+        theirs.close()
+        ours.close()
+        server.close()
+        del publisher
+
+
+def _tags(nodes):
+    for tag, _, children in nodes:
+        yield tag
+        yield from _tags(children)
+
+
+# -- robustness ------------------------------------------------------------------------------
+def test_garbage_gets_error_replies_while_the_mission_ticks(ctx):
+    body = """
+    <Repeat num_cycles="-1">
+      <Sequence name="loop">
+        <Script name="count" code="ticks := ticks + 1"/>
+        <Sleep name="nap" msec="40"/>
+      </Sequence>
+    </Repeat>"""
+    mission = xml_mission(wrap(body), blackboard={"ticks": 0})
+    reference = xml_mission(wrap(body), blackboard={"ticks": 0})
+    runner, ref_runner = Runner(mission, 50.0), Runner(reference, 50.0)
+    with Groot2Server(mission, port=0) as server:
+        runner.hooks.append(server)
+        client = Client(ctx, server.port)
+        dealer = ctx.socket(zmq.DEALER)  # sends any frames, no REQ envelope rules
+        dealer.setsockopt(zmq.LINGER, 0)
+        dealer.setsockopt(zmq.RCVTIMEO, TIMEOUT_MS)
+        dealer.connect(f"tcp://127.0.0.1:{server.port}")
+        raw = socket.create_connection(("127.0.0.1", server.port), timeout=2)
+        try:
+            raw.sendall(b"GET / HTTP/1.0\r\n\r\n" + bytes(range(256)))  # not even ZMTP
+            bad = [
+                ([b"\xff" * 40], b"wrong request header"),
+                ([b"\x02S"], b"wrong request header"),  # truncated header
+                ([b""], b"wrong request header"),
+                ([header(b"?")], b"Request not recognized"),
+                ([header(b"I"), b'{"uid": 1}'], b"Request not recognized"),  # no breakpoints
+                ([header(b"U"), b"{}"], b"Request not recognized"),
+                ([header(b"r"), b"start"], b"Request not recognized"),  # no recording
+                ([header(b"B"), b"a", b"b"], b"must be 2 parts message"),
+                ([header(b"S"), b"x", b"x", b"x", b"x", b"x"], b"too many message parts"),
+            ]
+            for parts, why in bad:
+                runner.step()
+                ref_runner.step()
+                assert client.ask(*parts) == [b"error", why], parts
+                dealer.send_multipart([b"", *parts])
+                assert dealer.recv_multipart() == [b"", b"error", why]
+            dealer.send_multipart([b"", header(b"S"), b"z" * 100_000])  # over the frame limit
+            runner.step()
+            ref_runner.step()
+            reply = client.request(b"S")  # still serving
+            check_reply_header(reply[0], b"S")
+            assert len(reply[1]) == 3 * len(mission.nodes)
+            wait_until(lambda: server.requests >= 2 * len(bad) + 1, 5, "the server's count")
+        finally:
+            raw.close()
+            dealer.close(0)
+            client.close()
+    assert server.errors == 2 * len(bad)
+    assert mission.ticks == reference.ticks == len(bad) + 1
+    assert mission.blackboard["ticks"] == reference.blackboard["ticks"] > 1
+    assert [r.get("changed") for r in runner.trace] == [r.get("changed") for r in ref_runner.trace]
+
+
+def test_status_codes_and_blackboard_values():
+    body = """
+    <Sequence name="s">
+      <Script name="w" code="f := 0.1; big := 70000; neg := -3; t := true; txt := 'é'"/>
+      <Sleep name="z" msec="1000"/>
+    </Sequence>"""
+    mission = xml_mission(wrap(body))
+    with Groot2Server(mission, port=0) as server:
+        runner = Runner(mission, 50.0, hooks=[server])
+        pairs = dict(status_pairs(server.status_buffer()))
+        assert pairs == {1: 0, 2: 0, 3: 0}
+        runner.step()
+        pairs = dict(status_pairs(server.status_buffer()))
+        assert pairs == {1: 1, 2: 2, 3: 1}  # RUNNING, SUCCESS, RUNNING
+        mission.halt()
+        server.shutdown("test")
+        assert dict(status_pairs(server.status_buffer())) == {
+            1: 11,
+            2: 12,
+            3: 11,
+        }  # IDLE after X: 10 + X
+        bb = msgpack_decode(msgpack_encode(server.blackboards("Main;Main;unknown")))
+        assert bb == {"Main": {"big": 70000, "f": 0.1, "neg": -3, "t": True, "txt": "é"}}
+        assert not server.connected
+
+
+def test_loopback_by_default_and_port_in_use(ctx):
+    mission = xml_mission(wrap('<AlwaysSuccess name="ok"/>'))
+    with Groot2Server(mission, port=0) as first:
+        assert first.address == "127.0.0.1"
+        from bt_engine.groot2 import Groot2Error
+
+        with pytest.raises(Groot2Error, match="cannot bind"):
+            Groot2Server(mission, port=first.port)
+        client = Client(ctx, first.port)
+        check_reply_header(client.request(b"S")[0], b"S")
+        assert first.connected  # a request is Groot2's heartbeat
+        client.close()
+
+
+# -- every shipped mission -------------------------------------------------------------------
+MISSIONS = sorted(
+    glob.glob(os.path.join(REPO, "missions", "*.xml"))
+    + glob.glob(os.path.join(REPO, "missions", "*.yaml"))
+)
+
+
+@pytest.mark.parametrize("path", MISSIONS, ids=os.path.basename)
+def test_fulltree_of_every_mission(path, ctx):
+    import nodes  # noqa: F401  (registers the drone leaves)
+    from bt_engine import Mission, SimClock
+
+    mission = Mission.from_file(path, clock=SimClock())
+    with Groot2Server(mission, port=0) as server:
+        client = Client(ctx, server.port)
+        try:
+            xml = client.request(b"T")[1].decode()
+            status = client.request(b"S")[1]
+        finally:
+            client.close()
+    trees, models = tree_shape(xml)
+    n = len(mission.nodes)
+    assert trees[0][1] == "" and trees[0][0] == mission.spec.main_tree_id()
+    assert sorted(uids_of(trees)) == list(range(1, n + 1))
+    paths = {full for _, full, _ in trees}
+    assert len(paths) == len(trees)  # one BehaviorTree per SubTree instance
+
+    def check(node):
+        tag, attrs, children = node
+        if tag == "SubTree":
+            assert attrs["_fullpath"] in paths and not children
+        else:
+            assert tag in models and attrs.get("name")
+        for c in children:
+            check(c)
+
+    for _, _, nodes_ in trees:
+        assert len(nodes_) == 1
+        check(nodes_[0])
+    pairs = status_pairs(status)
+    assert sorted(uid for uid, _ in pairs) == list(range(1, n + 1))
+    assert {code for _, code in pairs} == {0}
+
+
+# -- the command line ------------------------------------------------------------------------
+def test_cli_groot_option(tmp_path, capsys):
+    from bt_engine.cli import _parser, main
+
+    parse = _parser().parse_args
+    assert parse(["run", "m.xml"]).groot is None
+    assert parse(["run", "m.xml", "--groot"]).groot == 1667
+    assert parse(["run", "m.xml", "--groot", "2000"]).groot == 2000
+    assert parse(["run", "m.xml", "--groot"]).groot_address == "127.0.0.1"
+    mission = tmp_path / "m.xml"
+    mission.write_text(wrap('<Sleep name="nap" msec="100"/>'))
+    rc = main([str(mission), "--groot", "0", "--out", str(tmp_path / "run"), "--no-report"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "Groot2 monitor on 127.0.0.1:" in out and "SUCCESS" in out
