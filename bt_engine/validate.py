@@ -147,6 +147,12 @@ class _Validator:
                 + (f"; did you mean '{hint}'?" if hint else ""),
             )
         for tree in spec.trees.values():
+            if self.registry.get(tree.id) is not None:  # BT.CPP refuses it too
+                self.add(
+                    tree.loc,
+                    f"tree '{tree.id}' has the name of a node ({tree.id}); give the "
+                    "<BehaviorTree> another ID (BehaviorTree.CPP and Groot2 refuse the clash)",
+                )
             for extra in tree.extra_roots:
                 self.add(
                     extra.loc,

@@ -5,6 +5,9 @@ btrun (Mission + Runner on a SimClock, ``Groot2Server`` on another); a ZeroMQ cl
 here from BT.CPP's ``groot2_protocol.h`` queries both and the replies are compared field by
 field: reply headers, the FULLTREE XML (structure, attributes, UIDs), the STATUS buffer after
 the same ticks, the BLACKBOARD dump (MessagePack, decoded here) and the error replies.
+Every mission in missions/ is compared too (FULLTREE and STATUS), its drone leaves replaced
+by dummies of the same ID, kind and ports in both engines
+(``test_every_mission_equals_btcpp_publisher``).
 Everything is on 127.0.0.1, with free ports and bounded waits.
 """
 
@@ -439,3 +442,294 @@ def test_cli_groot_option(tmp_path, capsys):
     out = capsys.readouterr().out
     assert rc == 0, out
     assert "Groot2 monitor on 127.0.0.1:" in out and "SUCCESS" in out
+
+
+# -- every shipped mission against BT.CPP's publisher ----------------------------------------
+MAX_MISSION_TICKS = 80  # every dummy action takes two ticks; the longest mission needs ~40
+
+
+def _drone_models() -> dict:
+    """btrun's drone leaves (the actions and conditions BT.CPP does not know), by ID."""
+    import nodes  # noqa: F401  (registers the drone leaves)
+    from bt_engine.registry import ACTION, CONDITION, REGISTRY
+
+    return {
+        m.id: m
+        for m in REGISTRY.models()
+        if m.kind in (ACTION, CONDITION) and m.category != "built-in"
+    }
+
+
+def _dummy_registry(drone: dict, condition_ok: bool):
+    """btrun's registry with every drone leaf replaced by a dummy of the same ID, kind and
+    ports: an action is RUNNING on its first tick and SUCCESS on the next, a condition
+    returns ``condition_ok``. The same dummies are registered in BT.CPP (see
+    :func:`_btcpp_factory`), so both engines tick the same tree the same way."""
+    from bt_engine import RUNNING, SUCCESS, ConditionNode, StatefulActionNode
+    from bt_engine.registry import ACTION, REGISTRY
+
+    class DummyAction(StatefulActionNode):
+        def on_start(self):
+            return RUNNING
+
+        def on_running(self):
+            return SUCCESS
+
+    class DummyCondition(ConditionNode):
+        def check(self) -> bool:
+            return condition_ok
+
+    reg = REGISTRY.copy()
+    for m in drone.values():
+        base = DummyAction if m.kind == ACTION else DummyCondition
+        attrs = {
+            "bt_id": m.id,
+            "ports": tuple(m.ports.values()),
+            "category": m.category,
+            "__doc__": m.description,
+        }
+        reg.register(type(f"Dummy{m.id}", (base,), attrs), replace=True)
+    return reg
+
+
+def _btcpp_factory(bt, used: dict, condition_ok: bool):
+    """A BT.CPP factory with the drone leaves in ``used`` registered as the same dummies.
+
+    behaviortreepy's ``register_simple_*`` cannot declare ports, so these have none (see
+    :class:`_BtcppMission`)."""
+    from bt_engine.registry import ACTION
+
+    factory = bt.BehaviorTreeFactory()
+    cond = bt.NodeStatus.SUCCESS if condition_ok else bt.NodeStatus.FAILURE
+    for tag, kind in sorted(used.items()):
+        if kind == ACTION:
+            factory.register_simple_stateful_action(
+                tag,
+                lambda _n: bt.NodeStatus.RUNNING,
+                lambda _n: bt.NodeStatus.SUCCESS,
+                lambda _n: None,
+            )
+        else:
+            factory.register_simple_condition(tag, lambda _n: cond)
+    return factory
+
+
+class _BtcppMission:
+    """A mission file rewritten for BT.CPP (with its includes, same relative layout)."""
+
+    def __init__(self, path: str, out_dir: str, drone: dict) -> None:
+        from bt_engine.registry import REGISTRY
+
+        self.registry = REGISTRY
+        self.drone = drone
+        self.base = os.path.dirname(os.path.abspath(path))
+        self.out_dir = out_dir
+        self.used: dict[str, str] = {}  # drone leaf ID -> kind
+        #: per BehaviorTree ID, its nodes in pre-order: (tag, port attributes taken out)
+        self.sources: dict[str, list[tuple[str, dict[str, str]]]] = {}
+        #: BehaviorTree IDs renamed for BT.CPP (see :meth:`_tree_renames`), new -> original
+        self.renamed: dict[str, str] = {}
+        files = self._closure(os.path.abspath(path))
+        renames = self._tree_renames(files)
+        self.renamed = {new: old for old, new in renames.items()}
+        for src, root in files.items():
+            self._rewrite(root, renames)
+            dst = os.path.join(out_dir, os.path.relpath(src, self.base))
+            os.makedirs(os.path.dirname(dst), exist_ok=True)
+            ET.ElementTree(root).write(dst, encoding="unicode")
+        self.main = os.path.join(out_dir, os.path.basename(path))
+        main_root = files[os.path.abspath(path)]
+        trees = [t.get("ID") for t in main_root.findall("BehaviorTree")]
+        self.main_tree = main_root.get("main_tree_to_execute") or trees[0]
+
+    def _closure(self, path: str, seen: dict | None = None) -> dict[str, ET.Element]:
+        seen = {} if seen is None else seen
+        root = ET.parse(path).getroot()
+        seen[path] = root
+        for inc in root.findall("include"):
+            child = os.path.normpath(os.path.join(os.path.dirname(path), inc.get("path")))
+            assert child.startswith(self.base + os.sep), child  # same layout in out_dir
+            if child not in seen:
+                self._closure(child, seen)
+        return seen
+
+    def _tree_renames(self, files: dict) -> dict[str, str]:
+        """BT.CPP refuses a BehaviorTree whose ID is the name of a registered node ("must not
+        use the name of a registered Node"); btrun accepts it (enroll_pallet.xml's tree
+        EnrollPallet shares its name with the EnrollPallet action). Such trees get another
+        ID in BT.CPP's copy, and BT.CPP's replies are mapped back before comparing."""
+        ids = {t.get("ID") for root in files.values() for t in root.findall("BehaviorTree")}
+        return {i: f"{i}__tree" for i in sorted(ids) if i in self.drone}
+
+    def _rewrite(self, root: ET.Element, renames: dict[str, str]) -> None:
+        if root.get("main_tree_to_execute") in renames:
+            root.set("main_tree_to_execute", renames[root.get("main_tree_to_execute")])
+        for el in root.iter():
+            if el.tag in ("BehaviorTree", "SubTree") and el.get("ID") in renames:
+                el.set("ID", renames[el.get("ID")])  # (also the SubTree models)
+        for tree in root.findall("BehaviorTree"):
+            tree_id = self.renamed.get(tree.get("ID"), tree.get("ID"))
+            assert tree_id not in self.sources, f"BehaviorTree {tree_id} defined twice"
+            self.sources[tree_id] = [self._node(el) for el in list(tree.iter())[1:]]
+
+    def _node(self, el: ET.Element) -> tuple[str, dict[str, str]]:
+        tag = el.tag
+        if tag in ("Action", "Condition", "Control", "Decorator") and el.get("ID"):
+            tag = el.get("ID")  # the explicit v3 form <Action ID="GoTo"/>
+        model = self.registry.get(tag)
+        assert model is not None, tag
+        if tag != model.id:  # an alias btrun accepts, e.g. SequenceStar (not in BT.CPP 4)
+            if el.tag == tag:
+                el.tag = model.id
+            else:
+                el.set("ID", model.id)
+            tag = model.id
+        ports: dict[str, str] = {}
+        if tag in self.drone:
+            # BT.CPP rejects an attribute its node does not declare, and the dummies declare
+            # no port: the ports go (name, ID and the _skipIf-like attributes stay)
+            self.used[tag] = self.drone[tag].kind
+            for key in list(el.attrib):
+                if key not in ("name", "ID") and not key.startswith("_"):
+                    ports[key] = el.attrib.pop(key)
+        return tag, ports
+
+
+def _models_with_defaults(xml: str) -> dict[str, tuple[str, dict[str, tuple[str, str | None]]]]:
+    """TreeNodesModel by ID: (kind, {port: (direction, default or None)})."""
+    out = {}
+    for m in ET.fromstring(xml).iter("TreeNodesModel"):
+        for el in m:
+            ports = {
+                p.get("name"): (p.tag.replace("_port", ""), p.get("default"))
+                for p in el
+                if p.tag.endswith("_port")
+            }
+            out[el.get("ID")] = (el.tag, ports)
+    return out
+
+
+@pytest.fixture(scope="module")
+def drone_models():
+    return _drone_models()
+
+
+@pytest.mark.parametrize("condition_ok", [True, False], ids=["conditions_ok", "conditions_fail"])
+@pytest.mark.parametrize("path", MISSIONS, ids=os.path.basename)
+def test_every_mission_equals_btcpp_publisher(
+    path, condition_ok, ctx, btcpp, drone_models, tmp_path
+):
+    """Each shipped mission in BT.CPP's Groot2Publisher and in btrun's Groot2Server.
+
+    The drone leaves are unknown to BT.CPP: both engines get dummies of the same ID and kind
+    (actions RUNNING then SUCCESS, conditions all SUCCESS or all FAILURE), btrun's with the
+    real ports. BT.CPP loads the mission file itself, includes and all (a YAML mission is
+    converted to XML first), with the drone leaves' port attributes taken out (behaviortreepy
+    cannot declare ports). Compared:
+
+    - FULLTREE: every BehaviorTree instance (ID, ``_fullpath``, order), every node's tag,
+      name, ``_uid`` and attributes. Drone leaves: BT.CPP reports no ports for them, so their
+      port attributes in btrun's reply are checked against what BT.CPP writes for a declared
+      port instead: the XML value, else the port's default (the ``default`` of the node's
+      model in the same reply) for an input without a value, nothing for an output without
+      one. TreeNodesModel: built-in nodes equal; drone leaves of the same kind, btrun's with
+      exactly the registry's ports.
+    - STATUS: the buffer before any tick and after every tick until the root finishes
+      (the same root status each tick), one UUID for all of btrun's replies.
+    """
+    from bt_engine import Mission, SimClock
+    from bt_engine.loading import convert_file
+
+    src = path
+    if path.endswith(".yaml"):
+        src = str(tmp_path / "yaml" / (os.path.basename(path)[:-5] + ".xml"))
+        os.makedirs(os.path.dirname(src))
+        assert convert_file(path, src) == []
+    peer = _BtcppMission(src, str(tmp_path / "btcpp"), drone_models)
+    factory = _btcpp_factory(btcpp, peer.used, condition_ok)
+    # (behaviortreepy's register_behavior_tree_from_file does not take a path: unusable)
+    tree = factory.create_tree_from_file(peer.main)
+    mission = Mission.from_file(
+        path, clock=SimClock(), registry=_dummy_registry(drone_models, condition_ok)
+    )
+    runner = Runner(mission, 50.0)
+    bt_port = free_port_pair()
+    publisher = btcpp.Groot2Publisher(tree, bt_port)
+    server = Groot2Server(mission, port=0)
+    runner.hooks.append(server)
+    theirs, ours = Client(ctx, bt_port), Client(ctx, server.port)
+    try:
+        t_xml, o_xml = theirs.request(b"T")[1].decode(), ours.request(b"T")[1].decode()
+        _compare_fulltree(t_xml, o_xml, peer, len(mission.nodes))
+        uuid = None
+        for tick in range(MAX_MISSION_TICKS + 1):
+            if tick:
+                root = tree.tick_once().name
+                assert runner.step().value == root, f"tick {tick}"
+            t_reply, o_reply = theirs.request(b"S"), ours.request(b"S")
+            check_reply_header(t_reply[0], b"S")
+            o_uuid = check_reply_header(o_reply[0], b"S")
+            assert uuid in (None, o_uuid)
+            uuid = o_uuid
+            assert status_pairs(o_reply[1]) == status_pairs(t_reply[1]), f"after tick {tick}"
+            if tick and root != "RUNNING":
+                break
+        else:
+            pytest.fail(f"still RUNNING after {MAX_MISSION_TICKS} ticks")
+    finally:
+        theirs.close()
+        ours.close()
+        server.close()
+        del publisher
+
+
+def _compare_fulltree(t_xml: str, o_xml: str, peer: _BtcppMission, n_nodes: int) -> None:
+    t_trees, t_models = tree_shape(t_xml)
+    o_trees, _ = tree_shape(o_xml)
+    t_full, o_full = _models_with_defaults(t_xml), _models_with_defaults(o_xml)
+    assert sorted(uids_of(o_trees)) == list(range(1, n_nodes + 1))
+
+    def unrename(node):
+        tag, attrs, children = node
+        if tag == "SubTree" and attrs.get("ID") in peer.renamed:
+            attrs = {**attrs, "ID": peer.renamed[attrs["ID"]]}
+        return (tag, attrs, [unrename(c) for c in children])
+
+    t_trees = [(peer.renamed.get(i, i), full, [unrename(n) for n in ns]) for i, full, ns in t_trees]
+    assert [(i, full) for i, full, _ in o_trees] == [(i, full) for i, full, _ in t_trees]
+    assert t_trees[0][0] == peer.renamed.get(peer.main_tree, peer.main_tree)
+    for (tree_id, full, o_nodes), (_, _, t_nodes) in zip(o_trees, t_trees, strict=True):
+        # a BehaviorTree instance lists the nodes of its definition in document order
+        triples = zip(_preorder(o_nodes), _preorder(t_nodes), peer.sources[tree_id], strict=True)
+        for (o_tag, o_attrs), (t_tag, t_attrs), (src_tag, src_ports) in triples:
+            where = f"{tree_id} {full!r} uid {t_attrs.get('_uid')}"
+            assert o_tag == t_tag == src_tag, where
+            if o_tag not in peer.drone:
+                assert o_attrs == t_attrs, where
+                continue
+            model = o_full[o_tag][1]
+            expected = dict(src_ports)
+            for port, (direction, default) in model.items():
+                if port not in expected and direction != "output" and default is not None:
+                    expected[port] = default
+            o_ports = {k: v for k, v in o_attrs.items() if k in model}
+            assert o_ports == expected, where
+            assert {k: v for k, v in o_attrs.items() if k not in model} == t_attrs, where
+    used = {tag for _, _, nodes_ in t_trees for tag, _ in _preorder(nodes_)} - {"SubTree"}
+    for tag in used:
+        if tag in peer.drone:
+            m = peer.drone[tag]
+            assert t_full[tag] == (m.kind, {}), tag  # a port-less dummy
+            assert o_full[tag][0] == m.kind, tag
+            assert set(o_full[tag][1]) == set(m.ports), tag
+            assert {p: d for p, (d, _) in o_full[tag][1].items()} == {
+                p.name: p.direction for p in m.ports.values()
+            }, tag
+        else:
+            assert tree_shape(o_xml)[1][tag] == t_models[tag], tag
+
+
+def _preorder(nodes_):
+    for tag, attrs, children in nodes_:
+        yield tag, attrs
+        yield from _preorder(children)

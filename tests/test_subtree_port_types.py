@@ -43,3 +43,12 @@ def test_non_finite_and_wrong_typed_literals_through_subtrees() -> None:
 def test_good_literals_and_blackboard_references_pass() -> None:
     assert problems_of_xml(_mission('<SubTree ID="Leg" target="2;0;1" pause="20"/>')) == []
     assert problems_of_xml(_mission('<SubTree ID="Leg" target="{anything}"/>')) == []
+
+
+def test_a_tree_named_like_a_node_is_refused_as_btcpp_does() -> None:
+    xml = (
+        '<root BTCPP_format="4" main_tree_to_execute="GoTo">\n'
+        '  <BehaviorTree ID="GoTo">\n    <AlwaysSuccess/>\n  </BehaviorTree>\n</root>\n'
+    )
+    problems = problems_of_xml(xml)
+    assert any("tree 'GoTo' has the name of a node" in p for p in problems), problems
