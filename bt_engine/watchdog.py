@@ -121,12 +121,13 @@ class TickWatchdog:
             if started is None:
                 continue
             if self._fired_at is None and now - started > self.budget_s:
-                where = stuck_in(target)
-                if not where and self.running is not None:
+                where = ""
+                if self.running is not None:  # the deepest RUNNING node: stable over a loop
                     try:
                         where = self.running()
                     except Exception:  # pragma: no cover - the tree is mid-change
                         where = ""
+                where = where or stuck_in(target)
                 self.reason = (
                     f"watchdog: tick {tick} did not return within {self.budget_s:g} s{where}; "
                     "the tree was stopped and the drone landed"

@@ -240,22 +240,20 @@ class SimPlatform:
         v = self.vehicle
         if v.is_flying and v.flight_state != FlightState.LANDING:
             v.land(0.5)
-        simulated = self.clock is None or getattr(self.clock, "is_simulated", True)
         end = self.t_s + self.rig_data["sim"]["shutdown_max_s"]
-        t = self.t_s
-        while v.is_flying and t < end:
-            if simulated:
-                t += 0.02
-            else:
-                self.clock.sleep_until(self.clock.now() + 0.02)
-                t = self.clock.now()
-            self.step_to(t)
+        self._simulate_while(lambda: v.is_flying, end)
         if v.is_flying:  # could not land in time (e.g. link down): cut the motors
             v.emergency_stop()
         # Motors cut in the air (second interrupt, supervisor, this shutdown): simulate the
         # fall (bounded), so the ground truth says where and how it came down, not "flying".
-        fall_end = max(end, t) + 5.0
-        while self._falling() and t < fall_end:
+        self._simulate_while(self._falling, max(end, self.t_s) + 5.0)
+
+    def _simulate_while(self, condition, end_s: float) -> None:
+        """Step the simulation in 20 ms steps while ``condition()`` holds, until ``end_s``
+        (on a wall clock, pacing with it)."""
+        simulated = self.clock is None or getattr(self.clock, "is_simulated", True)
+        t = self.t_s
+        while condition() and t < end_s:
             if simulated:
                 t += 0.02
             else:

@@ -281,21 +281,10 @@ class Vehicle:
         current motion goes on) for non-finite numbers, a non-positive speed or tolerance, or a
         goal above ``control.max_altitude_m``.
         """
-        why = _bad_numbers(
-            x_m=x_m,
-            y_m=y_m,
-            z_m=z_m,
-            yaw_rad=yaw_rad,
-            speed_mps=speed_mps,
-            position_tolerance_m=position_tolerance_m,
-            yaw_tolerance_rad=yaw_tolerance_rad,
-            timeout_s=timeout_s,
-        ) or _not_positive(
-            speed_mps=speed_mps,
-            position_tolerance_m=position_tolerance_m,
-            yaw_tolerance_rad=yaw_tolerance_rad,
-            timeout_s=timeout_s,
-        )
+        why = _bad_motion(
+            speed_mps, yaw_rad, position_tolerance_m, yaw_tolerance_rad, timeout_s,
+            x_m=x_m, y_m=y_m, z_m=z_m,
+        )  # fmt: skip
         if why is None:
             why = self._above_ceiling(float(z_m))
         if why is not None:
@@ -327,18 +316,8 @@ class Vehicle:
         """Fly through ``waypoints`` [(x, y, z), ...] at one speed profile along the path
         (refused like :meth:`go_to` for bad numbers)."""
         coords = {f"waypoints[{i}][{j}]": w[j] for i, w in enumerate(waypoints) for j in range(3)}
-        why = _bad_numbers(
-            speed_mps=speed_mps,
-            yaw_rad=yaw_rad,
-            position_tolerance_m=position_tolerance_m,
-            yaw_tolerance_rad=yaw_tolerance_rad,
-            timeout_s=timeout_s,
-            **coords,
-        ) or _not_positive(
-            speed_mps=speed_mps,
-            position_tolerance_m=position_tolerance_m,
-            yaw_tolerance_rad=yaw_tolerance_rad,
-            timeout_s=timeout_s,
+        why = _bad_motion(
+            speed_mps, yaw_rad, position_tolerance_m, yaw_tolerance_rad, timeout_s, **coords
         )
         if why is None:
             why = next(
@@ -659,6 +638,25 @@ class Vehicle:
 #: Seconds of flight after which the load sag of the battery voltage is measured (the ~1 s
 #: voltage filter has settled on the hover load by then).
 SAG_SETTLE_S = 4.0
+
+
+def _bad_motion(
+    speed_mps: object,
+    yaw_rad: object,
+    position_tolerance_m: object,
+    yaw_tolerance_rad: object,
+    timeout_s: object,
+    **coords: object,
+) -> str | None:
+    """Why a go-to or path request is refused (non-finite numbers; a speed, tolerance or
+    time-out not above zero), or None."""
+    limits = {
+        "speed_mps": speed_mps,
+        "position_tolerance_m": position_tolerance_m,
+        "yaw_tolerance_rad": yaw_tolerance_rad,
+        "timeout_s": timeout_s,
+    }
+    return _bad_numbers(yaw_rad=yaw_rad, **coords, **limits) or _not_positive(**limits)
 
 
 def _bad_numbers(**values: object) -> str | None:
