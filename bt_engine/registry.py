@@ -133,7 +133,20 @@ REGISTRY = Registry()
 
 
 def register(cls: type[BTNode]) -> type[BTNode]:
-    """Class decorator: register ``cls`` in the default registry."""
+    """Class decorator: register ``cls`` in the default registry; the one way to add a leaf.
+
+    ::
+
+        @register
+        class LinePoint(SyncActionNode):
+            # its docstring is the node's description (first line: the summary)
+            bt_id = "LinePoint"  # optional: the class name by default
+            ports = (input_port("fraction", FLOAT, 0.5, "0 = start, 1 = end"), ...)
+
+    Once its module is imported, the node is known to validation and conversion, ``btrun
+    nodes``, the Groot2 palette (``btrun nodes --groot``) and the node reference
+    (``btrun nodes --markdown docs/nodes.md``). ``register(cls)`` works as a plain call too.
+    """
     return REGISTRY.register(cls)
 
 

@@ -21,7 +21,7 @@ from bt_engine.ports import (
     input_port,
     output_port,
 )
-from bt_engine.registry import REGISTRY
+from bt_engine.registry import register
 from nodes.common import CATEGORY_FLIGHT, YAW_MODE, angle_input, vehicle_of, yaw_mode_value
 
 DEFAULT_POS_THRESHOLD_M = 0.03  # the reference study's go-to completion threshold
@@ -146,6 +146,7 @@ class _Motion(StatefulActionNode):
         return self.get_input("pos_threshold"), yaw
 
 
+@register
 class TakeOff(_Motion):
     """Climb ``height`` metres above the current position at ``speed`` m/s (arms if needed).
 
@@ -167,6 +168,7 @@ class TakeOff(_Motion):
         return progress
 
 
+@register
 class GoTo(_Motion):
     """Fly a straight line to ``pose`` ("x;y;z", m) at up to ``max_speed`` m/s.
 
@@ -218,6 +220,7 @@ class GoTo(_Motion):
         )
 
 
+@register
 class FollowPath(_Motion):
     """Fly through the waypoints of ``path`` ("x;y;z|x;y;z|...") at ``speed`` m/s.
 
@@ -248,6 +251,7 @@ class FollowPath(_Motion):
         )
 
 
+@register
 class Hover(_Motion):
     """Stop and hold position for ``duration`` seconds, then SUCCESS."""
 
@@ -265,6 +269,7 @@ class Hover(_Motion):
         return self.now() >= self.until - 1e-9
 
 
+@register
 class Land(_Motion):
     """Descend at ``speed`` m/s and stop the motors; SUCCESS once landed."""
 
@@ -290,6 +295,7 @@ class Land(_Motion):
         pass  # a halted landing keeps going down: never leave a drone hovering by accident
 
 
+@register
 class Arm(SyncActionNode):
     """Arm the motors. SUCCESS if the request was accepted."""
 
@@ -301,6 +307,7 @@ class Arm(SyncActionNode):
         return SUCCESS if vehicle_of(self).arm() else FAILURE
 
 
+@register
 class Disarm(SyncActionNode):
     """Disarm the motors. FAILURE while flying."""
 
@@ -312,6 +319,7 @@ class Disarm(SyncActionNode):
         return SUCCESS if vehicle_of(self).disarm() else FAILURE
 
 
+@register
 class Offboard(SyncActionNode):
     """Accepted for Aerostack2 files: a Crazyflie has no offboard mode, so this is a no-op."""
 
@@ -323,6 +331,7 @@ class Offboard(SyncActionNode):
         return SUCCESS
 
 
+@register
 class Echo(SyncActionNode):
     """Print ``data`` in the run log (and the terminal); SUCCESS."""
 
@@ -333,7 +342,3 @@ class Echo(SyncActionNode):
     def tick_impl(self) -> NodeStatus:
         self.ctx.log(f"{self.name}: {self.get_input('data')}")
         return SUCCESS
-
-
-for _cls in (TakeOff, GoTo, FollowPath, Hover, Land, Arm, Disarm, Offboard, Echo):
-    REGISTRY.register(_cls)

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from bt_engine.node import SUCCESS, NodeStatus, SyncActionNode
 from bt_engine.ports import FLOAT, VEC3, input_port, output_port
-from bt_engine.registry import REGISTRY
+from bt_engine.registry import register
 
 
+@register
 class LinePoint(SyncActionNode):
     """Write the point at ``fraction`` (0..1) of the way from ``start`` to ``end``.
 
@@ -28,6 +29,3 @@ class LinePoint(SyncActionNode):
         a, b, f = self.get_input("start"), self.get_input("end"), self.get_input("fraction")
         self.set_output("point", tuple(a[i] + f * (b[i] - a[i]) for i in range(3)))
         return SUCCESS
-
-
-REGISTRY.register(LinePoint)

@@ -18,7 +18,7 @@ from typing import Any
 
 from bt_engine.node import BTNode, ConditionNode, NodeRuntimeError
 from bt_engine.ports import PortValueError, StringType, input_port
-from bt_engine.registry import REGISTRY
+from bt_engine.registry import register
 from drivers.safety.policies import FAULTS
 from nodes.common import CATEGORY_CHECK
 
@@ -56,6 +56,7 @@ def _is_active(node: BTNode, fault: str) -> bool:
     return bool(active) if fault == "any" else fault in active
 
 
+@register
 class IsSafe(ConditionNode):
     """SUCCESS while no fault the supervisor would act on is active (report-only faults,
     such as a stalled camera, do not count)."""
@@ -70,6 +71,7 @@ class IsSafe(ConditionNode):
         return not [f for f in _active(self) if f != "camera_stalled"]
 
 
+@register
 class NoFault(ConditionNode):
     """SUCCESS while ``fault`` (or, with ``any``, every fault) is not active."""
 
@@ -81,6 +83,7 @@ class NoFault(ConditionNode):
         return not _is_active(self, self.get_input("fault"))
 
 
+@register
 class FaultActive(ConditionNode):
     """SUCCESS while ``fault`` (or, with ``any``, some fault) is active."""
 
@@ -90,7 +93,3 @@ class FaultActive(ConditionNode):
 
     def check(self) -> bool:
         return _is_active(self, self.get_input("fault"))
-
-
-for _cls in (IsSafe, NoFault, FaultActive):
-    REGISTRY.register(_cls)

@@ -13,7 +13,8 @@ import nodes  # noqa: F401  (registers the drone leaves)
 from bt_engine import Mission, Runner, SimClock
 from drivers.rig.factory import make_platform
 from drivers.rig.loader import load_rig
-from nodes.report import (
+from nodes.report import write_report
+from nodes.report.metrics import (
     action_spans,
     motion_metrics,
     rms,
@@ -22,7 +23,6 @@ from nodes.report import (
     telemetry_arrays,
     wrap_deg,
     wrap_rad,
-    write_report,
 )
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -18,7 +18,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 
-from nodes.report import GOTO_KINDS, wrap_deg  # noqa: E402
+from nodes.report.metrics import GOTO_KINDS, wrap_deg  # noqa: E402
 
 MAX_POINTS = 4000
 DPI = 90

@@ -1,6 +1,6 @@
 """The perception part of the flight report: frames with detections, crops, ranking table.
 
-Written by :func:`nodes.report.write_report` when the run had perception leaves, into the
+Written by :func:`nodes.report.html.write_report` when the run had perception leaves, into the
 run folder's ``perception/`` directory:
 
 * ``frame_<index>.png``: the frames each committed crop came from, with every detection
