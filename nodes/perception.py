@@ -140,7 +140,7 @@ class DetectBlocks(StatefulActionNode):
         self.started_s = self.last_frame_s = self.now()
         frame = self.vehicle.camera_frame()
         self.last_index = frame.index if frame is not None else None  # only frames from now on
-        self.result = BlockScan()
+        self.result = BlockScan(key=self.output_key("scan") or "", t_s=self.now())
         self.camera_index: dict[int, int] = {}  # sequencer frame number -> camera frame index
         self.session.scans.append(self.result)
         self.session.recent.clear()

@@ -49,6 +49,8 @@ class BlockScan:
     times_s: list[float] = field(default_factory=list)
     qualities: list[float] = field(default_factory=list)
     frames_seen: int = 0
+    key: str = ""  # the blackboard entry DetectBlocks writes it to (the report names it)
+    t_s: float = 0.0  # mission time the scan started
 
     @property
     def count(self) -> int:

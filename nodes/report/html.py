@@ -48,7 +48,12 @@ def write_report(run_dir: str, trace: Sequence[dict], summary: dict, mission: An
     rows = motion_metrics(motions, tel)
     spans = action_spans(trace, _action_leaves(mission))
     figures = [
-        ("Trajectory (top view)", plots.plot_xy(run_dir, tel, rows)),
+        (
+            "Trajectory (top view)",
+            plots.plot_xy(
+                run_dir, tel, rows, ((summary or {}).get("sim") or {}).get("pallets", ())
+            ),
+        ),
         ("Position and reference per axis", plots.plot_position(run_dir, tel, rows)),
         ("Yaw and reference", plots.plot_yaw(run_dir, tel, rows)),
     ]
@@ -76,6 +81,7 @@ max-width:1100px;padding:0 1em;color:#222;line-height:1.4}
 h1{font-size:1.5em;margin-bottom:.2em}h2{font-size:1.15em;margin-top:1.6em;border-bottom:1px solid #ddd}
 table{border-collapse:collapse;font-size:.9em;margin:.5em 0}
 th,td{border:1px solid #ddd;padding:.25em .5em;text-align:right;white-space:nowrap}
+.wide{overflow-x:auto;max-width:100%}.wide td.l{white-space:normal;min-width:12em}
 th{background:#f4f4f4}td.l,th.l{text-align:left}tr:nth-child(even) td{background:#fafafa}
 .kv td:first-child{text-align:left;color:#555}.kv td{text-align:left;white-space:normal}
 .SUCCESS{color:#1a7f37;font-weight:600}.FAILURE,.ABORTED,.bad{color:#c62828;font-weight:600}
@@ -129,7 +135,7 @@ def _motion_table(rows: list[dict]) -> str:
             f'<td class="{yaw_bad}">{_fmt(r["final_yaw_deg"], ".1f")}</td>'
             f"<td>{_fmt(r['settle'], '.2f')}</td></tr>"
         )
-    return "<table>" + head + "".join(body) + "</table>"
+    return '<div class="wide"><table>' + head + "".join(body) + "</table></div>"
 
 
 def _html(

@@ -76,14 +76,18 @@ def perception_section(run_dir: str, mission: Any) -> str:
         + (", ".join(f"{n} of 3 blocks" for n in s["blocks"]) or "none")
         + ".</p>"
     )
-    scans = [sc for sc in session.scans if sc.count]
-    if scans:
-        last = scans[-1]
+    for n, sc in enumerate(session.scans, 1):
+        if not sc.count:
+            continue
         cells = "".join(
-            _crop_cell(run_dir, f"block_{i + 1}.png", c) + f" block {i + 1}&nbsp;&nbsp;"
-            for i, c in enumerate(last.crops)
+            _crop_cell(run_dir, f"scan_{n}_block_{i + 1}.png", c) + f" block {i + 1}&nbsp;&nbsp;"
+            for i, c in enumerate(sc.crops)
         )
-        out.append(f"<h3>Committed blocks (last scan)</h3><p>{cells}</p>")
+        into = f" into {{{esc(sc.key)}}}" if sc.key else ""
+        out.append(
+            f"<h3>Scan {n}{into} at {sc.t_s:.1f} s: {sc.count} of 3 blocks committed</h3>"
+            f"<p>{cells}</p>"
+        )
     if session.key_frames:
         out.append("<h3>Frames the crops came from</h3>")
         for kf in session.key_frames:
@@ -96,6 +100,14 @@ def perception_section(run_dir: str, mission: Any) -> str:
                 f"{len(kf.boxes)} detections</figcaption></figure>"
             )
     for n, rec in enumerate(session.identifications, 1):
+        key = rec.get("key") or ""
+        title = f"{{{esc(key)}}}" if key else f"{n}"
+        if "failed" in rec:
+            out.append(
+                f"<h3>Identification {title}: failed</h3>"
+                f"<p>{esc(rec.get('node', ''))}: {esc(rec['failed'])}</p>"
+            )
+            continue
         known = rec["known"]
         verdict = esc(rec["pallet_id"]) + ("" if known else f" ({esc(rec['reason'])})")
         cells = "".join(
@@ -108,7 +120,7 @@ def perception_section(run_dir: str, mission: Any) -> str:
             for k, (ident, d, blocks) in enumerate(rec["ranking"], 1)
         )
         out += [
-            f"<h3>Identification {n}: {verdict}</h3>",
+            f"<h3>Identification {title}: {verdict}</h3>",
             f"<p>{cells}</p>",
             f"<p>best distance {rec['distance']:.3f}, margin to the runner-up "
             f"{rec['margin']:.3f}; thresholds: unknown above {rec['thresholds'][0]:.3f} "

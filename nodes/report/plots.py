@@ -93,17 +93,43 @@ def _motion_marks(ax, rows: Sequence[dict], t_span: float, label: bool) -> None:
             last = r["t_start"]
 
 
-def plot_xy(run_dir: str, tel: dict, rows: Sequence[dict]) -> str:
-    """Top view: pose, reference, start/end, and each motion's goal labelled with its #."""
+def pallet_outline(p: dict, length_m: float = 1.2, depth_m: float = 0.8) -> np.ndarray:
+    """The footprint corners (x, y) of a pallet from its ground truth (``sim.pallets``)."""
+    cx, cy = p["centre_m"]
+    f = math.radians(p["facing_deg"])
+    n = np.array([math.cos(f), math.sin(f)])  # out of the shown face
+    t = np.array([-n[1], n[0]])  # along the face
+    c = np.array([cx, cy])
+    return np.array(
+        [
+            c + a * n * depth_m / 2 + b * t * length_m / 2
+            for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))
+        ]
+    )
+
+
+def plot_xy(run_dir: str, tel: dict, rows: Sequence[dict], pallets: Sequence[dict] = ()) -> str:
+    """Top view: pose, reference, start/end, each motion's goal labelled with its #, and the
+    pallets where the simulator stood them (ground truth, identity written on each)."""
     s = _every(len(tel["t"]))
     x, y, rx, ry = tel["x"][s], tel["y"][s], tel["ref_x"][s], tel["ref_y"][s]
-    xs = np.concatenate([x, rx[np.isfinite(rx)], [r["goal"][0] for r in rows]])
-    ys = np.concatenate([y, ry[np.isfinite(ry)], [r["goal"][1] for r in rows]])
+    outlines = [pallet_outline(p) for p in pallets]
+    px = [o[:, 0] for o in outlines] or [np.zeros(0)]
+    py = [o[:, 1] for o in outlines] or [np.zeros(0)]
+    xs = np.concatenate([x, rx[np.isfinite(rx)], [r["goal"][0] for r in rows], *px])
+    ys = np.concatenate([y, ry[np.isfinite(ry)], [r["goal"][1] for r in rows], *py])
     xs, ys = xs[np.isfinite(xs)], ys[np.isfinite(ys)]
     span_x, span_y = max(np.ptp(xs), 0.5), max(np.ptp(ys), 0.5)
     height = min(max(7.5 * span_y / span_x, 2.6), 7.5) + 1.6
     fig = _figure(9, height, left=0.8, bottom=0.55, top=0.2)
     ax = fig.add_subplot()
+    for i, (p, o) in enumerate(zip(pallets, outlines, strict=True)):
+        ax.fill(o[:, 0], o[:, 1], fc="#d7b98e", ec="#8d6e42", lw=1,
+                label="pallet (side shown)" if i == 0 else None)  # fmt: skip
+        fx, fy = p["face_centre_m"][:2]
+        ax.plot([fx], [fy], "|", color="#8d6e42", ms=10)
+        ax.annotate(p["identity"], p["centre_m"], ha="center", va="center", fontsize=8,
+                    color="#4e3b1f")  # fmt: skip
     ax.plot(rx, ry, color=REF, ls="--", lw=1, label="reference")
     ax.plot(x, y, color=POSE, lw=1.4, label="pose (mocap)")
     ax.plot(x[:1], y[:1], "^", color="#2e7d32", ms=8, label="start")
