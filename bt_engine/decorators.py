@@ -92,6 +92,8 @@ class Repeat(DecoratorNode):
         self.set_status(RUNNING)
         child = self.children[0]
         while do_loop:
+            if self.ctx is not None and self.ctx.stop_reason is not None:
+                self.ctx.check_stop()  # the watchdog: this tick has run too long
             prev = child.bt_status
             st = child.execute_tick()
             if st is SUCCESS:
@@ -140,6 +142,8 @@ class RetryUntilSuccessful(DecoratorNode):
         self.set_status(RUNNING)
         child = self.children[0]
         while do_loop:
+            if self.ctx is not None and self.ctx.stop_reason is not None:
+                self.ctx.check_stop()  # the watchdog: this tick has run too long
             prev = child.bt_status
             st = child.execute_tick()
             if st is SUCCESS:

@@ -163,6 +163,7 @@ class Mission:
         # As BT.CPP's WakeUpSignal: the flag is consumed only when checked (root RUNNING), so a
         # wake-up emitted in a tick that finished the root carries over to the next tick.
         while status is RUNNING and ctx.woken:
+            ctx.check_stop()
             ctx.woken = False
             status = self.root.execute_tick()
         # The last leaf that failed, in this tick or an earlier one: a tree that handles a

@@ -32,6 +32,7 @@ import py_trees
 from py_trees.common import Status as PTStatus
 
 from bt_engine.ports import ANY, NO_DEFAULT, STRING, Port, PortValueError
+from bt_engine.watchdog import TickOverrun
 
 if TYPE_CHECKING:
     from bt_engine.blackboard import Scope
@@ -104,6 +105,14 @@ class MissionContext:
     #: ``_onHalted`` scripts that failed: halting goes on (every node is halted), then the
     #: runner ends the run with the first of these as its reason
     halt_errors: list[str] = field(default_factory=list)
+    #: set by the tick watchdog when a tick overran its budget: the loops that can keep one
+    #: tick going (Repeat, RetryUntilSuccessful, the wake-up re-ticks) stop at their next turn
+    stop_reason: str | None = None
+
+    def check_stop(self) -> None:
+        """Raise :class:`~bt_engine.watchdog.TickOverrun` if the watchdog asked to stop."""
+        if self.stop_reason is not None:
+            raise TickOverrun(self.stop_reason)
 
     def log(self, message: str) -> None:
         """Record a message from a node (shown by the runner, written to the tick log)."""

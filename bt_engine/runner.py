@@ -192,6 +192,7 @@ class Runner:
                 real_time=not getattr(self.clock, "is_simulated", False),
                 on_stuck=self._shutdown_hooks,
                 running=self._running_leaf,
+                request_stop=self._request_stop,
             )
         if PENDING_INTERRUPTS:  # a signal arrived while btrun was still loading
             self.interrupt_source = PENDING_INTERRUPTS[-1]
@@ -239,6 +240,7 @@ class Runner:
                     result, reason = "ABORTED", f"mission time limit of {max_time_s:g} s reached"
                     break
         finally:
+            self._close_watchdog()
             try:
                 # Nothing that happens while halting may skip the landing: a failing halt is
                 # recorded, and every shutdown hook still runs.
@@ -258,9 +260,7 @@ class Runner:
                 # SIGINT/SIGTERM raises KeyboardInterrupt there (the supervisor cuts the motors).
                 self._shutdown_hooks(reason if result != "SUCCESS" else "mission complete")
             finally:
-                if self.watchdog is not None:
-                    self.watchdog.close()
-                    self.watchdog = None
+                self._close_watchdog()
                 _restore_sigint(old)
                 if self.log is not None:
                     self.log.flush()
@@ -272,6 +272,20 @@ class Runner:
             time.perf_counter() - wall0,
             self.tick_periods_s,
         )
+
+    def _close_watchdog(self) -> None:
+        """Stop the watchdog before halting and landing (a stop it raised late lands here)."""
+        wd, self.watchdog = self.watchdog, None
+        if wd is None:
+            return
+        try:
+            wd.close()
+            self.mission.ctx.stop_reason = None
+        except TickOverrun:
+            self.mission.ctx.stop_reason = None
+
+    def _request_stop(self, reason: str) -> None:
+        self.mission.ctx.stop_reason = reason
 
     def _running_leaf(self) -> str:
         """`` in <node> (<loc>)`` for the deepest running node (the watchdog's report)."""

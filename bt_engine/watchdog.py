@@ -76,6 +76,7 @@ class TickWatchdog:
         real_time: bool = False,
         on_stuck: Callable[[str], Any] | None = None,
         running: Callable[[], str] | None = None,
+        request_stop: Callable[[str], Any] | None = None,
     ) -> None:
         if not budget_s > 0:
             raise ValueError(f"tick budget must be > 0 s, got {budget_s}")
@@ -83,6 +84,7 @@ class TickWatchdog:
         self.real_time = real_time
         self.on_stuck = on_stuck
         self.running = running
+        self.request_stop = request_stop
         self.reason: str | None = None
         self._main = threading.main_thread().ident or threading.get_ident()
         self._target = threading.get_ident()
@@ -91,6 +93,7 @@ class TickWatchdog:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._fired_at: float | None = None
+        self._raised_at = 0.0
         self._stuck_called = False
         self._thread = threading.Thread(target=self._loop, name="tick-watchdog", daemon=True)
         self._thread.start()
@@ -133,8 +136,15 @@ class TickWatchdog:
                     "the tree was stopped and the drone landed"
                 )
                 self._fired_at = now
+                self._raised_at = now
+                if self.request_stop is not None:
+                    self.request_stop(self.reason)
                 _raise_in(target, TickOverrun)
-            elif (
+                continue
+            if self._fired_at is not None and now - self._raised_at > self.budget_s / 2:
+                self._raised_at = now  # still in the same tick: raise again (never lost)
+                _raise_in(target, TickOverrun)
+            if (
                 self._fired_at is not None
                 and self.real_time
                 and not self._stuck_called

@@ -239,3 +239,34 @@ def test_large_blackboard_values_are_not_copied_into_every_tick_line(tmp_path) -
     with open(tmp_path / "run" / "ticks.jsonl") as f:
         text = f.read()
     assert "not logged" in text and "sha1" in text
+
+
+def test_a_leaf_stuck_in_its_own_code_is_stopped_too(tmp_path) -> None:
+    """Not a BT loop the watchdog can ask to stop: a leaf spinning in Python. The watchdog's
+    asynchronous exception ends it."""
+    from bt_engine.node import SyncActionNode
+    from bt_engine.registry import REGISTRY
+
+    class SpinForeverTestOnly(SyncActionNode):
+        bt_id = "SpinForeverTestOnly"
+
+        def tick_impl(self):  # noqa: ANN202
+            n = 0
+            while True:
+                n += 1
+
+    saved = (dict(REGISTRY._models), dict(REGISTRY._aliases))
+    REGISTRY.register(SpinForeverTestOnly)
+    try:
+        xml = wrap(
+            """    <Sequence>
+      <TakeOff height="1.0" speed="0.5"/>
+      <SpinForeverTestOnly/>
+      <Land speed="0.5"/>
+    </Sequence>"""
+        )
+        s = fly(tmp_path, xml, "--tick-budget", "0.5")
+    finally:
+        REGISTRY._models, REGISTRY._aliases = saved
+    assert s["status"] == "ABORTED" and s["reason"].startswith("watchdog: tick"), s["reason"]
+    assert_down(s)
