@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+from dataclasses import dataclass
+from typing import Any
+
 import pytest
 from helpers import REPO
 
@@ -14,8 +18,6 @@ def repo() -> str:
 @pytest.fixture(autouse=True, scope="session")
 def _btrun_cache(tmp_path_factory):
     """Generated files (the demo gallery) go to a temporary cache, built once per session."""
-    import os
-
     old = os.environ.get("BTRUN_CACHE_DIR")
     os.environ["BTRUN_CACHE_DIR"] = str(tmp_path_factory.mktemp("btrun-cache"))
     yield
@@ -23,3 +25,43 @@ def _btrun_cache(tmp_path_factory):
         os.environ.pop("BTRUN_CACHE_DIR", None)
     else:
         os.environ["BTRUN_CACHE_DIR"] = old
+
+
+@dataclass(frozen=True)
+class FlightTick:
+    """What a shared flight looked like after one tick."""
+
+    t: float  # mission time (s)
+    position: tuple[float, float, float]  # the vehicle's (x, y, z)
+    running: frozenset[str]  # paths of the nodes RUNNING after the tick
+
+
+@dataclass(frozen=True)
+class SharedFlight:
+    """A flight flown once for several tests that only read it: never fly or change it."""
+
+    mission: Any
+    runner: Any
+    platform: Any
+    result: Any  # the RunResult of ``runner.run``
+    ticks: list[FlightTick]
+
+
+@pytest.fixture(scope="session")
+def pallet_scan_flight(_btrun_cache) -> SharedFlight:
+    """``missions/pallet_scan.xml`` flown once per session on the default simulated rig
+    (seed 0, the world's scan pallet 3A, empty blackboard) by ``helpers.sim_mission``,
+    with every tick's time, position and RUNNING nodes recorded: the tests that fly exactly
+    this mission with these settings just to read what happened share it."""
+    from helpers import sim_mission
+
+    m, run, pf = sim_mission(os.path.join(REPO, "missions", "pallet_scan.xml"), blackboard={})
+    ticks: list[FlightTick] = []
+
+    def record(_runner) -> None:
+        running = frozenset(n.path for n in m.running_nodes())
+        ticks.append(FlightTick(m.clock.now(), tuple(pf.vehicle.position), running))
+
+    run.on_tick = record
+    result = run.run(max_time_s=300)
+    return SharedFlight(m, run, pf, result, ticks)

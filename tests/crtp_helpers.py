@@ -3,23 +3,14 @@
 from __future__ import annotations
 
 import threading
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from helpers import wait_until
+
 from drivers.rig.loader import load_rig
 from drivers.sim.emulators.sitl import SitlSession
-
-
-def wait_for(cond: Callable[[], bool], timeout_s: float, step_s: float = 0.005) -> bool:
-    """Poll ``cond`` until it holds (True) or ``timeout_s`` passes (False)."""
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(step_s)
-    return bool(cond())
 
 
 @contextmanager
@@ -47,7 +38,7 @@ def sync_cf(uri: str, timeout_s: float = 5.0) -> Iterator[Any]:
     th.join(timeout_s)
     assert not th.is_alive() and scf.is_link_open(), "SyncCrazyflie.open_link did not finish"
     try:
-        assert wait_for(scf.is_params_updated, timeout_s), "parameters not read"
+        wait_until(scf.is_params_updated, timeout_s, "cflib to read the parameter values")
         yield scf
     finally:
         scf.close_link()

@@ -1,14 +1,41 @@
-"""Helpers shared by tests: build missions from inline XML."""
+"""Helpers shared by tests: build missions from inline XML, wait on loopback peers."""
 
 from __future__ import annotations
 
 import os
+import time
+from collections.abc import Callable
 
 from bt_engine import Mission, SimClock
 from bt_engine.loading import load_xml
 from drivers.rig.factory import make_platform
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def wait_until(condition: Callable[[], object], timeout_s: float, what: str, step_s: float = 0.005):
+    """Poll ``condition()`` every ``step_s`` until it is truthy; return that value.
+
+    For tests that wait on something running in real time in another thread or process: an
+    emulator or stream client on 127.0.0.1, a motion-capture reader, a ``btrun`` subprocess.
+    Raises ``AssertionError("timed out after <timeout_s> s waiting for <what>")`` (a test
+    failure naming what never happened) if it is still falsy after ``timeout_s`` seconds of
+    wall time; the condition is evaluated one last time at the deadline.
+
+    ``timeout_s`` only keeps a broken test from hanging: it is not a performance bound, so
+    make it generous (seconds, not milliseconds); the wait ends as soon as the condition
+    holds. Tests on a simulated clock never need this (step the clock instead of sleeping).
+    """
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(step_s)
+    value = condition()
+    if not value:
+        raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+    return value
 
 
 def xml_mission(xml: str, path: str = "inline.xml", **kwargs) -> Mission:

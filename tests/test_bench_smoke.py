@@ -48,6 +48,7 @@ def _leaves(spec):
         yield from _leaves(c)
 
 
+@pytest.mark.slow
 def test_measure_and_report_run(bench, capsys):
     shapes = [("mission-20", bench.mission_tree(20, 3)), ("worst-20", bench.worst_tree(20))]
     rows = bench.measure(shapes, bench.ENGINES, budget_s=0.001, rounds=1, min_ticks=5, max_ticks=10)
@@ -65,6 +66,7 @@ def test_jitter_runs_on_a_wall_clock(bench):
     assert j["p99_ms"] >= 0
 
 
+@pytest.mark.slow
 def test_main_quick(bench, capsys):
     argv = ["--quick", "--sizes", "20", "--budget", "0.001", "--jitter-seconds", "0.1", "--no-fifo"]
     assert bench.main(argv) == 0

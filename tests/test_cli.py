@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 
@@ -18,9 +20,20 @@ def run_cli(*args: str) -> int:
     return main([*args])
 
 
-def test_run_writes_summary_and_tick_log(tmp_path, capsys):
-    out = tmp_path / "run"
-    assert run_cli(YAW, "--out", str(out), "--no-report") == 0
+@pytest.fixture(scope="module")
+def yaw_run(tmp_path_factory):
+    """``btrun missions/yaw_test.xml --no-report`` (seed 0) run once for the tests that only
+    read its run folder or what it printed: (exit code, run folder, stdout)."""
+    out = tmp_path_factory.mktemp("yaw") / "run"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        rc = run_cli(YAW, "--out", str(out), "--no-report")
+    return rc, out, printed.getvalue()
+
+
+def test_run_writes_summary_and_tick_log(yaw_run):
+    rc, out, printed = yaw_run
+    assert rc == 0
     s = json.loads((out / "summary.json").read_text())
     for key in ("status", "reason", "ticks", "mission_time_s", "wall_time_s", "blackboard", "sim"):
         assert key in s
@@ -28,7 +41,6 @@ def test_run_writes_summary_and_tick_log(tmp_path, capsys):
     lines = (out / "ticks.jsonl").read_text().splitlines()
     assert json.loads(lines[0])["header"]["nodes"]
     assert len(lines) == s["ticks"] + 1
-    printed = capsys.readouterr().out
     assert "SUCCESS" in printed and "run folder:" in printed and "x real time" in printed
 
 
@@ -108,10 +120,9 @@ def test_docs_node_reference_is_up_to_date():
         assert f.read() == catalogue_markdown(REGISTRY), "run: btrun nodes --markdown docs/nodes.md"
 
 
-def test_replay_shows_tree_at_a_tick(tmp_path, capsys):
-    out = tmp_path / "run"
-    assert run_cli(YAW, "--out", str(out), "-q", "--no-report") == 0
-    capsys.readouterr()
+def test_replay_shows_tree_at_a_tick(yaw_run, tmp_path, capsys):
+    rc, out, _ = yaw_run
+    assert rc == 0
     assert run_cli("replay", str(out), "--tick", "200") == 0
     shown = capsys.readouterr().out
     assert shown.startswith("tick 200") and "RUNNING" in shown

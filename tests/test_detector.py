@@ -150,6 +150,7 @@ def test_wrong_format_dict(tmp_path):
         BlockDetector.load(str(path))
 
 
+@pytest.mark.slow
 def test_smoke_training_writes_loadable_checkpoint(tmp_path):
     out = tmp_path / "smoke.pt"
     assert train_main(["train", "--smoke", "--quiet", "--out", str(out), "--seed", "3"]) == 0

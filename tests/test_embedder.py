@@ -108,6 +108,7 @@ def test_torchreid_pcb_p4_checkpoint_loads(tmp_path):
     assert emb.thresholds.max_distance == float("inf")
 
 
+@pytest.mark.slow
 def test_smoke_training_gives_a_loadable_checkpoint(tmp_path):
     out = str(tmp_path / "smoke.pt")
     assert main(["train", "--smoke", "--out", out, "--quiet"]) == 0

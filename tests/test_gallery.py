@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from helpers import wait_until
 
 from perception.gallery import Gallery, GalleryError, Thresholds, block_distances
 
@@ -126,14 +127,17 @@ def test_killed_enrolment_leaves_the_gallery_intact(tmp_path, gallery):
         p = subprocess.Popen(
             [sys.executable, str(script), gallery.path, str(run)], stdout=subprocess.PIPE, env=env
         )
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:  # wait until it is enrolling
+
+        def enrolling(p=p) -> bool:  # it printed that it enrolled its second entry
             line = p.stdout.readline()
-            if line and int(line) >= 2:
-                break
-        time.sleep(rnd.uniform(0.0, 0.05))
-        p.send_signal(signal.SIGKILL)
-        p.wait(timeout=10)
+            return bool(line) and int(line) >= 2
+
+        try:
+            wait_until(enrolling, 20.0, f"enrolling process {run} to enrol 2 entries", 0.0)
+            time.sleep(rnd.uniform(0.0, 0.05))  # then kill it at a random moment
+        finally:
+            p.send_signal(signal.SIGKILL)
+            p.wait(timeout=10)
         g = Gallery.open(gallery.path, "test-v1")
         for entry in g.entries():
             assert entry["crops"] in (0, 3), entry

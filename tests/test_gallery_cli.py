@@ -7,11 +7,13 @@ import os
 
 import cv2
 import numpy as np
+import pytest
 from helpers import REPO
 
 from bt_engine.cli import main
 
 
+@pytest.mark.slow
 def test_enrol_list_evaluate_export_remove(tmp_path, capsys):
     g = str(tmp_path / "p.sqlite")
     assert main(["gallery", "enrol", g, "2B", "--world-side", "2B"]) == 0
@@ -43,21 +45,22 @@ def test_enrol_list_evaluate_export_remove(tmp_path, capsys):
 
 def test_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
     assert main(["gallery", "list", str(tmp_path / "missing.sqlite")]) == 2
-    assert "no such gallery file" in capsys.readouterr().out
+    assert "no such gallery file" in capsys.readouterr().err
     bad = tmp_path / "bad.sqlite"
     bad.write_bytes(os.urandom(4096))
     assert main(["gallery", "list", str(bad)]) == 2
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err
     assert "bad.sqlite" in out and ("not a readable" in out or "damaged" in out)
     assert main(["gallery", "enrol", "demo", "9A", "--world-side", "3A"]) == 2
-    assert "demo gallery is generated" in capsys.readouterr().out
+    assert "demo gallery is generated" in capsys.readouterr().err
     g = str(tmp_path / "g.sqlite")
     assert main(["gallery", "enrol", g, "1A", "--crops", "a.png", "b.png", "c.png"]) == 2
-    assert "a.png: not a readable image" in capsys.readouterr().out
+    assert "a.png: not a readable image" in capsys.readouterr().err
     assert main(["gallery", "remove", g, "nobody"]) == 2
-    assert "nobody is not enrolled" in capsys.readouterr().out
+    assert "nobody is not enrolled" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_demo_gallery_has_the_ten_reference_sides(capsys):
     assert main(["gallery", "demo", "--rig", os.path.join(REPO, "rigs", "sim.yaml")]) == 0
     out = capsys.readouterr().out
@@ -66,6 +69,7 @@ def test_demo_gallery_has_the_ten_reference_sides(capsys):
         assert side in out
 
 
+@pytest.mark.slow
 def test_a_pallet_side_not_in_the_gallery_is_unknown(tmp_path, capsys):
     g = str(tmp_path / "g.sqlite")
     for side in ("1A", "3B"):

@@ -17,12 +17,28 @@ MISSIONS = sorted(
 )
 
 
-@pytest.mark.parametrize("path", MISSIONS, ids=os.path.basename)
-def test_mission_flies_to_success_and_lands(path, tmp_path):
-    # enroll_pallet.xml writes a gallery (pallets.sqlite in the working directory by default)
-    bb = {"gallery": str(tmp_path / "pallets.sqlite")} if "enroll" in os.path.basename(path) else {}
-    m, run, pf = sim_mission(path, blackboard=bb)
-    result = run.run(max_time_s=300)
+# the pallet-scan flights take a few seconds each; the other missions are short
+SLOW_MISSIONS = ("pallet_scan.xml", "pallet_scan.yaml", "enroll_pallet.xml")
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        pytest.param(p, marks=pytest.mark.slow) if os.path.basename(p) in SLOW_MISSIONS else p
+        for p in MISSIONS
+    ],
+    ids=os.path.basename,
+)
+def test_mission_flies_to_success_and_lands(path, tmp_path, request):
+    name = os.path.basename(path)
+    if name == "pallet_scan.xml":  # the same flight as the shared one (conftest.py)
+        flight = request.getfixturevalue("pallet_scan_flight")
+        result, pf = flight.result, flight.platform
+    else:
+        # enroll_pallet.xml writes a gallery (pallets.sqlite in the working directory by default)
+        bb = {"gallery": str(tmp_path / "pallets.sqlite")} if "enroll" in name else {}
+        m, run, pf = sim_mission(path, blackboard=bb)
+        result = run.run(max_time_s=300)
     assert result.status == "SUCCESS", result.reason
     assert pf.vehicle.is_landed and not pf.vehicle.is_crashed
     assert pf.summary()["collisions"] == []
@@ -31,18 +47,15 @@ def test_mission_flies_to_success_and_lands(path, tmp_path):
 FIRST_SCAN = "PalletScan/pallet_scan/identify_or_come_back/scan_and_identify/scan/scan_while_detecting/scan_line"
 
 
-def test_pallet_scan_follows_the_scan_line():
-    m, run, pf = sim_mission(os.path.join(REPO, "missions", "pallet_scan.xml"))
+@pytest.mark.slow
+def test_pallet_scan_follows_the_scan_line(pallet_scan_flight):
+    m, run = pallet_scan_flight.mission, pallet_scan_flight.runner
     ys = []
-
-    def watch(mm):
-        if mm.status_of(FIRST_SCAN) == "RUNNING":
-            x, y, z = pf.vehicle.position
+    for tick in pallet_scan_flight.ticks:
+        if FIRST_SCAN in tick.running:
+            x, y, z = tick.position
             ys.append(y)
             assert abs(x - 8.90) < 0.06 and abs(z - 0.255) < 0.06, (x, y, z)
-        return mm.status.value != "RUNNING"
-
-    run.run_until(watch, 20_000)
     assert m.status.value == "SUCCESS"
     # From y = -0.80 until the third block is committed (it sits at y = +0.48 and is
     # committed once 20 px right of the image centre), which stops the scan early.
@@ -87,6 +100,7 @@ def test_mission_inputs_can_be_overridden(tmp_path, monkeypatch):
     assert s["seed"] == 3
 
 
+@pytest.mark.slow
 def test_pallet_scan_xml_and_yaml_fly_identically(tmp_path):
     """The YAML version is the same mission: same seed, same tick log, tick for tick."""
     logs = []

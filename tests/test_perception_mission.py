@@ -40,11 +40,17 @@ def running(m, name: str) -> bool:
     return any(p.endswith("/" + name) and st == "RUNNING" for p, st in m.statuses().items())
 
 
+def is_running(paths, name: str) -> bool:
+    """``running`` on recorded paths of the RUNNING nodes (a shared flight's ticks)."""
+    return any(p.endswith("/" + name) for p in paths)
+
+
 def took_off(m) -> bool:
     """True if the take-off leaf ever ran."""
     return any(p.endswith("/takeoff") for rec in m.run.trace for p in rec.get("changed", {}))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("side", [f"{n}{s}" for n in "12345" for s in "AB"])
 def test_every_demo_pallet_side_is_identified(side):
     m, pf, result = fly(side=side, seed=1)
@@ -60,14 +66,18 @@ def test_every_demo_pallet_side_is_identified(side):
     assert pf.vehicle.is_landed and not pf.vehicle.is_crashed
 
 
-def test_detection_runs_beside_the_scan_and_stops_it_when_three_blocks_are_in():
-    both = []
-
-    def watch(m, pf):
-        if running(m, "detect_blocks") and running(m, "scan_line"):
-            both.append(m.clock.now())
-
-    m, pf, _ = fly(watch=watch)
+@pytest.mark.slow
+def test_detection_runs_beside_the_scan_and_stops_it_when_three_blocks_are_in(
+    pallet_scan_flight,
+):
+    # the shared flight (conftest.py) is fly() with its defaults: side 3A (the world's),
+    # seed 0, empty blackboard
+    both = [
+        tick.t
+        for tick in pallet_scan_flight.ticks
+        if is_running(tick.running, "detect_blocks") and is_running(tick.running, "scan_line")
+    ]
+    m = pallet_scan_flight.mission
     assert m.status.value == "SUCCESS"
     assert len(both) > 100  # many ticks with both branches running
     session = m.ctx.resources["perception"]
@@ -78,6 +88,7 @@ def test_detection_runs_beside_the_scan_and_stops_it_when_three_blocks_are_in():
     assert all(c.ndim == 3 and c.shape[2] == 3 and c.shape[1] >= 8 for c in scan.crops)
 
 
+@pytest.mark.slow
 def test_same_seed_same_answer():
     a, _, _ = fly(side="2B", seed=5)
     b, _, _ = fly(side="2B", seed=5)
@@ -85,6 +96,7 @@ def test_same_seed_same_answer():
     assert a.ctx.resources["perception"].frames == b.ctx.resources["perception"].frames
 
 
+@pytest.mark.slow
 def test_missed_block_triggers_one_rescan():
     """The camera stalls while block 2 passes (shorter than DetectBlocks' stall time-out,
     made longer for this test): the first scan commits two blocks, the re-scan all three."""
@@ -142,6 +154,7 @@ def _wrong_size_renderer(**_):
 register_renderer("test_wrong_size", _wrong_size_renderer)
 
 
+@pytest.mark.slow
 def test_frames_of_the_wrong_size_fail_the_scan_and_land():
     m, pf, result = fly(overrides={"sensors.camera.renderer": "test_wrong_size"})
     assert result.status == "FAILURE"
@@ -164,6 +177,7 @@ def test_missing_weights_stop_the_mission_on_the_ground(tmp_path):
     assert not took_off(m) and pf.vehicle.is_landed
 
 
+@pytest.mark.slow
 def test_enrol_then_identify_with_your_own_gallery(tmp_path):
     gallery = str(tmp_path / "pallets.sqlite")
     m, pf, result = fly(

@@ -11,10 +11,9 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
-from helpers import REPO
+from helpers import REPO, wait_until
 
 from bt_engine.cli import main
 from bt_engine.ticklog import read_log
@@ -78,19 +77,26 @@ def _signalled(tmp_path, sig: int) -> tuple[subprocess.CompletedProcess, dict, l
         text=True,
     )
     log = os.path.join(out, "ticks.jsonl")
-    deadline = time.monotonic() + 30
-    while time.monotonic() < deadline:  # wait until it flies (mission time > 8 s)
-        if os.path.exists(log):
-            _, recs = read_log(log)
-            if recs and recs[-1]["t"] > 8.0:
-                break
-        time.sleep(0.05)
+
+    def flying() -> bool:  # mission time > 8 s in the tick log
+        if not os.path.exists(log):
+            return False
+        _, recs = read_log(log)
+        return bool(recs) and recs[-1]["t"] > 8.0
+
+    try:
+        wait_until(flying, 60.0, "btrun to log 8 s of mission time", 0.05)
+    except AssertionError:
+        proc.kill()
+        proc.communicate(timeout=10)
+        raise
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=60)
     summary, records = _logged(out)
     return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr), summary, records
 
 
+@pytest.mark.slow  # a real btrun process flying paced at 20x real time
 @pytest.mark.parametrize(
     ("sig", "reason"),
     [

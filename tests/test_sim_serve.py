@@ -7,9 +7,11 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 
+import pytest
 from helpers import REPO
+
+pytestmark = pytest.mark.sitl  # the CRTP emulator and cflib over UDP on 127.0.0.1
 
 
 def _free_udp_port() -> int:
@@ -40,13 +42,11 @@ def test_cflib_connects_to_btrun_sim_serve():
             f"with SyncCrazyflie('udp://127.0.0.1:{port}', cf=Crazyflie(rw_cache=None)) as scf:\n"
             "    print('est', scf.cf.param.get_value('stabilizer.estimator'))\n"
         )
-        t0 = time.monotonic()
         out = subprocess.run(
             [sys.executable, "-c", code], capture_output=True, text=True, timeout=60
         )
         assert out.returncode == 0, out.stderr[-2000:]
         assert "est " in out.stdout
-        assert time.monotonic() - t0 < 60
     finally:
         proc.send_signal(signal.SIGINT)
         try:

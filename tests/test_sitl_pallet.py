@@ -10,7 +10,10 @@ import os
 import subprocess
 import sys
 
+import pytest
 from helpers import REPO
+
+pytestmark = [pytest.mark.sitl, pytest.mark.slow]  # a real-time flight through the SITL rig
 
 
 def test_pallet_scan_flies_through_sitl_and_identifies_the_pallet(tmp_path) -> None:

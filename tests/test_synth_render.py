@@ -1,9 +1,8 @@
-"""Synthetic AI-deck frames: geometry, ground-truth boxes, Bayer mosaic, blur, speed."""
+"""Synthetic AI-deck frames: geometry, ground-truth boxes, Bayer mosaic, blur."""
 
 from __future__ import annotations
 
 import math
-import time
 
 import cv2
 import numpy as np
@@ -128,18 +127,15 @@ def test_deterministic_per_seed_and_noise_differs_between_seeds():
     assert np.array_equal(a, b) and not np.array_equal(a, c)
 
 
-def test_frames_are_fast_and_looking_away_is_cheap():
+def test_looking_away_renders_a_frame_without_boxes():
+    # (how fast frames render is measured in bench/, not asserted here)
     rng = np.random.default_rng(0)
     away = CameraPose.from_yaw(5.0, 0.0, 1.0, math.pi)
     for pose in (SCAN, away):
         render_frame(CAM, pose, SCENE, rng)  # textures made once
-    t0 = time.process_time()
-    for _ in range(50):
-        render_frame(CAM, SCAN, SCENE, rng)
-    scan_ms = (time.process_time() - t0) / 50 * 1e3
-    _, boxes = render_frame(CAM, away, SCENE, rng, return_boxes=True)
+    frame, boxes = render_frame(CAM, away, SCENE, rng, return_boxes=True)
     assert boxes == []
-    assert scan_ms < 15.0  # ~2 ms on the reference 2-core machine; generous for CI noise
+    assert frame.shape == (244, 324)
 
 
 def test_degenerate_poses_do_not_fail():
