@@ -71,6 +71,10 @@ class RunTarget(Protocol):
         """Runner hooks that must run *before* the platform's own (e.g. the safety
         supervisor, which must land the drone before the platform shuts down)."""
 
+    def at_rest(self, platform: Platform) -> bool:
+        """True while a slow tick can harm nothing (e.g. the vehicle on the ground): the
+        tick watchdog then allows a long tick (a gallery built before take-off)."""
+
     def run_summary(self, platform: Platform, hooks: list[Any]) -> dict[str, Any]:
         """The target's part of ``summary.json`` once the run is over (e.g. ``sim``: ground
         truth, ``safety``: what the supervisor did), by key."""

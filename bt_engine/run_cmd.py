@@ -198,6 +198,11 @@ def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
         log=run.log,
         telemetry=telemetry,
         tick_budget_s=budget,
+        at_rest=(
+            (lambda: run.target.at_rest(run.platform))  # type: ignore[union-attr]
+            if run.target is not None and run.platform is not None
+            else None
+        ),
     )
     if not args.quiet:
         where = f"rig {run.target.path or '-'}" if run.target is not None else "no vehicle"

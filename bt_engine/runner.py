@@ -61,6 +61,8 @@ class Runner:
         tick_budget_s: wall-clock seconds one tick may take before the watchdog
             (:mod:`bt_engine.watchdog`) ends the run ABORTED and the hooks land the drone;
             None: no watchdog (``btrun`` always sets one).
+        at_rest: True while a slow tick can harm nothing (the drone on the ground): the
+            watchdog then allows :data:`REST_TICK_BUDGET_S` (e.g. building a gallery).
     """
 
     def __init__(
@@ -72,6 +74,7 @@ class Runner:
         telemetry: Callable[[], dict] | None = None,
         on_tick: Callable[[Runner], None] | None = None,
         tick_budget_s: float | None = None,
+        at_rest: Callable[[], bool] | None = None,
     ) -> None:
         if not rate_hz > 0:
             raise ValueError(f"tick rate must be > 0 Hz, got {rate_hz}")
@@ -87,6 +90,7 @@ class Runner:
         self.telemetry = telemetry
         self.on_tick = on_tick
         self.tick_budget_s = tick_budget_s
+        self.at_rest = at_rest
         self.watchdog: TickWatchdog | None = None
         self.trace: list[dict] = []
         self.keep_trace = True
@@ -193,6 +197,8 @@ class Runner:
                 on_stuck=self._shutdown_hooks,
                 running=self._running_leaf,
                 request_stop=self._request_stop,
+                at_rest=self.at_rest,
+                rest_budget_s=REST_TICK_BUDGET_S,
             )
         if PENDING_INTERRUPTS:  # a signal arrived while btrun was still loading
             self.interrupt_source = PENDING_INTERRUPTS[-1]
@@ -330,6 +336,9 @@ def _raising_node(exc: BaseException) -> str:
         tb = tb.tb_next
     return f" in {found.describe()} ({found.loc})" if found is not None else ""
 
+
+#: Wall-clock budget of one tick while the run is at rest (the drone on the ground).
+REST_TICK_BUDGET_S = 600.0
 
 #: SIGINT/SIGTERM received before a run took the signals over (see :func:`catch_early_interrupts`)
 PENDING_INTERRUPTS: list[str] = []

@@ -77,6 +77,8 @@ class TickWatchdog:
         on_stuck: Callable[[str], Any] | None = None,
         running: Callable[[], str] | None = None,
         request_stop: Callable[[str], Any] | None = None,
+        at_rest: Callable[[], bool] | None = None,
+        rest_budget_s: float = 600.0,
     ) -> None:
         if not budget_s > 0:
             raise ValueError(f"tick budget must be > 0 s, got {budget_s}")
@@ -85,6 +87,8 @@ class TickWatchdog:
         self.on_stuck = on_stuck
         self.running = running
         self.request_stop = request_stop
+        self.at_rest = at_rest
+        self.rest_budget_s = max(float(rest_budget_s), self.budget_s)
         self.reason: str | None = None
         self._main = threading.main_thread().ident or threading.get_ident()
         self._target = threading.get_ident()
@@ -123,7 +127,14 @@ class TickWatchdog:
             now = time.monotonic()
             if started is None:
                 continue
-            if self._fired_at is None and now - started > self.budget_s:
+            budget = self.budget_s
+            if self._fired_at is None and now - started > budget and self.at_rest is not None:
+                try:
+                    if self.at_rest():
+                        budget = self.rest_budget_s
+                except Exception:  # pragma: no cover - read mid-update: keep the tight one
+                    budget = self.budget_s
+            if self._fired_at is None and now - started > budget:
                 where = ""
                 if self.running is not None:  # the deepest RUNNING node: stable over a loop
                     try:
@@ -132,7 +143,7 @@ class TickWatchdog:
                         where = ""
                 where = where or stuck_in(target)
                 self.reason = (
-                    f"watchdog: tick {tick} did not return within {self.budget_s:g} s{where}; "
+                    f"watchdog: tick {tick} did not return within {budget:g} s{where}; "
                     "the tree was stopped and the drone landed"
                 )
                 self._fired_at = now

@@ -62,6 +62,10 @@ class RigTarget:
         recorder = make_mcap_recorder(getattr(self, "run_dir", None), platform, mission, hook)
         return hooks + ([recorder] if recorder is not None else [])
 
+    def at_rest(self, platform: Platform) -> bool:
+        """On the ground (not flying): a long tick there harms nothing."""
+        return not platform.vehicle.is_flying
+
     def run_summary(self, platform: Platform, hooks: list[Any]) -> dict[str, Any]:
         """``sim`` (simulator ground truth) or ``vehicle`` (a real drone), and ``safety``."""
         out: dict[str, Any] = {"sim" if self.rig.kind == "sim" else "vehicle": platform.summary()}

@@ -270,3 +270,38 @@ def test_a_leaf_stuck_in_its_own_code_is_stopped_too(tmp_path) -> None:
         REGISTRY._models, REGISTRY._aliases = saved
     assert s["status"] == "ABORTED" and s["reason"].startswith("watchdog: tick"), s["reason"]
     assert_down(s)
+
+
+def test_a_long_tick_on_the_ground_is_allowed_in_the_air_it_is_not(monkeypatch) -> None:
+    """A gallery built in the first tick (on the ground) may take long; the same tick in
+    flight is stopped. (The leaf busy-waits 0.8 s of wall time; budgets 0.3 s / 3 s.)"""
+    import time
+
+    import bt_engine.runner as runner_mod
+    from bt_engine import Runner
+    from bt_engine.node import SyncActionNode
+    from bt_engine.registry import REGISTRY
+
+    class SlowSetupTestOnly(SyncActionNode):
+        bt_id = "SlowSetupTestOnly"
+
+        def tick_impl(self):  # noqa: ANN202
+            end = time.monotonic() + 0.8
+            while time.monotonic() < end:
+                pass
+            return runner_mod.SUCCESS
+
+    monkeypatch.setattr(runner_mod, "REST_TICK_BUDGET_S", 3.0)
+    saved = (dict(REGISTRY._models), dict(REGISTRY._aliases))
+    REGISTRY.register(SlowSetupTestOnly)
+    try:
+        for airborne in (False, True):
+            m, _, platform = sim_mission(wrap("    <SlowSetupTestOnly/>"))
+            run = Runner(m, hooks=[platform], tick_budget_s=0.3, at_rest=lambda a=airborne: not a)
+            result = run.run(max_time_s=5)
+            if airborne:
+                assert result.status == "ABORTED" and "watchdog" in result.reason, result
+            else:
+                assert result.status == "SUCCESS", result
+    finally:
+        REGISTRY._models, REGISTRY._aliases = saved

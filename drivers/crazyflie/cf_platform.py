@@ -45,6 +45,9 @@ from drivers.vehicle.interfaces import PoseSource
 from drivers.vehicle.types import FlightState, Pose
 from drivers.vehicle.vehicle import Vehicle
 
+#: Longest wait at shutdown for the drone to confirm it disarmed.
+DISARM_CONFIRM_S = 1.0
+
 
 class LockedVehicle:
     """A :class:`Vehicle` whose every attribute read and method call holds ``lock``."""
@@ -209,6 +212,13 @@ class CrazyfliePlatform:
         with self._lock:
             if v.is_flying and self.link.connected:
                 v.emergency_stop()
+            if not v.is_flying and v.is_armed and self.link.connected:
+                v.disarm()
+        # The disarm request travels over the radio: wait (bounded) until the drone's own
+        # telemetry says disarmed, so the ground truth (and the summary) see what was done.
+        end = time.monotonic() + DISARM_CONFIRM_S
+        while not v.arming_confirmed and self.link.connected and time.monotonic() < end:
+            time.sleep(0.02)
         self._stop.set()
         self._thread.join(timeout=1.0)
         self._closed = True

@@ -146,6 +146,12 @@ class Vehicle:
         return tel.armed
 
     @property
+    def arming_confirmed(self) -> bool:
+        """True once the drone's telemetry, newer than the last arm/disarm request, agrees."""
+        tel = self._telemetry
+        return tel is not None and tel.t_s > self._armed_cmd_s and tel.armed == self._armed_cmd
+
+    @property
     def battery(self) -> BatteryState:
         """Battery voltage (filtered over ~1 s, as measured under load), state-of-charge
         estimate and low flag.
