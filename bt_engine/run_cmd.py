@@ -17,7 +17,8 @@ import yaml
 
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.display import spec_rows
-from bt_engine.mission import Mission, check_file
+from bt_engine.loading import check_mission
+from bt_engine.mission import Mission
 from bt_engine.plugins import Platform, RunTarget, load_target, write_report
 from bt_engine.registry import REGISTRY
 from bt_engine.runner import Runner, RunResult
@@ -123,7 +124,10 @@ def prepare(args) -> PreparedRun:
     :class:`MissionError` with every located problem: nothing flies), then build the clock,
     platform, mission, run folder, tick log and hooks."""
     bb, rig_over, problems = parse_sets(args.set)
-    spec, mission_problems = check_file(args.mission, REGISTRY)
+    warnings: list[Problem] = []
+    spec, mission_problems = check_mission(args.mission, REGISTRY, None, warnings)
+    for w in warnings:  # file:line:col: warning: ... (the mission still flies)
+        print(str(w), file=sys.stderr)
     problems += mission_problems
     if problems:
         raise MissionError(problems)

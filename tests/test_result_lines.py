@@ -48,3 +48,19 @@ def test_a_failure_the_tree_handled_is_listed_after_the_result(tmp_path, capsys)
     assert "not above 101 %" in handled[0]
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())
     assert summary["leaf_failures"][0]["times"] == 1
+
+
+def test_btrun_run_prints_validation_warnings_and_still_flies(tmp_path, capsys) -> None:
+    xml = wrap(
+        """    <Sequence>
+      <Script code="y := from_outside + 1"/>
+      <AlwaysSuccess/>
+    </Sequence>"""
+    )
+    path = tmp_path / "m.xml"
+    path.write_text(xml)
+    out = str(tmp_path / "r")
+    args = ["run", str(path), "--out", out, "-q", "--no-report", "--set", "from_outside=2"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "m.xml:4:" in err and "warning: script reads blackboard entry 'from_outside'" in err
