@@ -357,14 +357,7 @@ def catch_early_interrupts() -> dict | None:
         PENDING_INTERRUPTS.append("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
 
     PENDING_INTERRUPTS.clear()
-    old: dict = {}
-    try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            old[sig] = signal.signal(sig, handler)
-    except ValueError:  # not in the main thread
-        _restore_sigint(old)
-        return None
-    return old
+    return _route_signals(handler)
 
 
 def release_early_interrupts(old: dict | None) -> None:
@@ -389,7 +382,13 @@ def _install_sigint(runner: Runner) -> dict | None:
         if runner._interrupted >= 2:
             raise KeyboardInterrupt
 
-    old = {}
+    return _route_signals(handler)
+
+
+def _route_signals(handler: Callable[[int, Any], None]) -> dict | None:
+    """Install ``handler`` for SIGINT and SIGTERM; return the old handlers (None, and
+    nothing changed, outside the main thread)."""
+    old: dict = {}
     try:
         for sig in (signal.SIGINT, signal.SIGTERM):
             old[sig] = signal.signal(sig, handler)
