@@ -3,7 +3,7 @@
 The engine knows nothing of drones; leaves register themselves in :data:`REGISTRY`.
 """
 
-from bt_engine import controls, decorators, leaves  # noqa: F401  (register built-ins)
+from bt_engine import controls, decorators, leaves, loops  # noqa: F401  (register built-ins)
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.loading import load_spec
 from bt_engine.mission import Mission, check_file

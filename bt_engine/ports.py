@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -252,6 +253,58 @@ class PathType(PortType):
         return [[float(v) for v in p] for p in value]
 
 
+def split_queue(text: str) -> list[str]:
+    """Split ``"a;b;c"`` into queue items as BehaviorTree.CPP's ``splitString(str, ';')``
+    does: ``""`` is no item, a trailing ``;`` adds none, ``"a;;b"`` has an empty middle one."""
+    parts = text.split(";")
+    if parts[-1] == "":
+        parts.pop()
+    return parts
+
+
+class QueueType(PortType):
+    """A queue of values of one type (BehaviorTree.CPP's ``SharedQueue<T>``).
+
+    ``"a;b;c"`` in XML (split on ``;``, see :func:`split_queue`), ``[a, b, c]`` in YAML; a
+    single number or boolean is a queue of one. Each item converts with ``element``; an item
+    may not contain ``;`` (the separator, so that YAML lists convert to XML unchanged).
+    """
+
+    def __init__(self, element: PortType) -> None:
+        self.element = element
+        self.name = f"{element.name} queue"
+        self.expected = f'a queue of {element.name} items "a;b;c"'
+
+    def convert(self, value: Any) -> list[Any]:
+        if isinstance(value, str):
+            parts: list[Any] = split_queue(value)
+        elif isinstance(value, (list, tuple, deque)):
+            parts = list(value)
+            for i, p in enumerate(parts):
+                if isinstance(p, str) and ";" in p:
+                    raise PortValueError(
+                        f"item {i + 1} of the queue, {_short(p)}, contains ';' "
+                        "(the separator of queue items)"
+                    )
+        elif isinstance(value, (bool, int, float)):
+            parts = [value]
+        else:
+            raise PortValueError(f"expected {self.expected}, got {_short(value)}")
+        out = []
+        for i, p in enumerate(parts):
+            try:
+                out.append(self.element.convert(p))
+            except PortValueError as exc:
+                raise PortValueError(f"item {i + 1} of the queue: {exc}") from None
+        return out
+
+    def to_text(self, value: Any) -> str:
+        return ";".join(self.element.to_text(v) for v in value)
+
+    def to_yaml(self, value: Any) -> list[Any]:
+        return [self.element.to_yaml(v) for v in value]
+
+
 # The number of a duration, matched against text already stripped of spaces and unit: no
 # two quantifiers here can match the same characters, so matching is linear (a pattern with
 # ``\s*(unit)?\s*$`` backtracks quadratically on a long run of trailing spaces).
@@ -353,6 +406,9 @@ class Port:
 
     ``direction`` is ``"input"``, ``"output"`` or ``"inout"``. A port without a default is
     required for inputs; outputs are never required (an unbound output is simply not written).
+    ``takes_literal``: an inout port that may also be given a literal, which the node then
+    works on privately (the ``queue`` of the Loop decorators); such a port is required
+    unless it has a default.
     """
 
     name: str
@@ -360,11 +416,12 @@ class Port:
     type: PortType = field(default=ANY)
     default: Any = NO_DEFAULT
     description: str = ""
+    takes_literal: bool = False
 
     @property
     def required(self) -> bool:
         """True if a mission file must give this port a value."""
-        return self.direction == INPUT and self.default is NO_DEFAULT
+        return (self.direction == INPUT or self.takes_literal) and self.default is NO_DEFAULT
 
     @property
     def reads(self) -> bool:
@@ -390,10 +447,14 @@ def output_port(name: str, type: PortType = ANY, description: str = "") -> Port:
 
 
 def inout_port(
-    name: str, type: PortType = ANY, default: Any = NO_DEFAULT, description: str = ""
+    name: str,
+    type: PortType = ANY,
+    default: Any = NO_DEFAULT,
+    description: str = "",
+    takes_literal: bool = False,
 ) -> Port:
-    """Declare a port the node both reads and writes."""
-    return Port(name, INOUT, type, default, description)
+    """Declare a port the node both reads and writes (``takes_literal``: see :class:`Port`)."""
+    return Port(name, INOUT, type, default, description, takes_literal)
 
 
 _REF = re.compile(r"^\{\s*(@?[A-Za-z_][\w.\-/]*|=)\s*\}$")

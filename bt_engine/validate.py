@@ -449,7 +449,7 @@ class _Validator:
                     "(expected {entry_name})",
                 )
                 continue
-            if port.writes:
+            if port.writes and not port.takes_literal:
                 self.add(
                     attr.loc,
                     f"output port '{key}' of {node.type} is bound to the literal "

@@ -526,7 +526,8 @@ class _Dumper:
             port_type = BOOL if key == "_autoremap" else None
         else:
             port = model.ports.get(key)
-            port_type = port.type if port is not None and not port.writes else None
+            literal_ok = port is not None and (not port.writes or port.takes_literal)
+            port_type = port.type if literal_ok else None
         try:
             return value if port_type is None else port_type.to_yaml(port_type.convert(value))
         except PortValueError:

@@ -36,6 +36,7 @@ import time
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import behaviortreepy as bt
 
@@ -94,6 +95,8 @@ class Trace:
     blackboards: list[dict[str, int]] = field(default_factory=list)
     #: every status change during each tick, in order: ``(name, new_status)``
     transitions: list[list[tuple[str, str]]] = field(default_factory=list)
+    #: entries named by ``outputs`` after each tick (None while unset)
+    outputs: list[dict[str, Any]] = field(default_factory=list)
 
 
 def preorder_names(xml: str) -> list[str]:
@@ -153,6 +156,7 @@ def run_btcpp(
     blackboard: dict[str, int] | None = None,
     tick: str = "once",
     interval_s: float = 0.0,
+    outputs: dict[str, str] | None = None,
 ) -> Trace:
     """Build ``xml`` in BT.CPP, tick it ``ticks`` times, return the :class:`Trace`.
 
@@ -161,6 +165,8 @@ def run_btcpp(
     Integer ``blackboard`` entries are set in the root blackboard before the tree is built,
     and read back after every tick. ``interval_s``: wall time slept between two ticks (for
     ``Timeout``/``Delay`` with real delays; BT.CPP's timers run on the wall clock).
+    ``outputs`` maps entries to read after every tick to their type (``"string"``, ``"int"``,
+    ``"double"`` or ``"bool"``), e.g. the ``value`` a ``LoopString`` writes.
     """
     names = preorder_names(xml)
     index = {n: i for i, n in enumerate(names)}
@@ -201,6 +207,9 @@ def run_btcpp(
                             if root_bb.get_int(k) is not None
                         }
                     )
+                    trace.outputs.append(
+                        {k: _read(root_bb, k, kind) for k, kind in (outputs or {}).items()}
+                    )
             finally:
                 logger.flush()
                 del logger
@@ -225,6 +234,14 @@ def run_btcpp(
     assert len(trace.statuses) == len(trace.roots), (trace.statuses, trace.roots)
     del tree
     return trace
+
+
+def _read(bb: Any, key: str, kind: str) -> Any:
+    """Entry ``key`` of a BT.CPP blackboard read as ``kind``; None if unset."""
+    try:
+        return getattr(bb, f"get_{kind}")(key)
+    except Exception:  # an entry created for a port but never written: "Any is empty"
+        return None
 
 
 def _worker_main(conn) -> None:
@@ -274,10 +291,11 @@ class BtcppWorker:
         tick: str = "once",
         interval_s: float = 0.0,
         timeout: float | None = None,
+        outputs: dict[str, str] | None = None,
     ) -> Trace | None:
         if self._proc is None:
             self._start()
-        self._conn.send((xml, ticks, blackboard, tick, interval_s))
+        self._conn.send((xml, ticks, blackboard, tick, interval_s, outputs))
         limit = (self.timeout if timeout is None else timeout) + ticks * interval_s
         if not self._conn.poll(limit):
             self.close(kill=True)

@@ -102,11 +102,16 @@ class _Endless(Exception):
 
 
 def run_btrun(
-    xml: str, ticks: int, blackboard: dict[str, int] | None = None, interval_s: float = 0.0
+    xml: str,
+    ticks: int,
+    blackboard: dict[str, int] | None = None,
+    interval_s: float = 0.0,
+    outputs: dict[str, str] | None = None,
 ) -> Trace:
     """The btrun side of a comparison: same :class:`Trace` as ``run_btcpp``.
 
-    ``interval_s``: simulated time between two ticks.
+    ``interval_s``: simulated time between two ticks; ``outputs``: entries to record after
+    each tick (their types matter to BT.CPP only).
     """
     trace = Trace(preorder_names(xml))
     clock = SimClock()
@@ -157,6 +162,7 @@ def run_btrun(
                     if m.blackboard.get(k) is not None
                 }
             )
+            trace.outputs.append({k: m.blackboard.get(k) for k in outputs or {}})
     finally:
         m.close()
     return trace
@@ -188,15 +194,19 @@ def diff(
     ticks: int = TICKS,
     blackboard: dict[str, int] | None = None,
     interval_s: float = 0.0,
+    outputs: dict[str, str] | None = None,
 ) -> str | None:
-    """Run ``xml`` in both engines; return a readable description of the first difference."""
+    """Run ``xml`` in both engines; return a readable description of the first difference.
+
+    ``outputs``: more entries to compare after every tick, with their BT.CPP types.
+    """
     bb = BLACKBOARD if blackboard is None else blackboard
-    got = run_btrun(xml, ticks, bb, interval_s)
+    got = run_btrun(xml, ticks, bb, interval_s, outputs)
     # if btrun's tick k never ends, expect BT.CPP's tickOnce k not to return either
     n = len(got.roots) + 1 if got.error == ENDLESS else ticks
-    ref = peer().run(xml, n, bb, interval_s=interval_s)
+    ref = peer().run(xml, n, bb, interval_s=interval_s, outputs=outputs)
     if ref is None:
-        ref = peer().run(xml, n - 1, bb, interval_s=interval_s)
+        ref = peer().run(xml, n - 1, bb, interval_s=interval_s, outputs=outputs)
         if ref is None or got.error != ENDLESS:
             return f"BT.CPP's tickOnce never returned within {n} ticks; btrun: {got.error!r}"
         ref.error = ENDLESS
@@ -223,6 +233,8 @@ def diff(
             )
         if ref.blackboards[i] != got.blackboards[i]:
             return f"tick {i + 1}: blackboard btcpp={ref.blackboards[i]} btrun={got.blackboards[i]}"
+        if ref.outputs[i] != got.outputs[i]:
+            return f"tick {i + 1}: outputs btcpp={ref.outputs[i]} btrun={got.outputs[i]}"
         if ref.transitions[i] != got.transitions[i]:
             return (
                 f"tick {i + 1}: status changes differ\n  btcpp={ref.transitions[i]}"
@@ -240,8 +252,9 @@ def check(
     ticks: int = TICKS,
     blackboard: dict[str, int] | None = None,
     interval_s: float = 0.0,
+    outputs: dict[str, str] | None = None,
 ) -> None:
-    problem = diff(xml, ticks, blackboard, interval_s)
+    problem = diff(xml, ticks, blackboard, interval_s, outputs)
     assert problem is None, f"{problem}\n{xml}"
 
 
