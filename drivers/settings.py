@@ -323,17 +323,21 @@ def load_yaml_file(
     return data
 
 
-def apply_overrides(data: dict, overrides: dict[str, str] | None, spec: Field) -> dict:
+def apply_overrides(
+    data: dict, overrides: dict[str, str] | None, spec: Field, prefix: str = ""
+) -> dict:
     """Return a copy of validated ``data`` with ``--set`` style overrides applied.
 
     Each key is a dotted path (``control.rate_hz``); each value is a string parsed as YAML
     (``"0.5"`` -> 0.5, ``"[1, 0, 0]"`` -> list, ``"null"`` -> None) and type-checked against
     the schema. Unknown keys get a "did you mean". All problems are raised at once.
+    ``prefix`` (e.g. ``"world."``) is how the user wrote the keys' parent on the command
+    line; messages name the keys with it.
     """
     out = copy.deepcopy(data)
     problems: list[SettingProblem] = []
     for dotted, raw in (overrides or {}).items():
-        where = f"{dotted}={raw}"
+        where = f"{prefix}{dotted}={raw}"
         parts = dotted.split(".")
         node_spec, target = spec, out
         ok = True
@@ -341,11 +345,16 @@ def apply_overrides(data: dict, overrides: dict[str, str] | None, spec: Field) -
             last = i == len(parts) - 1
             if node_spec.kind == "map":
                 if part not in node_spec.children:
-                    prefix = ".".join(parts[:i])
-                    names = [f"{prefix}.{k}" if prefix else k for k in node_spec.children]
-                    hint = did_you_mean(".".join(parts[: i + 1]), names)
+                    head = ".".join(parts[:i])
+                    names = [
+                        f"{prefix}{head}.{k}" if head else f"{prefix}{k}"
+                        for k in node_spec.children
+                    ]
+                    hint = did_you_mean(prefix + ".".join(parts[: i + 1]), names)
                     problems.append(
-                        SettingProblem("--set", 0, 0, f"{where}: unknown key '{dotted}'{hint}")
+                        SettingProblem(
+                            "--set", 0, 0, f"{where}: unknown key '{prefix}{dotted}'{hint}"
+                        )
                     )
                     ok = False
                     break

@@ -4,4 +4,11 @@ The package only imports its leaf modules; the plug-in object the engine talks t
 loading, safety hook, report, extra commands) is :data:`nodes.plugin.PLUGIN`.
 """
 
-from nodes import conditions, flight, geometry, perception, safety  # noqa: F401  (registration)
+from nodes import (  # noqa: F401  (registration)
+    conditions,
+    flight,
+    geometry,
+    perception,
+    reactive_scan,
+    safety,
+)

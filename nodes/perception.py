@@ -114,6 +114,13 @@ class DetectBlocks(StatefulActionNode):
         input_port("max_distance_left_px", FLOAT, 60.0, "keep crops this close left of centre"),
         input_port("min_distance_right_px", FLOAT, 20.0, "commit once this far right of centre"),
         input_port("blocks", INT, 3, "blocks to commit before SUCCESS"),
+        input_port(
+            "max_row_offset_px",
+            FLOAT,
+            None,
+            "ignore boxes centred farther than this above or below the image's middle row "
+            "(another pallet's blocks); default: none ignored",
+        ),
         input_port("stall_timeout", DURATION, 1.0, "FAILURE after this long without a frame, s"),
         input_port("timeout", DURATION, 120.0, "FAILURE if not done within this time, s"),
         output_port("count", INT, "blocks committed so far"),
@@ -136,6 +143,7 @@ class DetectBlocks(StatefulActionNode):
         )
         self.sequencer = BlockSequencer(params)
         self.min_score = self.get_input("min_score")
+        self.row_offset_px = self.get_input("max_row_offset_px")
         self.stall_s, self.timeout_s = self.get_input("stall_timeout"), self.get_input("timeout")
         self.started_s = self.last_frame_s = self.now()
         frame = self.vehicle.camera_frame()
@@ -155,7 +163,9 @@ class DetectBlocks(StatefulActionNode):
             self.last_index, self.last_frame_s = frame.index, now
             self.camera_index[self.sequencer.frames + 1] = frame.index
             try:
-                new = self.session.process(frame, self.detector, self.sequencer, self.min_score)
+                new = self.session.process(
+                    frame, self.detector, self.sequencer, self.min_score, self.row_offset_px
+                )
             except PerceptionError as exc:
                 return _fail(self, str(exc))
             self.result.frames_seen += 1

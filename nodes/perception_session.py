@@ -119,6 +119,8 @@ class PerceptionSession:
         self.latencies_ms: list[float] = []
         self.frames = 0
         self.detections = 0
+        self.tracker: Any = None  # perception.face.FaceTracker while a reactive scan runs
+        self.faces: list[dict] = []  # face estimates of the reactive leaves, for the report
 
     @classmethod
     def of(cls, ctx: Any) -> PerceptionSession:
@@ -202,15 +204,56 @@ class PerceptionSession:
         self._galleries.clear()
 
     # -- frames ------------------------------------------------------------------------------
-    def process(self, frame: Any, detector: Any, sequencer: Any, min_score: float) -> list:
-        """Detect blocks in one camera frame and feed the sequencer; return new commits."""
+    def start_tracking(self) -> Any:
+        """A new face tracker (:class:`perception.face.FaceTracker`) fed with every frame
+        processed from now on, for the rig's camera model."""
+        from perception.face import FaceTracker
+        from perception.synth.camera_model import CameraModel
+
+        self.tracker = FaceTracker(CameraModel.from_dict(self.camera))
+        return self.tracker
+
+    def _track(self, frame: Any, dets: list) -> None:
+        pose = getattr(frame, "pose", None)
+        if self.tracker is not None and pose is not None:
+            boxes = [(d.x1, d.y1, d.x2, d.y2) for d in dets]
+            self.tracker.add_frame(pose.position, pose.quaternion, boxes)
+
+    def observe(self, frame: Any, detector: Any, min_score: float) -> list:
+        """Detect blocks in one camera frame for the face tracker only (no sequencer)."""
         t0 = time.perf_counter()
         bgr = frame_bgr(frame.image, (frame.meta or {}).get("format"), self.factors)
         dets = detector.detect(bgr, min_score=min_score)
-        committed = sequencer.update(bgr, dets, frame.t_s)
         self.latencies_ms.append((time.perf_counter() - t0) * 1e3)
         self.frames += 1
         self.detections += len(dets)
+        self._track(frame, dets)
+        return dets
+
+    def process(
+        self,
+        frame: Any,
+        detector: Any,
+        sequencer: Any,
+        min_score: float,
+        max_row_offset_px: float | None = None,
+    ) -> list:
+        """Detect blocks in one camera frame and feed the sequencer (and the face tracker,
+        if one runs); return new commits. ``max_row_offset_px``: the sequencer only gets
+        boxes whose centre is at most this far above or below the image's middle row (the
+        scanned row; not the blocks of a pallet below or above it)."""
+        t0 = time.perf_counter()
+        bgr = frame_bgr(frame.image, (frame.meta or {}).get("format"), self.factors)
+        dets = detector.detect(bgr, min_score=min_score)
+        row = dets
+        if max_row_offset_px is not None:
+            mid = 0.5 * (bgr.shape[0] - 1)
+            row = [d for d in dets if abs(0.5 * (d.y1 + d.y2) - mid) <= max_row_offset_px]
+        committed = sequencer.update(bgr, row, frame.t_s)
+        self.latencies_ms.append((time.perf_counter() - t0) * 1e3)
+        self.frames += 1
+        self.detections += len(dets)
+        self._track(frame, dets)
         if dets:
             boxes = [(d.x1, d.y1, d.x2, d.y2, d.score) for d in dets]
             self.recent.append(
@@ -268,4 +311,6 @@ class PerceptionSession:
             ]
         if self.enrolments:
             out["enrolments"] = self.enrolments
+        if self.faces:
+            out["faces"] = self.faces
         return out

@@ -18,7 +18,13 @@ MISSIONS = sorted(
 
 
 # the pallet-scan flights take a few seconds each; the other missions are short
-SLOW_MISSIONS = ("pallet_scan.xml", "pallet_scan.yaml", "enroll_pallet.xml")
+SLOW_MISSIONS = (
+    "pallet_scan.xml",
+    "pallet_scan.yaml",
+    "pallet_scan_fixed.xml",
+    "pallet_scan_fixed.yaml",
+    "enroll_pallet.xml",
+)
 
 
 @pytest.mark.parametrize(
@@ -44,19 +50,28 @@ def test_mission_flies_to_success_and_lands(path, tmp_path, request):
     assert pf.summary()["collisions"] == []
 
 
-FIRST_SCAN = "PalletScan/pallet_scan/identify_or_come_back/scan_and_identify/scan/scan_while_detecting/scan_line"
+FIRST_SCAN = (
+    "PalletScanFixed/pallet_scan/identify_or_come_back/scan_and_identify/scan/"
+    "scan_while_detecting/scan_line"
+)
 
 
 @pytest.mark.slow
-def test_pallet_scan_follows_the_scan_line(pallet_scan_flight):
-    m, run = pallet_scan_flight.mission, pallet_scan_flight.runner
+def test_pallet_scan_fixed_follows_the_scan_line():
+    m, run, pf = sim_mission(os.path.join(REPO, "missions", "pallet_scan_fixed.xml"), blackboard={})
+    positions = []
+
+    def record(_runner) -> None:
+        if any(FIRST_SCAN in n.path for n in m.running_nodes()):
+            positions.append(tuple(pf.vehicle.position))
+
+    run.on_tick = record
+    result = run.run(max_time_s=300)
+    assert result.status == "SUCCESS", result.reason
     ys = []
-    for tick in pallet_scan_flight.ticks:
-        if FIRST_SCAN in tick.running:
-            x, y, z = tick.position
-            ys.append(y)
-            assert abs(x - 8.90) < 0.06 and abs(z - 0.255) < 0.06, (x, y, z)
-    assert m.status.value == "SUCCESS"
+    for x, y, z in positions:
+        ys.append(y)
+        assert abs(x - 8.90) < 0.06 and abs(z - 0.255) < 0.06, (x, y, z)
     # From y = -0.80 until the third block is committed (it sits at y = +0.48 and is
     # committed once 20 px right of the image centre), which stops the scan early.
     assert min(ys) < -0.75 and 0.5 < max(ys) <= 0.62
@@ -68,6 +83,35 @@ def test_pallet_scan_follows_the_scan_line(pallet_scan_flight):
     assert [s for _, s in segs] == ["segment_1", "segment_2"]
     # the scan ran at about 0.07 m/s: the middle third of the 1.4 m line takes about 6.7 s
     assert segs[1][0] - segs[0][0] == pytest.approx(1.4 / 3 / 0.07, rel=0.15)
+
+
+REACTIVE_SCAN = "/scan/align_and_scan/scan_while_detecting/scan_face"
+
+
+@pytest.mark.slow
+def test_pallet_scan_scans_along_the_located_face(pallet_scan_flight):
+    """The reactive scan: it located the face where the world put it and flew along it at
+    the stand-off distance and the blocks' height, stopping once the third block passed."""
+    flight = pallet_scan_flight
+    assert flight.result.status == "SUCCESS", flight.result.reason
+    faces = flight.mission.ctx.resources["perception"].faces
+    located = faces[0]
+    assert located["stage"] == "located" and located["blocks_seen"] == 3
+    # from 0.75 m the depth is good to a few centimetres; from the scan start, to one or two
+    assert located["centre_m"] == pytest.approx([9.30, -0.05, 0.255], abs=0.05)
+    aligned = faces[1]
+    assert aligned["stage"] == "aligned"
+    assert aligned["centre_m"] == pytest.approx([9.30, -0.05, 0.255], abs=0.02)
+    assert abs(aligned["facing_deg"]) < 2.0
+    ys = []
+    for tick in flight.ticks:
+        if any(p.endswith(REACTIVE_SCAN) and "rescan" not in p for p in tick.running):
+            x, y, z = tick.position
+            ys.append(y)
+            assert abs(x - 8.90) < 0.05 and abs(z - 0.255) < 0.05, (x, y, z)
+    # from 0.15 m before the first block (y = -0.58) until the third (y = +0.48) passed the
+    # image centre
+    assert min(ys) == pytest.approx(-0.73, abs=0.03) and 0.5 < max(ys) <= 0.65
 
 
 def finished(rec: dict) -> dict:

@@ -39,7 +39,7 @@ def make_platform(rig: Rig, clock: Any, seed: int, pose_source: PoseSource | Non
     systems). Raises :class:`~drivers.settings.ConfigError` for a rig that cannot fly here.
     """
     if rig.kind == "sim":
-        return SimPlatform(rig.load_world(), rig.data, seed, clock)
+        return SimPlatform(rig.load_world(seed), rig.data, seed, clock)
     if rig.kind == "crazyflie":
         return make_crazyflie_platform(rig, clock, seed, pose_source)
     raise ConfigError([SettingProblem(rig.path, 1, 1, f"link '{rig.kind}' is not available")])
@@ -75,7 +75,7 @@ def make_crazyflie_platform(
     uri = None
     sitl = None
     if section["sitl"]:
-        world = rig.load_world() if section["sitl_world"] else None
+        world = rig.load_world(seed) if section["sitl_world"] else None
         sitl = SitlSession(data, seed, world).start()
         on_close.append(sitl.stop)
         truth, uri = sitl.truth, sitl.uri
@@ -151,10 +151,10 @@ def _make_camera(
     if sitl is not None:
         world = sitl.cf.drone.world
         if world is None:  # the drone flies through nothing, but the camera sees the world
-            world = rig.load_world()
+            world = rig.load_world(seed)
         emu = sitl.start_camera(data, seed, world)  # closed by sitl.stop
     elif a["emulator"]:
-        world = rig.load_world()
+        world = rig.load_world(seed)
         name = data["sensors"]["camera"]["renderer"]
         source = make_frame_source("pattern" if name in (None, "none") else name, seed, world)
         emu = AIDeckEmulator(

@@ -112,7 +112,7 @@ class SimPlatform:
     @classmethod
     def from_rig(cls, rig: Any, clock: Any, seed: int) -> SimPlatform:
         """Build from a :class:`drivers.rig.loader.Rig`."""
-        return cls(rig.load_world(), rig.data, seed, clock)
+        return cls(rig.load_world(seed), rig.data, seed, clock)
 
     # ------------------------------------------------------------------ faults
     def _register_faults(self) -> None:
@@ -296,6 +296,7 @@ class SimPlatform:
             "faults": self.faults.summary(),
             "scan_pallet": self.world.scan_pallet if self.world is not None else None,
             "pallets": self.world.ground_truth() if self.world is not None else [],
+            "placement_offset": self.world.placement_offset if self.world is not None else None,
             "yaw_bias_deg": round(math.degrees(d.estimator.yaw_bias_rad), 3),
             "shutdown_reason": self.shutdown_reason,
         }

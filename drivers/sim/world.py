@@ -98,8 +98,30 @@ WORLD_SCHEMA = M(
                 }
             ),
         ),
-        "scan_pallet": F("str", "3A", "identity (pallet id + side) standing at the scan slot"),
+        "scan_pallet": F(
+            "str", "3A", "identity (pallet id + side) at the scan slot, or none (empty slot)"
+        ),
         "scan_slot": SLOT,
+        "placement_error": M(
+            {
+                "lateral_m": F("float", 0.0, "along the face, drawn in +-this (m)", min=0.0),
+                "depth_m": F("float", 0.0, "away from the scan line, in +-this (m)", min=0.0),
+                "height_m": F("float", 0.0, "base height, in +-this (m)", min=0.0),
+                "yaw_deg": F("float", 0.0, "turn about the face centre, in +-this (deg)", min=0.0),
+            },
+            doc="how far the scanned pallet stands off its slot: each offset is drawn "
+            "uniformly per seed (summary.json sim.placement_offset has the draw)",
+        ),
+        "placement_offset": M(
+            {
+                "lateral_m": F("float", 0.0, "along the face, to its left seen from in front (m)"),
+                "depth_m": F("float", 0.0, "away from the scan line (m)"),
+                "height_m": F("float", 0.0, "base height (m)"),
+                "yaw_deg": F("float", 0.0, "turn about the face centre, counter-clockwise (deg)"),
+            },
+            doc="a fixed offset of the scanned pallet from its slot, added to the drawn "
+            "placement error",
+        ),
         "stand_size_m": F(
             "vec", [0.8, 1.2], "footprint of the stand under a raised slot", length=2
         ),
@@ -233,26 +255,69 @@ def place_pallet(pallet: dict, side: str, slot: dict, geometry: dict) -> PlacedP
     )
 
 
-class World:
-    """Placed pallets, stand and obstacles, with a cheap collision query for the drone."""
+EMPTY = ("none", "")  # scan_pallet values that leave the scan slot empty
 
-    def __init__(self, data: dict, path: str = "<world>") -> None:
+
+def draw_placement(error: dict, seed: int, fixed: dict | None = None) -> dict[str, float]:
+    """The scanned pallet's offsets for ``seed``: ``fixed`` plus each drawn uniformly in
+    +-``error``'s range (just ``fixed`` when every range is zero, whatever the seed)."""
+    import random
+
+    rng = random.Random(f"placement-{seed}")
+    out = {}
+    for key in ("lateral_m", "depth_m", "height_m", "yaw_deg"):
+        half = float(error.get(key) or 0.0)
+        value = rng.uniform(-half, half)
+        base = float((fixed or {}).get(key) or 0.0)
+        out[key] = round(base + (value if half > 0 else 0.0), 4)
+    return out
+
+
+def offset_slot(slot: dict, offset: dict[str, float], floor_z_m: float) -> dict:
+    """``slot`` moved by a placement offset: ``lateral_m`` along the face (to the left seen
+    from in front of it), ``depth_m`` away from whoever faces it, ``height_m`` up (never
+    below the floor), ``yaw_deg`` turned about the face centre."""
+    facing = math.radians(slot["facing_deg"])
+    nx, ny = math.cos(facing), math.sin(facing)
+    lx, ly = ny, -nx  # seen from in front (looking along -facing), left is this way
+    lat, dep = offset["lateral_m"], offset["depth_m"]
+    out = dict(slot)
+    out["x_m"] = slot["x_m"] + lx * lat - nx * dep
+    out["y_m"] = slot["y_m"] + ly * lat - ny * dep
+    out["z_m"] = max(floor_z_m, slot["z_m"] + offset["height_m"])
+    out["facing_deg"] = slot["facing_deg"] + offset["yaw_deg"]
+    return out
+
+
+class World:
+    """Placed pallets, stand and obstacles, with a cheap collision query for the drone.
+
+    ``seed`` draws the scanned pallet's placement error (``placement_error``); the draw is
+    in :attr:`placement_offset`.
+    """
+
+    def __init__(self, data: dict, path: str = "<world>", seed: int = 0) -> None:
         self.data, self.path = data, path
         self.floor_z_m = data["floor"]["z_m"]
         g = data["pallet_geometry"]
         pallets = {p["id"]: p for p in data["pallets"]}
-        scan_id, scan_side = split_identity(data["scan_pallet"])
         self.scan_pallet = data["scan_pallet"]
+        empty = str(self.scan_pallet).strip().lower() in EMPTY
+        scan_id, scan_side = ("", "") if empty else split_identity(data["scan_pallet"])
+        self.placement_offset = draw_placement(
+            data["placement_error"], seed, data["placement_offset"]
+        )
+        slot = offset_slot(data["scan_slot"], self.placement_offset, self.floor_z_m)
+        self.scan_slot = slot
         self.pallets: list[PlacedPallet] = []
         self.boxes: list[Box] = []
         if scan_id in pallets:
-            self.pallets.append(place_pallet(pallets[scan_id], scan_side, data["scan_slot"], g))
+            self.pallets.append(place_pallet(pallets[scan_id], scan_side, slot, g))
         others = [p for pid, p in pallets.items() if pid != scan_id]
         for pallet, slot in zip(others, data["row_slots"], strict=False):
             self.pallets.append(place_pallet(pallet, "A", slot, g))
         self.boxes += [p.body for p in self.pallets]
-        slot = data["scan_slot"]
-        if slot["z_m"] > 0.0 and self.pallets:
+        if slot["z_m"] > 0.0 and self.pallets and not empty:
             sp = self.pallets[0]
             w, length = data["stand_size_m"]
             self.boxes.append(
@@ -281,7 +346,8 @@ class World:
         ``summary.json``'s ``sim.pallets``; the first is the scanned pallet)."""
         g = self.data["pallet_geometry"]
         out = []
-        for i, p in enumerate(self.pallets):
+        empty = str(self.scan_pallet).strip().lower() in EMPTY
+        for i, p in enumerate(self.pallets, start=1 if empty else 0):
             fx, fy, fz = p.face_center_m
             out.append(
                 {
@@ -301,7 +367,9 @@ class World:
         return identities(self.data)
 
     def pallet_at_scan(self) -> PlacedPallet | None:
-        """The pallet standing at the scan slot."""
+        """The pallet standing at the scan slot (None when the slot is empty)."""
+        if str(self.scan_pallet).strip().lower() in EMPTY:
+            return None
         return self.pallets[0] if self.pallets else None
 
     def collision(self, x: float, y: float, z: float, radius_m: float) -> str | None:
@@ -338,12 +406,13 @@ def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
             problems.append(where(f"pallets[{i}].id", f"duplicate pallet id '{p['id']}'"))
         seen.add(p["id"])
     known = identities(data)
-    if data["scan_pallet"] not in known:
+    if data["scan_pallet"] not in known and str(data["scan_pallet"]).lower() not in EMPTY:
         problems.append(
             where(
                 "scan_pallet",
                 f"scan_pallet '{data['scan_pallet']}' is not a pallet "
-                f"side of this world (known: {', '.join(known) or 'none'})",
+                f"side of this world (known: {', '.join(known) or 'none'}; "
+                "none leaves the slot empty)",
             )
         )
     if len(data["row_slots"]) < max(0, len(data["pallets"]) - 1):
@@ -357,23 +426,27 @@ def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
     return problems
 
 
-def load_world(path: str, overrides: dict[str, str] | None = None) -> World:
-    """Load, validate and build the world at ``path``; ``overrides`` are ``--set`` style."""
+def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0) -> World:
+    """Load, validate and build the world at ``path``; ``overrides`` are ``--set`` style
+    keys of the world file (``scan_slot.y_m``), reported as ``world.KEY``; ``seed`` draws
+    the placement error."""
     marks: Marks = {}
     data = load_yaml_file(path, WORLD_SCHEMA, marks=marks)
     problems = check_world(data, marks, path)
     if overrides:
-        data = apply_overrides(data, overrides, WORLD_SCHEMA)
-        if data["scan_pallet"] not in identities(data):
+        data = apply_overrides(data, overrides, WORLD_SCHEMA, prefix="world.")
+        scan = data["scan_pallet"]
+        if scan not in identities(data) and str(scan).strip().lower() not in EMPTY:
             problems.append(
                 SettingProblem(
                     "--set",
                     0,
                     0,
                     f"world.scan_pallet={data['scan_pallet']}: not a pallet side "
-                    f"of {path} (known: {', '.join(identities(data))})",
+                    f"of {path} (known: {', '.join(identities(data))}; none leaves "
+                    "the slot empty)",
                 )
             )
     if problems:
         raise ConfigError(problems)
-    return World(data, path)
+    return World(data, path, seed)

@@ -1,15 +1,18 @@
 """Enrolment scans without a flight, and the demo gallery built from them.
 
-An enrolment scan renders what the AI-deck camera sees while it moves along the world's scan
-line in front of one pallet side (the world's scan slot, with that side standing in it), and
-runs it through the same detector and block sequencer as a mission. The three committed
+An enrolment scan renders what the AI-deck camera sees while it moves along a canonical scan
+line in front of one pallet side (standing alone in a canonical slot), and runs it through
+the same detector and block sequencer as a mission. The three committed
 crops are embedded and enrolled.
 
 The demo gallery holds every side of the world's pallets ("1A" .. "5B" in
-``worlds/warehouse.yaml``: the reference study's five pallets). It is built on first use,
-in about ten seconds, into a cache file whose name depends on the world file and both model
-versions (``$BTRUN_CACHE_DIR``, default ``~/.cache/btrun``), so a new model or world never
-reuses a stale gallery. The file is written under a temporary name and renamed, so an
+``worlds/warehouse.yaml``: the reference study's five pallets), each enrolled from the same
+canonical pose (alone in a canonical slot, seen from a canonical line), whatever slots the
+world gives them: moving a pallet (``--set world.scan_slot.y_m=...``, a placement error)
+neither rebuilds the gallery nor changes it. It is built on first use, in about ten
+seconds, into a cache file whose name depends on the pallets' appearance (not their
+places), the light, the camera and both model versions (``$BTRUN_CACHE_DIR``, default
+``~/.cache/btrun``), so a new model or appearance never reuses a stale gallery. The file is written under a temporary name and renamed, so an
 interrupted build leaves nothing half-made.
 """
 
@@ -26,7 +29,7 @@ import numpy as np
 
 ENROL_SPEED_MPS = 0.1  # camera speed along the scan line while enrolling
 ENROL_RATE_HZ = 15.0
-ENROL_VERSION = 1  # bump when the enrolment procedure changes (invalidates cached galleries)
+ENROL_VERSION = 2  # bump when the enrolment procedure changes (invalidates cached galleries)
 
 
 def cache_dir() -> str:
@@ -38,17 +41,55 @@ def cache_dir() -> str:
     return root
 
 
+#: Where every side is enrolled, whatever the world's slots say: the face centre at
+#: (9.30, 0.0), facing -x, the block row at 0.255 m (on a stand), seen from a line 0.40 m in
+#: front of it from 0.75 m right of the centre to 0.65 m left (blocks enter left of the image
+#: centre and leave right of it, as the block sequencer needs).
+CANONICAL_SLOT = {"x_m": 9.30, "y_m": 0.0, "facing_deg": 180.0}
+CANONICAL_ROW_Z_M = 0.255
+CANONICAL_LINE = {"x_m": 8.90, "y_from_m": -0.75, "y_to_m": 0.65, "yaw_deg": 0.0}
+
+
+def canonical_world_data(data: dict, identity: str) -> dict:
+    """The world of an enrolment scan: ``identity`` alone in the canonical slot (the
+    world's pallets, geometry, lighting and floor; no other pallet, no obstacle, no placement
+    error)."""
+    import copy
+
+    g = data["pallet_geometry"]
+    out = copy.deepcopy(data)
+    base_z = CANONICAL_ROW_Z_M - g["board_m"] - g["block_height_m"] / 2.0
+    out["scan_slot"] = dict(CANONICAL_SLOT, z_m=base_z)
+    out["scan_pallet"] = identity
+    out["row_slots"] = []
+    out["obstacles"] = []
+    for key in ("placement_error", "placement_offset"):
+        out[key] = {k: 0.0 for k in out.get(key, {})}
+    out["scan_line"] = dict(CANONICAL_LINE, z_m=CANONICAL_ROW_Z_M)
+    return out
+
+
+def appearance_key(data: dict) -> bytes:
+    """What a demo gallery depends on in a world: the pallets, their geometry, the light and
+    the floor; not where the world places them."""
+    import json
+
+    keep = {k: data.get(k) for k in ("pallets", "pallet_geometry", "lighting", "floor")}
+    return json.dumps(keep, sort_keys=True).encode()
+
+
 def scan_frames(
     world_path: str, identity: str, camera: dict | None, seed: int = 0
 ) -> Iterator[tuple[np.ndarray, float]]:
-    """Raw frames (and their times) of a camera moving along the world's scan line with
-    ``identity`` standing in the scan slot; motion blur from the scan speed."""
+    """Raw frames (and their times) of a camera moving along the canonical scan line in front
+    of ``identity`` standing alone in the canonical slot; motion blur from the scan speed."""
     from drivers.sim.renderers.pallet import PalletRenderer
-    from drivers.sim.world import load_world
+    from drivers.sim.world import World, load_world
     from drivers.vehicle.types import Pose
 
-    world = load_world(world_path, {"scan_pallet": identity})
-    line = world.data["scan_line"]
+    data = canonical_world_data(load_world(world_path).data, identity)
+    world = World(data, world_path)
+    line = data["scan_line"]
     renderer = PalletRenderer(world, camera, np.random.default_rng(seed))
     yaw = math.radians(line["yaw_deg"])
     quaternion = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
@@ -90,9 +131,10 @@ def png_bytes(crop: np.ndarray) -> bytes:
 
 def demo_gallery_path(world_path: str, detector: Any, embedder: Any, camera: dict | None) -> str:
     """The cache file of the demo gallery for this world, camera and pair of models."""
+    from drivers.sim.world import load_world
+
     h = hashlib.sha256()
-    with open(world_path, "rb") as f:
-        h.update(f.read())
+    h.update(appearance_key(load_world(world_path).data))
     h.update(repr(sorted((camera or {}).items())).encode())
     h.update(f"{detector.model_version}|{embedder.model_version}|{ENROL_VERSION}".encode())
     return os.path.join(cache_dir(), "galleries", f"demo-{h.hexdigest()[:16]}.sqlite")

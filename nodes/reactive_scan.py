@@ -1,0 +1,455 @@
+"""The reactive scan: the camera finds the pallet face and steers the scan along it.
+
+Three leaves, meant to run in this order (``missions/pallet_scan.xml``):
+
+* ``LocatePallet`` flies to a look point in front of where the map puts the pallet, holds,
+  and turns the blocks it sees into a face estimate (:mod:`perception.face`): where the
+  block row is, which way it faces, at what height. Nothing seen: it looks again from
+  points further along the face, then fails with "no pallet found".
+* ``AlignToPallet`` flies to the scan start the estimate gives (the stand-off distance in
+  front of the face, square to it, at the block row's height, a little before the first
+  block), looks again from there (closer, so more accurate) and corrects once.
+* ``ScanFace`` runs beside ``DetectBlocks`` (a Parallel): it flies along the face, refits the
+  face from every frame DetectBlocks processes and re-plans when the estimate moves; it goes
+  past the expected end while blocks are still missing (up to ``extend``), and stops early
+  once the blocks are committed.
+
+Every target is checked against the safety geofence before it is flown, every leaf has a
+time-out, and each FAILURE says why. The leaves use the Vehicle API only. Re-acquiring a
+lost row is the mission's job: a second LocatePallet / AlignToPallet / ScanFace pass starts
+from everything seen so far (the face tracker keeps the sightings of the whole run).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode
+from bt_engine.ports import ANY, DURATION, FLOAT, INT, STRING, VEC3, input_port, output_port
+from bt_engine.registry import register
+from nodes.common import vehicle_of
+from nodes.perception_session import PerceptionError, PerceptionSession
+
+CATEGORY_SCAN = "reactive scan"
+FIXED_YAW = 2
+GEOFENCE_CLEARANCE_M = 0.05  # a target must be this far inside the geofence walls
+STANDOFF_SLACK_M = 0.15  # stand off up to this much further to keep inside the geofence
+
+_DETECTOR = input_port("detector", STRING, "", "detector weights file (empty: the shipped model)")
+_MIN_SCORE = input_port("min_score", FLOAT, 0.5, "detection score threshold (0..1)")
+_FACE_IN = input_port("face", ANY, description="LocatePallet's face estimate")
+_STANDOFF = input_port("standoff", FLOAT, 0.4, "distance to keep from the face while scanning, m")
+_SPEED = input_port("speed", FLOAT, 0.3, "speed of the positioning flights, m/s")
+
+
+class _Reactive(StatefulActionNode):
+    """What the three leaves share: the session, go-to with a geofence check, looking."""
+
+    category = CATEGORY_SCAN
+
+    def _fail(self, reason: str) -> NodeStatus:
+        self.ctx.log(f"{self.describe()} failed: {reason}")
+        self.failure_reason = reason
+        if self.vehicle is not None and self.vehicle.is_flying:
+            self.vehicle.hover()
+        return FAILURE
+
+    def setup_common(self) -> None:
+        self.vehicle = vehicle_of(self)
+        self.session = PerceptionSession.of(self.ctx)
+        self.started_s = self.now()
+        self.progress: Any = None
+        frame = self.vehicle.camera_frame()
+        self.last_index = frame.index if frame is not None else None
+
+    def _not_a_face(self, face: Any) -> NodeStatus:
+        return self._fail(f"face must be LocatePallet's face output, got {type(face).__name__}")
+
+    def outside_geofence(self, p: tuple[float, float, float]) -> str:
+        """Why ``p`` may not be flown to ("" if it may)."""
+        supervisor = self.ctx.resources.get("safety")
+        config = getattr(supervisor, "config", None)
+        if config is None or not getattr(config, "geofence_enabled", False):
+            return ""
+        if config.inside(p, GEOFENCE_CLEARANCE_M):
+            return ""
+        lo, hi = config.geofence_min_m, config.geofence_max_m
+        return (
+            f"({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}) is outside the geofence "
+            f"{tuple(lo)}..{tuple(hi)} (or within {GEOFENCE_CLEARANCE_M:g} m of its walls)"
+        )
+
+    def fly(self, p: tuple[float, float, float], yaw_rad: float, speed: float, tol: float) -> str:
+        """Start a go-to (FIXED_YAW); return why it was refused ("" when it flies)."""
+        why = self.outside_geofence(p)
+        if why:
+            return why
+        self.progress = self.vehicle.go_to(
+            p[0],
+            p[1],
+            p[2],
+            FIXED_YAW,
+            yaw_rad,
+            speed,
+            position_tolerance_m=tol,
+            yaw_tolerance_rad=math.radians(5.0),
+        )
+        if self.progress.failed:
+            return self.progress.reason or "go-to refused"
+        return ""
+
+    def face_target(self, face: Any, s: float) -> tuple[float, float, float]:
+        """The point ``standoff`` in front of ``face`` at along-face ``s``; if the geofence
+        does not allow it, the nearest point further back (up to ``STANDOFF_SLACK_M`` more)
+        that it allows (the caller's go-to then says why if none)."""
+        standoff = self.get_input("standoff")
+        p = face.point(s, standoff)
+        extra = 0.0
+        while self.outside_geofence(p) and extra < STANDOFF_SLACK_M - 1e-9:
+            extra += 0.01
+            q = face.point(s, standoff + extra)
+            if not self.outside_geofence(q):
+                if not getattr(self, "_slack_logged", False):
+                    self._slack_logged = True
+                    self.ctx.log(
+                        f"{self.describe()}: standing {extra:.2f} m further back than the "
+                        "stand-off to stay inside the geofence"
+                    )
+                return q
+        return p
+
+    def motion_problem(self) -> str:
+        """Why the current motion stopped ("" while it runs or once it reached its goal)."""
+        p = self.progress
+        if p is None:
+            return ""
+        if p.failed or p.cancelled:
+            return p.reason or "motion cancelled by another motion"
+        return ""
+
+    def look(self, detector: Any, min_score: float) -> str:
+        """Process the newest camera frame (if new) into the face tracker; "" or why the
+        frame could not be used (a frame of the wrong size or format)."""
+        frame = self.vehicle.camera_frame()
+        if frame is None or frame.index == self.last_index:
+            return ""
+        self.last_index = frame.index
+        try:
+            self.session.observe(frame, detector, min_score)
+        except PerceptionError as exc:
+            return str(exc)
+        return ""
+
+    def timed_out(self) -> bool:
+        """True once the leaf's ``timeout`` has passed."""
+        return self.now() - self.started_s >= self.get_input("timeout") - 1e-9
+
+    def record_face(self, face: Any, stage: str) -> None:
+        """Keep ``face`` for summary.json / the report and log it."""
+        rec = {"t_s": round(self.now(), 3), "node": self.describe(), "stage": stage}
+        rec.update(face.as_dict())
+        self.session.faces.append(rec)
+        self.ctx.log(f"{self.describe()}: {face.describe()}")
+
+    def on_halted(self) -> None:
+        v = getattr(self, "vehicle", None)
+        if v is not None and v.is_flying and v.motion is getattr(self, "progress", None):
+            v.hover()
+
+
+@register
+class LocatePallet(_Reactive):
+    """Find the pallet face near where the map puts it. Fly to ``look_distance`` in front of
+    ``place`` (the mapped centre of the block row, x;y;z), facing ``facing_deg``; hold for
+    ``look_time`` while the detector looks; fit the face (:mod:`perception.face`). If no block
+    is seen, look again from points ``search_step`` to either side (``search_points`` in
+    all). SUCCESS with ``face``; FAILURE "no pallet found" (or on a refused motion, or after
+    ``timeout``)."""
+
+    bt_id = "LocatePallet"
+    ports = (
+        input_port("place", VEC3, description="mapped centre of the block row, x;y;z in m"),
+        input_port("facing_deg", FLOAT, 0.0, "mapped drone yaw that faces the pallet, degrees"),
+        input_port("look_distance", FLOAT, 0.75, "distance from the face to look from, m"),
+        input_port("look_time", DURATION, 1.0, "time to hold and look at each look point, s"),
+        input_port("search_step", FLOAT, 0.6, "spacing of further look points along the face, m"),
+        input_port("search_points", INT, 3, "look points to try (1 = only the mapped one)"),
+        input_port(
+            "window", FLOAT, 0.45, "the row centre may be this far along the face from place, m"
+        ),
+        _SPEED,
+        input_port("pos_threshold", FLOAT, 0.05, "look point position tolerance, m"),
+        _DETECTOR,
+        _MIN_SCORE,
+        input_port("timeout", DURATION, 60.0, "FAILURE if not done within this time, s"),
+        output_port("face", ANY, "the face estimate (for AlignToPallet and ScanFace)"),
+        output_port("blocks_seen", INT, "distinct blocks seen"),
+    )
+
+    def on_start(self) -> NodeStatus:
+        self.setup_common()
+        try:
+            self.detector = self.session.detector(self.get_input("detector"))
+        except PerceptionError as exc:
+            return self._fail(str(exc))
+        self.tracker = self.session.tracker or self.session.start_tracking()
+        self.prior = self.get_input("place")
+        self.facing = math.radians(self.get_input("facing_deg"))
+        if self.tracker.sightings:  # a second pass: everything seen so far counts
+            face = self.tracker.fit(self.facing, self.prior, self.get_input("window"))
+            if face is not None:
+                return self._found(face)
+        self.point_index = 0
+        self.looking_since: float | None = None
+        return self._next_point() or self.on_running()
+
+    def _look_points(self) -> list[tuple[float, float, float]]:
+        x, y, z = self.prior
+        d, step = self.get_input("look_distance"), self.get_input("search_step")
+        nx, ny = math.cos(self.facing), math.sin(self.facing)
+        lx, ly = -ny, nx
+        out = []
+        for k in range(max(1, self.get_input("search_points"))):
+            u = ((k + 1) // 2) * step * (1 if k % 2 else -1) if k else 0.0
+            out.append((x - nx * d + lx * u, y - ny * d + ly * u, z))
+        return out
+
+    def _next_point(self) -> NodeStatus | None:
+        points = self._look_points()
+        while self.point_index < len(points):
+            p = points[self.point_index]
+            self.point_index += 1
+            why = self.fly(p, self.facing, self.get_input("speed"), self.get_input("pos_threshold"))
+            if not why:
+                self.looking_since = None
+                return None
+            self.ctx.log(f"{self.describe()}: skipping look point: {why}")
+        x, y, z = self.prior
+        return self._fail(
+            f"no pallet found near ({x:.2f}, {y:.2f}, {z:.2f}): no support block seen from "
+            f"{len(points)} look point(s)"
+        )
+
+    def _found(self, face: Any) -> NodeStatus:
+        self.record_face(face, "located")
+        self.set_output("face", face)
+        self.set_output("blocks_seen", face.blocks_seen)
+        return SUCCESS
+
+    def on_running(self) -> NodeStatus:
+        why = self.motion_problem()
+        if why:
+            return self._fail(why)
+        if self.looking_since is None:
+            if self.progress is not None and self.progress.reached:
+                self.looking_since = self.now()
+                self.vehicle.hover()
+                self.progress = None
+        else:
+            why = self.look(self.detector, self.get_input("min_score"))
+            if why:
+                return self._fail(why)
+            if self.now() - self.looking_since >= self.get_input("look_time") - 1e-9:
+                face = self.tracker.fit(self.facing, self.prior, self.get_input("window"))
+                if face is not None:
+                    return self._found(face)
+                status = self._next_point()
+                if status is not None:
+                    return status
+        if self.timed_out():
+            return self._fail(f"time-out after {self.get_input('timeout'):g} s")
+        return RUNNING
+
+
+@register
+class AlignToPallet(_Reactive):
+    """Fly to the start of the scan the face estimate gives: ``standoff`` in front of the
+    face, square to it, at the block row's height, ``lead`` before the first block; look from
+    there for ``look_time``, refit and correct once if the start moved by more than
+    ``tolerance``. SUCCESS with the refined ``face``; FAILURE on a refused motion (e.g.
+    outside the geofence) or after ``timeout``."""
+
+    bt_id = "AlignToPallet"
+    ports = (
+        _FACE_IN,
+        _STANDOFF,
+        input_port("lead", FLOAT, 0.15, "start this far before the first block, m"),
+        _SPEED,
+        input_port("look_time", DURATION, 0.6, "time to look from the start, s"),
+        input_port("tolerance", FLOAT, 0.02, "correct the start if it moved more than this, m"),
+        _DETECTOR,
+        _MIN_SCORE,
+        input_port("timeout", DURATION, 40.0, "FAILURE if not done within this time, s"),
+        output_port("face_out", ANY, "the refined face estimate"),
+    )
+
+    def on_start(self) -> NodeStatus:
+        self.setup_common()
+        face = self.get_input("face")
+        if not hasattr(face, "refit"):
+            return self._not_a_face(face)
+        try:
+            self.detector = self.session.detector(self.get_input("detector"))
+        except PerceptionError as exc:
+            return self._fail(str(exc))
+        self.face = face
+        self.tracker = self.session.tracker or self.session.start_tracking()
+        self.corrected = False
+        self.looking_since: float | None = None
+        return self._go() or self.on_running()
+
+    def _start_point(self) -> tuple[float, float, float]:
+        return self.face_target(self.face, self.face.first_s - self.get_input("lead"))
+
+    def _go(self) -> NodeStatus | None:
+        self.goal = self._start_point()
+        why = self.fly(self.goal, self.face.facing_rad, self.get_input("speed"), 0.03)
+        return self._fail(why) if why else None
+
+    def on_running(self) -> NodeStatus:
+        why = self.motion_problem()
+        if why:
+            return self._fail(why)
+        if self.looking_since is None:
+            # Look on the way too: seen from places apart, the blocks triangulate.
+            why = self.look(self.detector, self.get_input("min_score"))
+            if why:
+                return self._fail(why)
+            if self.progress is not None and self.progress.reached:
+                self.looking_since = self.now()
+        else:
+            why = self.look(self.detector, self.get_input("min_score"))
+            if why:
+                return self._fail(why)
+            if self.now() - self.looking_since >= self.get_input("look_time") - 1e-9:
+                face = self.face.refit(self.tracker)
+                if face is not None:
+                    self.face = face
+                moved = math.dist(self._start_point(), self.goal)
+                if moved > self.get_input("tolerance") and not self.corrected:
+                    self.corrected = True
+                    self.looking_since = None
+                    status = self._go()
+                    if status is not None:
+                        return status
+                else:
+                    self.record_face(self.face, "aligned")
+                    self.set_output("face_out", self.face)
+                    return SUCCESS
+        if self.timed_out():
+            return self._fail(f"time-out after {self.get_input('timeout'):g} s")
+        return RUNNING
+
+
+@register
+class ScanFace(_Reactive):
+    """Fly along the face at ``standoff`` and ``speed`` (run it beside DetectBlocks in a
+    Parallel). Every ``replan_period`` the face is refitted from the frames DetectBlocks
+    processed; the line is re-planned when it moved more than ``replan_tolerance``. At the
+    expected end (``trail`` past the last block) it goes on by up to ``extend`` while fewer
+    than ``blocks`` are committed (``count``) and the last block was not seen yet (once it has
+    passed, going on cannot bring a missed block back: the mission scans again). SUCCESS once ``count`` reaches ``blocks``;
+    FAILURE at the end of the extension, on a refused motion or after ``timeout``."""
+
+    bt_id = "ScanFace"
+    ports = (
+        _FACE_IN,
+        _STANDOFF,
+        input_port("speed", FLOAT, 0.07, "scan speed along the face, m/s"),
+        input_port("count", INT, 0, "blocks committed so far (DetectBlocks' count)"),
+        input_port("blocks", INT, 3, "blocks to commit"),
+        input_port("trail", FLOAT, 0.15, "go this far past the last block, m"),
+        input_port("extend", FLOAT, 0.6, "go on by up to this much more while blocks are missing"),
+        input_port("replan_period", DURATION, 0.5, "refit the face this often, s"),
+        input_port("replan_tolerance", FLOAT, 0.03, "re-plan if the line moved this much, m"),
+        input_port("timeout", DURATION, 90.0, "FAILURE if not done within this time, s"),
+        output_port("face_out", ANY, "the face estimate at the end of the scan"),
+    )
+
+    def on_start(self) -> NodeStatus:
+        self.setup_common()
+        face = self.get_input("face")
+        if not hasattr(face, "refit"):
+            return self._not_a_face(face)
+        self.face = face
+        self.tracker = self.session.tracker or self.session.start_tracking()
+        self.extended = self.recorded = False
+        self.replans = 0
+        self.end_s = face.last_s + self.get_input("trail")
+        self.last_fit_s = self.now()
+        self.fitted_sightings = len(self.tracker.sightings)
+        return self._go() or self.on_running()
+
+    def _go(self) -> NodeStatus | None:
+        self.goal = self.face_target(self.face, self.end_s)
+        why = self.fly(self.goal, self.face.facing_rad, self.get_input("speed"), 0.03)
+        return self._fail(why) if why else None
+
+    def _refit(self) -> NodeStatus | None:
+        self.last_fit_s = self.now()
+        if len(self.tracker.sightings) == self.fitted_sightings:
+            return None
+        self.fitted_sightings = len(self.tracker.sightings)
+        face = self.face.refit(self.tracker)
+        if face is None:
+            return None
+        end_s = max(self.end_s, face.last_s + self.get_input("trail"))
+        old, self.face = self.goal, face
+        self.set_output("face_out", face)
+        new = face.point(end_s, self.get_input("standoff"))
+        if self.outside_geofence(new):
+            new = self.face_target(face, end_s)
+        if math.dist(old, new) > self.get_input("replan_tolerance"):
+            self.end_s = end_s
+            self.replans += 1
+            self.ctx.log(f"{self.describe()}: re-planned on the refitted face: {face.describe()}")
+            return self._go()
+        return None
+
+    def on_running(self) -> NodeStatus:
+        if self.get_input("count") >= self.get_input("blocks"):
+            self._done()
+            return SUCCESS
+        why = self.motion_problem()
+        if why:
+            return self._fail(why)
+        if self.now() - self.last_fit_s >= self.get_input("replan_period") - 1e-9:
+            status = self._refit()
+            if status is not None:
+                return status
+        if self.progress is not None and self.progress.reached:
+            f = self.face
+            last_seen = f.hypotheses == 1 and f.saw_block_at(f.last_s)
+            if not self.extended and self.get_input("extend") > 0 and not last_seen:
+                self.extended = True
+                self.end_s += self.get_input("extend")
+                self.ctx.log(
+                    f"{self.describe()}: {self.get_input('count')} of "
+                    f"{self.get_input('blocks')} blocks at the end of the face: going on "
+                    f"{self.get_input('extend'):g} m"
+                )
+                status = self._go()
+                if status is not None:
+                    return status
+            else:
+                self._done()
+                where = "the last block has passed" if last_seen else "end of the scan"
+                return self._fail(
+                    f"{where} ({self.end_s - self.face.last_s:.2f} m past it) with "
+                    f"{self.get_input('count')} of {self.get_input('blocks')} blocks committed"
+                )
+        if self.timed_out():
+            return self._fail(f"time-out after {self.get_input('timeout'):g} s")
+        return RUNNING
+
+    def _done(self) -> None:
+        if not getattr(self, "recorded", False):
+            self.recorded = True
+            self.set_output("face_out", self.face)
+            self.record_face(self.face, "scanned")
+
+    def on_halted(self) -> None:
+        if getattr(self, "face", None) is not None:
+            self._done()  # DetectBlocks finished first: the Parallel halts the scan
+        super().on_halted()
