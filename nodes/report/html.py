@@ -51,7 +51,11 @@ def write_report(run_dir: str, trace: Sequence[dict], summary: dict, mission: An
         (
             "Trajectory (top view)",
             plots.plot_xy(
-                run_dir, tel, rows, ((summary or {}).get("sim") or {}).get("pallets", ())
+                run_dir,
+                tel,
+                rows,
+                ((summary or {}).get("sim") or {}).get("pallets", ()),
+                ((summary or {}).get("perception") or {}).get("faces", ()),
             ),
         ),
         ("Position and reference per axis", plots.plot_position(run_dir, tel, rows)),

@@ -108,9 +108,16 @@ def pallet_outline(p: dict, length_m: float = 1.2, depth_m: float = 0.8) -> np.n
     )
 
 
-def plot_xy(run_dir: str, tel: dict, rows: Sequence[dict], pallets: Sequence[dict] = ()) -> str:
-    """Top view: pose, reference, start/end, each motion's goal labelled with its #, and the
-    pallets where the simulator stood them (ground truth, identity written on each)."""
+def plot_xy(
+    run_dir: str,
+    tel: dict,
+    rows: Sequence[dict],
+    pallets: Sequence[dict] = (),
+    faces: Sequence[dict] = (),
+) -> str:
+    """Top view: pose, reference, start/end, each motion's goal labelled with its #, the
+    pallets where the simulator stood them (ground truth, identity written on each) and the
+    pallet face the reactive scan estimated (``perception.faces``: first and last)."""
     s = _every(len(tel["t"]))
     x, y, rx, ry = tel["x"][s], tel["y"][s], tel["ref_x"][s], tel["ref_y"][s]
     outlines = [pallet_outline(p) for p in pallets]
@@ -130,6 +137,14 @@ def plot_xy(run_dir: str, tel: dict, rows: Sequence[dict], pallets: Sequence[dic
         ax.plot([fx], [fy], "|", color="#8d6e42", ms=10)
         ax.annotate(p["identity"], p["centre_m"], ha="center", va="center", fontsize=8,
                     color="#4e3b1f")  # fmt: skip
+    shown = [faces[0], faces[-1]] if len(faces) > 1 else list(faces)
+    for i, f in enumerate(shown):
+        fx, fy = f["centre_m"][:2]
+        a = math.radians(f["facing_deg"])
+        lx, ly = -math.sin(a) * 0.6, math.cos(a) * 0.6  # half a pallet along the face
+        ax.plot([fx - lx, fx + lx], [fy - ly, fy + ly], color="#6a1b9a", lw=2,
+                ls=":" if i == 0 and len(shown) > 1 else "-",
+                label=f"face estimated ({f['stage']})")  # fmt: skip
     ax.plot(rx, ry, color=REF, ls="--", lw=1, label="reference")
     ax.plot(x, y, color=POSE, lw=1.4, label="pose (mocap)")
     ax.plot(x[:1], y[:1], "^", color="#2e7d32", ms=8, label="start")
