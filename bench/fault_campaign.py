@@ -1,12 +1,16 @@
 """Fault campaign: seeded simulated runs of missions/pallet_scan.xml with one fault each.
 
-Every run is a separate ``btrun run`` process (so a crash of one run cannot hide in another
-and the run folder is exactly what a user gets). The fault is injected at a random (seeded)
-mission time through the rig's ``faults.*`` settings, except:
+The faults a rig can schedule are ``campaigns/faults.yaml``, run by the campaign engine
+(``btrun campaign``: worker processes, each run an in-process ``btrun run`` with its own
+run folder, a crashed or hung run recorded as such). The fault is injected at a random
+(seeded) mission time through the rig's ``faults.*`` settings, except:
 
 * ``geofence``: the geofence's far x wall is moved to a random x on the way to the pallet;
 * ``camera_stall``: the rig's own ``pallet`` renderer streams (as in the default rig), then
-  the camera stops delivering frames;
+  the camera stops delivering frames.
+
+Three faults need a process of their own, and keep one ``btrun run`` process per run:
+
 * ``leaf_exception``: the child process makes ``GoTo`` raise once the mission time passes;
 * ``sigint`` / ``sigterm``: the real ``btrun`` executable, paced at ``--realtime`` times real
   time, receives the signal at a random wall time after its tick log appears (a signal during
@@ -26,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import random
 import shutil
@@ -39,7 +42,9 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, REPO)
 MISSION = os.path.join(REPO, "missions", "pallet_scan.xml")
+CAMPAIGN = os.path.join(REPO, "campaigns", "faults.yaml")
 BIN = os.path.dirname(sys.executable)
 
 #: fault type -> what it does (table order)
@@ -49,7 +54,7 @@ FAULT_TYPES: dict[str, str] = {
     "mocap_freeze": "mocap repeats its last frame (for good)",
     "camera_stall": "camera stops (report only)",
     "battery_sag": "battery sags 0.5-1.0 V",
-    "gust": "gust 2-4 m/s for 1-4 s",
+    "gust": "gust up to 3 m/s per axis, 1-4 s",
     "geofence": "geofence x wall at 1-8.5 m",
     "leaf_exception": "GoTo raises RuntimeError",
     "sigint": "SIGINT 0.1-2.8 s after start",
@@ -57,49 +62,67 @@ FAULT_TYPES: dict[str, str] = {
     "link_loss_long": "link down for good (limit)",
 }
 DEFAULT_FAULTS = [f for f in FAULT_TYPES if f != "link_loss_long"]
+#: faults that need a process of their own (the others are campaigns/faults.yaml)
+PROCESS_FAULTS = ("leaf_exception", "sigint", "sigterm")
 
 
 def plan(fault: str, i: int, base_seed: int) -> dict[str, Any]:
-    """The seeded parameters of run ``i`` of ``fault``."""
+    """The seeded parameters of run ``i`` of a fault of :data:`PROCESS_FAULTS`."""
+    if fault not in PROCESS_FAULTS:
+        raise ValueError(f"{fault} is a campaign fault (campaigns/faults.yaml)")
     rng = random.Random(f"campaign/{base_seed}/{fault}/{i}")
     at = round(rng.uniform(3.0, 55.0), 2)
-    sets: list[str] = []
     job: dict[str, Any] = {"fault": fault, "i": i, "seed": base_seed * 1000 + i, "at_s": at}
-    if fault == "link_loss":
-        sets += [
-            f"faults.link_drop.at_s={at}",
-            f"faults.link_drop.duration_s={rng.uniform(0.2, 1.5):.2f}",
-        ]
-    elif fault == "link_loss_long":
-        sets += [f"faults.link_drop.at_s={at}"]
-    elif fault == "mocap_dropout":
-        sets += [f"faults.mocap_drop.at_s={at}"]
-    elif fault == "mocap_freeze":
-        sets += [f"faults.mocap_freeze.at_s={at}"]
-    elif fault == "camera_stall":
-        sets += [f"faults.camera_stall.at_s={at}", "sensors.camera.renderer=pallet"]
-    elif fault == "battery_sag":
-        sets += [
-            f"faults.battery_sag.at_s={at}",
-            f"faults.battery_sag.drop_v={rng.uniform(0.5, 1.0):.2f}",
-        ]
-    elif fault == "gust":
-        a, s = rng.uniform(0, 2 * math.pi), rng.uniform(2.0, 4.0)
-        sets += [
-            f"faults.gust.at_s={at}",
-            f"faults.gust.speed_mps=[{s * math.cos(a):.2f},{s * math.sin(a):.2f},0]",
-            f"faults.gust.duration_s={rng.uniform(1.0, 4.0):.2f}",
-        ]
-    elif fault == "geofence":
-        x = round(rng.uniform(1.0, 8.5), 2)
-        job["at_s"] = None
-        job["fence_x"] = x
-        sets += [f"safety.geofence.max_m=[{x},3,2.5]"]
-    elif fault in ("sigint", "sigterm"):
+    if fault in ("sigint", "sigterm"):
         job["at_s"] = None
         job["wall_s"] = round(rng.uniform(0.1, 2.8), 2)
-    job["sets"] = sets
+    job["sets"] = []
     return job
+
+
+def campaign_results(
+    faults: list[str], runs: int, base_seed: int, out: str, workers: int
+) -> list[dict[str, Any]]:
+    """Run the rig faults of ``campaigns/faults.yaml`` through the campaign engine; the
+    outcome of every run in :func:`run_one`'s shape."""
+    from bt_engine.campaign import load_campaign, run_campaign
+
+    c = load_campaign(CAMPAIGN)
+    c.faults = [case for case in c.faults or () if case.name in faults]
+    if not c.faults:
+        return []
+    c.seeds = list(range(base_seed * 1000, base_seed * 1000 + runs))
+    run = run_campaign(c, out, workers=workers, keep_runs="all")
+    results = []
+    for row in run.table:
+        run_dir = os.path.join(out, row["run_dir"]) if row["run_dir"] else ""
+        complete, summary, why = check_logs(run_dir) if run_dir else (False, None, "no folder")
+        shown = ""
+        if os.path.exists(os.path.join(run_dir, "console.log")):  # what the run printed
+            with open(os.path.join(run_dir, "console.log"), encoding="utf-8") as f:
+                shown = f.read()
+        params = {k: row[k] for k in c.parameters() if row.get(k) is not None}
+        job = {"fault": row["fault"], "i": row["seed"] - base_seed * 1000, "seed": row["seed"]}
+        res: dict[str, Any] = {
+            "job": {**job, "sets": [f"{k}={v}" for k, v in params.items()]},
+            "rc": None,
+            "complete": complete,
+            "why": why,
+            "wall_s": row["wall_s"],
+            "stderr": "",
+            "status": row["status"],
+            "reason": row["reason"],
+            "final": row["final_state"],
+            "disarmed": row["disarmed"],
+            "crashed": row["crashed"],
+            "landed": row["landed"],
+            "fault": row["supervisor_fault"],
+            "t_s": row["fault_t_s"],
+            "mission_time_s": row["mission_time_s"],
+            "traceback_on_screen": "Traceback" in shown,
+        }
+        results.append(res)
+    return results
 
 
 def check_logs(run_dir: str) -> tuple[bool, dict | None, str]:
@@ -267,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
         "--jobs",
         type=int,
         default=max(2, (os.cpu_count() or 2)),
-        help="parallel runs (default: CPUs)",
+        help="parallel runs: campaign workers, then process runs (default: CPUs)",
     )
     ap.add_argument(
         "--realtime",
@@ -283,10 +306,14 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         ap.error(f"unknown fault types {unknown}; known: {list(FAULT_TYPES)}")
     out = args.out or tempfile.mkdtemp(prefix="fault_campaign-")
-    jobs = [plan(f, i, args.seed) for f in faults for i in range(args.runs)]
     t0 = time.monotonic()
+    rig_faults = [f for f in faults if f not in PROCESS_FAULTS]
+    results = campaign_results(
+        rig_faults, args.runs, args.seed, os.path.join(out, "campaign"), args.jobs
+    )
+    jobs = [plan(f, i, args.seed) for f in faults if f in PROCESS_FAULTS for i in range(args.runs)]
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-        results = list(pool.map(lambda j: run_one(j, out, args.realtime), jobs))
+        results += list(pool.map(lambda j: run_one(j, out, args.realtime), jobs))
     wall = time.monotonic() - t0
     print(table(results, faults))
     print(

@@ -1,4 +1,4 @@
-"""``btrun``: run, validate, show, convert, list nodes, replay.
+"""``btrun``: run, validate, show, convert, list nodes, replay, campaign.
 
 Exit codes: 0 mission SUCCESS (or command done), 1 mission FAILURE/ABORTED, 2 invalid input.
 Bad input is reported as ``file:line:col: message`` lines, never as a traceback.
@@ -13,7 +13,7 @@ import sys
 from bt_engine.plugins import Command, plugin_commands
 from bt_engine.spec import MissionError, Problem
 
-COMMANDS = ("run", "validate", "show", "convert", "nodes", "replay")
+COMMANDS = ("run", "validate", "show", "convert", "nodes", "replay", "campaign")
 
 
 def _print_problems(problems: list[Problem], stream=None) -> None:
@@ -120,6 +120,15 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     rp.add_argument("log", help="ticks.jsonl or the run folder")
     rp.add_argument("--tick", type=int, help="show the tree at this tick and exit")
     rp.add_argument("--all", action="store_true", help="print every tick that changed something")
+    cp = sub.add_parser(
+        "campaign",
+        help="fly a campaign: missions x rigs x worlds x seeds x settings x faults "
+        "(docs/campaigns.md)",
+    )
+    from bt_engine.campaign.command import setup as campaign_setup
+
+    campaign_setup(cp)
+    _include_path(cp)
     for name, command in (extra or {}).items():
         command.setup(sub.add_parser(name, help=command.help))
     return p
@@ -265,6 +274,12 @@ def _cmd_nodes(args) -> int:
     if not wrote:
         print(catalogue_text(REGISTRY, args.kind, args.verbose), end="")
     return 0
+
+
+def _cmd_campaign(args) -> int:
+    from bt_engine.campaign.command import run
+
+    return run(args)
 
 
 def _cmd_replay(args) -> int:

@@ -17,6 +17,10 @@ What a plug-in provides (:class:`Plugin`):
 
 The first plug-in that provides a capability is the one used. Mission resources that
 report on the run implement :class:`RunReporter`.
+
+Optional: a plug-in may also have ``run_sections(trace, mission) -> dict``: sections of
+``summary.json`` computed from the finished run's per-tick trace (btrun's own adds
+``motions``, the tracking figures of every motion); see :func:`run_sections`.
 """
 
 from __future__ import annotations
@@ -172,6 +176,18 @@ def write_report(run_dir: str, trace: Any, summary: dict, mission: Any) -> str |
         if path is not None:
             return path
     return None
+
+
+def run_sections(trace: Any, mission: Any) -> dict[str, Any]:
+    """The ``summary.json`` sections the plug-ins compute from a finished run's trace (the
+    optional ``run_sections(trace, mission)`` member; the first plug-in wins a key)."""
+    out: dict[str, Any] = {}
+    for plugin in load_plugins():
+        fn = getattr(plugin, "run_sections", None)
+        if fn is not None:
+            for key, value in (fn(trace, mission) or {}).items():
+                out.setdefault(key, value)
+    return out
 
 
 def plugin_commands() -> dict[str, Command]:

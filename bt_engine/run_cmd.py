@@ -19,7 +19,7 @@ from bt_engine.clock import SimClock, WallClock
 from bt_engine.display import spec_rows
 from bt_engine.loading import check_mission
 from bt_engine.mission import Mission
-from bt_engine.plugins import Platform, RunTarget, load_target, write_report
+from bt_engine.plugins import Platform, RunTarget, load_target, run_sections, write_report
 from bt_engine.registry import REGISTRY
 from bt_engine.runner import Runner, RunResult
 from bt_engine.spec import Loc, MissionError, Problem
@@ -246,6 +246,8 @@ def finish(run: PreparedRun, runner: Runner, result: RunResult) -> int:
     sections: dict[str, Any] = {}
     if run.target is not None and run.platform is not None:
         sections = run.target.run_summary(run.platform, run.hooks)
+    for key, value in run_sections(runner.trace, mission).items():  # e.g. motions
+        sections.setdefault(key, value)
     summary = build_summary(
         result,
         mission,

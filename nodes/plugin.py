@@ -9,6 +9,8 @@ Importing it imports :mod:`nodes` (which registers every leaf). It gives the eng
   (:mod:`nodes.safety_hook`) and the run's ``sim``/``vehicle`` and ``safety`` summaries;
   rig problems come back as located :class:`~bt_engine.spec.Problem` s;
 * :meth:`DronePlugin.write_report` - the flight report (:mod:`nodes.report`);
+* :meth:`DronePlugin.run_sections` - ``motions`` in ``summary.json``: each motion's
+  tracking figures (what the report's motion table shows, for campaigns to tabulate);
 * :meth:`DronePlugin.commands` - ``btrun sim serve ...`` and ``btrun gallery ...``.
 """
 
@@ -92,6 +94,16 @@ class DronePlugin:
         from nodes.report import write_report  # matplotlib: only when a report is wanted
 
         return write_report(run_dir, trace, summary, mission)
+
+    def run_sections(self, trace: Any, mission: Any) -> dict[str, Any]:
+        """``motions``: one entry per motion leaf run (the report's motion table)."""
+        motions = list(getattr(getattr(mission, "ctx", None), "resources", {}).get("motions", ()))
+        if not motions:
+            return {}
+        from nodes.report.metrics import motion_summary, telemetry_arrays
+
+        tel = telemetry_arrays(trace)
+        return {"motions": motion_summary(motions, tel)} if tel is not None else {}
 
     def commands(self) -> dict[str, Command]:
         """``btrun sim serve crazyflie|aideck ...`` and ``btrun gallery ...``."""

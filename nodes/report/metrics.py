@@ -3,7 +3,8 @@
 Pure functions of the run's per-tick trace and the motion records the flight leaves keep in
 ``mission.ctx.resources["motions"]`` (numpy only, no plotting): :func:`wrap_deg`,
 :func:`wrap_rad`, :func:`rms`, :func:`settle_time`, :func:`telemetry_arrays`,
-:func:`motion_metrics` (the tracking table's rows), :func:`short_labels` and
+:func:`motion_metrics` (the tracking table's rows), :func:`motion_summary` (the same for
+``summary.json``), :func:`short_labels` and
 :func:`action_spans`. Usable on their own, e.g. by ``bench/square_quality.py``.
 """
 
@@ -136,6 +137,37 @@ def motion_metrics(motions: Sequence[dict], tel: dict[str, np.ndarray]) -> list[
             }
         )
     return rows
+
+
+def _finite(x: Any) -> float | None:
+    return float(x) if x is not None and math.isfinite(float(x)) else None
+
+
+def motion_summary(motions: Sequence[dict], tel: dict[str, np.ndarray]) -> list[dict]:
+    """The motion table as ``summary.json``'s ``motions``: per motion its ``n``, ``label``,
+    ``node``, ``kind``, ``result``, thresholds and figures in SI units with the unit in the
+    key (``reach_s``, ``settle_s``, ``final_dist_m``, ``final_yaw_deg``, ``track_max_m``,
+    ``track_rms_m``; null: not measured, e.g. never settled)."""
+    return [
+        {
+            "n": r["n"],
+            "label": r["label"],
+            "node": r["node"],
+            "kind": r["kind"],
+            "result": r["result"],
+            "pos_threshold_m": _finite(r["pos_thr"]),
+            "yaw_threshold_deg": _finite(r["yaw_thr_deg"]),
+            "t_start_s": _finite(r["t_start"]),
+            "duration_s": _finite(r["duration"]),
+            "reach_s": _finite(r["reach"]),
+            "settle_s": _finite(r["settle"]),
+            "final_dist_m": _finite(r["final_dist"]),
+            "final_yaw_deg": _finite(r["final_yaw_deg"]),
+            "track_max_m": _finite(r["track_max"]),
+            "track_rms_m": _finite(r["track_rms"]),
+        }
+        for r in motion_metrics(motions, tel)
+    ]
 
 
 def short_labels(paths: Sequence[str]) -> list[str]:

@@ -1,0 +1,91 @@
+"""Checks that need the plug-in, before anything flies: the missions against the node
+registry, and every distinct settings combination against the plug-in's rig loading.
+
+Each mission is validated once (``btrun validate``). Settings are checked through
+:func:`bt_engine.plugins.load_target` once per distinct combination of rig, world and fixed
+values; a randomly drawn setting is checked at the values that bound its draws (both ends
+of a range, every choice), so no draw can fail later. A problem with a setting's value is
+reported where the campaign file wrote that setting.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from bt_engine.campaign.rows import Row, value_text
+from bt_engine.campaign.spec import Campaign, FaultCase
+from bt_engine.loading import check_mission
+from bt_engine.plugins import load_plugins, load_target
+from bt_engine.registry import REGISTRY
+from bt_engine.spec import Loc, MissionError, Problem
+
+
+def check_campaign(c: Campaign, rows: list[Row], include_paths: list[str] | None = None) -> int:
+    """Raise :class:`MissionError` with every located problem of the campaign's missions and
+    settings; return the number of settings combinations checked."""
+    load_plugins()  # registers the plug-ins' leaves
+    problems: list[Problem] = []
+    for path in dict.fromkeys(c.mission_paths):
+        warnings: list[Problem] = []
+        _, found = check_mission(path, REGISTRY, include_paths, warnings)
+        problems += found
+        for w in warnings:
+            print(str(w), file=sys.stderr)
+    checked: set[tuple] = set()
+    faults = {case.name: case for case in c.faults or ()}
+    for row in rows:
+        drawn = _drawn_keys(c, faults.get(row.fault) if row.fault else None)
+        fixed = {k: v for k, v in row.settings.items() if "." in k and k not in drawn}
+        for overrides in _candidates(fixed, drawn):
+            sig = (row.rig_path, row.world_path, tuple(sorted(overrides.items())))
+            if sig in checked:
+                continue
+            checked.add(sig)
+            problems += _check_target(c, row, overrides)
+    if problems:
+        unique = list({(p.loc, p.message): p for p in problems}.values())
+        raise MissionError(unique)
+    return len(checked)
+
+
+def _drawn_keys(c: Campaign, case: FaultCase | None) -> dict[str, list[Any]]:
+    """The dotted keys a row draws at random -> the values that bound their draws."""
+    draws = {**c.random, **(case.draws if case is not None else {})}
+    return {k: d.extremes() for k, d in draws.items() if "." in k}
+
+
+def _candidates(fixed: dict[str, Any], drawn: dict[str, list[Any]]) -> list[dict]:
+    """Override sets that cover every bound of the drawn keys (with the fixed ones)."""
+    n = max((len(v) for v in drawn.values()), default=1)
+    out = []
+    for i in range(n):
+        over = {k: value_text(v) for k, v in fixed.items()}
+        over.update({k: value_text(v[min(i, len(v) - 1)]) for k, v in drawn.items()})
+        out.append(over)
+    return out
+
+
+def _check_target(c: Campaign, row: Row, overrides: dict[str, str]) -> list[Problem]:
+    over = dict(overrides)
+    if row.world_path:
+        over["world.path"] = row.world_path
+    try:
+        target = load_target(row.rig_path, over)
+    except MissionError as exc:
+        return [_relocate(c, row, p) for p in exc.problems]
+    if target is None and over:
+        return [Problem(Loc(c.path, 1, 1), "no vehicle plug-in is installed to use rig settings")]
+    return []
+
+
+def _relocate(c: Campaign, row: Row, p: Problem) -> Problem:
+    """A ``--set`` problem moves to where the campaign file wrote the setting."""
+    if p.loc.file != "--set":
+        return p
+    key = p.message.split("=", 1)[0].strip()
+    loc = c.key_locs.get(key)
+    if key == "world.path" and row.world_path:
+        loc = c.file_locs.get(row.world_path)
+    context = f"rig {row.rig or '(default)'}" + (f", fault {row.fault}" if row.fault else "")
+    return Problem(loc or Loc(c.path, 1, 1), f"{p.message} ({context})")

@@ -1,0 +1,109 @@
+"""``btrun campaign CAMPAIGN.yaml --out DIR``: the command line of :func:`run_campaign`.
+
+Exit codes: 0 every selected row has a result (whatever the runs' outcomes: the table says
+them), 1 interrupted (Ctrl-C; the finished rows are kept, the same command resumes),
+2 invalid input (located problems; nothing ran).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections import Counter
+
+KEEP_CHOICES = ("failed", "all", "none")
+
+
+def setup(p: argparse.ArgumentParser) -> None:
+    """The options of ``btrun campaign``."""
+    p.add_argument("campaign", help="campaign file (.yaml; docs/campaigns.md)")
+    p.add_argument("--out", help="output folder (results, report, kept runs); required to run")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"local worker processes (default: one per core, here {os.cpu_count()})",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on a Dask cluster (e.g. tcp://HOST:8786) instead of local processes",
+    )
+    p.add_argument("--limit", type=int, default=None, metavar="N", help="run only the first N rows")
+    p.add_argument(
+        "--dry-run", action="store_true", help="check the campaign and list its rows; fly nothing"
+    )
+    p.add_argument(
+        "--keep-runs",
+        choices=KEEP_CHOICES,
+        default=None,
+        help="run folders to keep: failed (default: the runs that did not succeed), all, none",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the command; :class:`~bt_engine.spec.MissionError` propagates (exit code 2)."""
+    from bt_engine.campaign.check import check_campaign
+    from bt_engine.campaign.execution import run_campaign
+    from bt_engine.campaign.pool import WorkerError
+    from bt_engine.campaign.results import ResultStore
+    from bt_engine.campaign.rows import dry_run_lines, expand
+    from bt_engine.campaign.spec import load_campaign
+
+    if args.limit is not None and args.limit < 1:
+        print("btrun campaign: --limit must be at least 1", file=sys.stderr)
+        return 2
+    if args.workers is not None and args.workers < 1:
+        print("btrun campaign: --workers must be at least 1", file=sys.stderr)
+        return 2
+    c = load_campaign(args.campaign)
+    if args.dry_run:
+        rows = expand(c)
+        checked = check_campaign(c, rows, args.include_path)
+        selected = rows[: args.limit] if args.limit is not None else rows
+        done = set(ResultStore(args.out).finished()) if args.out else set()
+        for line in dry_run_lines(c, selected, done):
+            print(line)
+        n_done = sum(r.key in done for r in selected)
+        print(
+            f"{len(selected)} rows ({len(rows)} in the campaign), {n_done} already finished; "
+            f"{checked} settings combinations checked; nothing was run."
+        )
+        return 0
+    if not args.out:
+        print("btrun campaign: --out DIR is required (results go there)", file=sys.stderr)
+        return 2
+    try:
+        result = run_campaign(
+            c,
+            args.out,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            limit=args.limit,
+            keep_runs=args.keep_runs,
+            include_paths=args.include_path,
+        )
+    except (WorkerError, OSError) as exc:  # the finished rows are saved: the command resumes
+        print(f"btrun campaign: {exc}", file=sys.stderr)
+        return 1
+    counts = Counter(r["status"] for r in result.table)
+    outcome = ", ".join(f"{s} {n}" for s, n in counts.most_common()) or "no runs"
+    print(
+        f"{len(result.table)}/{len(result.selected)} rows finished ({len(result.ran)} ran now, "
+        f"{result.wall_s:.1f} s): {outcome}"
+    )
+    print(f"results: {result.parquet}, {result.csv}")
+    print(f"report: {result.report}")
+    if result.interrupted or not result.complete:
+        again = ["btrun", "campaign", args.campaign, "--out", args.out]
+        if args.limit is not None:
+            again += ["--limit", str(args.limit)]
+        print(
+            f"interrupted: the {len(result.table)} finished rows are kept in {args.out}; "
+            f"resume with: {' '.join(again)}",
+            file=sys.stderr,
+        )
+        return 1
+    return 0

@@ -1,0 +1,196 @@
+"""Running a campaign: check, skip what is finished, run the rest, save, tabulate, report.
+
+:func:`run_campaign` is what ``btrun campaign`` (and the bench scripts) call. Every row is
+saved the moment its result arrives (:class:`~bt_engine.campaign.results.ResultStore`);
+the tables and the report are rebuilt from the saved rows at the end, also after Ctrl-C,
+which stops the workers and keeps the finished rows (running the same campaign into the
+same folder resumes it). A live progress line (done/total, failures, ETA) goes to stderr.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+from bt_engine.campaign.check import check_campaign
+from bt_engine.campaign.pool import DaskPool, LocalPool
+from bt_engine.campaign.results import ResultStore, table_rows, write_tables
+from bt_engine.campaign.rows import Row, expand
+from bt_engine.campaign.spec import Campaign, load_campaign
+
+
+@dataclass
+class CampaignRun:
+    """What :func:`run_campaign` did."""
+
+    campaign: Campaign
+    out_dir: str
+    rows: list[Row]
+    #: the rows asked for (``limit`` applied), in order
+    selected: list[Row]
+    #: names of the rows that ran in this call (the others were already finished)
+    ran: list[str] = field(default_factory=list)
+    #: the table, one dict per finished row of the campaign, in row order
+    table: list[dict[str, Any]] = field(default_factory=list)
+    #: every saved record of the campaign's rows, by row key (what the workers returned)
+    records: dict[str, dict[str, Any]] = field(default_factory=dict)
+    interrupted: bool = False
+    wall_s: float = 0.0
+    parquet: str = ""
+    csv: str = ""
+    report: str = ""
+
+    @property
+    def complete(self) -> bool:
+        """Every selected row has a result."""
+        names = {t["row"] for t in self.table}
+        return all(r.name in names for r in self.selected)
+
+
+def payload(c: Campaign, row: Row, out_dir: str, keep: str, include_paths: list[str]) -> dict:
+    """What a worker needs to run ``row`` (JSON; paths absolute)."""
+    return {
+        "key": row.key,
+        "name": row.name,
+        "mission_path": os.path.abspath(row.mission_path),
+        "rig_path": os.path.abspath(row.rig_path) if row.rig_path else None,
+        "sets": row.set_items(),
+        "seed": row.seed,
+        "rate_hz": c.rate_hz,
+        "max_time_s": c.max_time_s,
+        "timeout_s": row.timeout_s,
+        "run_dir": os.path.abspath(os.path.join(out_dir, "runs", row.folder)),
+        "keep": keep,
+        "flight_reports": c.flight_reports,
+        "metrics": [[m.name, m.source] for m in c.metrics],
+        "include_paths": [os.path.abspath(p) for p in include_paths],
+    }
+
+
+class Progress:
+    """The live progress line: rows done of total, failures, throughput and ETA."""
+
+    def __init__(self, total: int, done: int, todo: int, stream: TextIO | None = None) -> None:
+        self.total, self.done, self.todo = total, done, todo
+        self.stream = stream or sys.stderr
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.failed = 0
+        self.ran = 0
+        self.t0 = time.monotonic()
+        self._last = 0.0
+
+    def line(self) -> str:
+        """The current progress text."""
+        elapsed = time.monotonic() - self.t0
+        eta = "-"
+        if self.ran:
+            rest = (self.todo - self.ran) * elapsed / self.ran
+            eta = _duration(rest)
+        rate = self.ran / elapsed if elapsed > 0 else 0.0
+        return (
+            f"campaign: {self.done}/{self.total} done, {self.failed} failed, "
+            f"{rate:.2f} runs/s, ETA {eta}"
+        )
+
+    def update(self, status: str | None = None, force: bool = False) -> None:
+        """Count one finished row (if ``status``) and redraw (a terminal: in place; a log:
+        one line every 10 s)."""
+        if status is not None:
+            self.done += 1
+            self.ran += 1
+            self.failed += status != "SUCCESS"
+        now = time.monotonic()
+        if self.tty:
+            print("\r" + self.line() + "\x1b[K", end="", file=self.stream, flush=True)
+        elif force or now - self._last >= 10.0:
+            print(self.line(), file=self.stream, flush=True)
+            self._last = now
+
+    def close(self) -> None:
+        """End the progress line."""
+        if self.tty:
+            print(file=self.stream, flush=True)
+        else:
+            self.update(force=True)
+
+
+def _duration(s: float) -> str:
+    s = max(0, int(round(s)))
+    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
+
+
+def run_campaign(
+    campaign: str | Campaign,
+    out_dir: str,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    limit: int | None = None,
+    keep_runs: str | None = None,
+    include_paths: list[str] | None = None,
+    progress: TextIO | None = None,
+    report: bool = True,
+) -> CampaignRun:
+    """Check the campaign (raises :class:`~bt_engine.spec.MissionError`: nothing runs), run
+    its unfinished rows (the first ``limit`` only, if given) on ``workers`` local processes
+    (default: one per core) or on the Dask cluster at ``scheduler``, write the tables and
+    the report into ``out_dir``. Ctrl-C returns with ``interrupted`` set."""
+    c = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
+    rows = expand(c)
+    include_paths = list(include_paths or ())
+    check_campaign(c, rows, include_paths)
+    keep = keep_runs or c.keep_runs
+    selected = rows[:limit] if limit is not None else rows
+    os.makedirs(out_dir, exist_ok=True)
+    copy = os.path.join(out_dir, "campaign.yaml")  # what these results were made from
+    if os.path.abspath(c.path) != os.path.abspath(copy):
+        shutil.copyfile(c.path, copy)
+    store = ResultStore(out_dir)
+    records = store.finished()
+    todo = [r for r in selected if r.key not in records]
+    result = CampaignRun(c, out_dir, rows, selected)
+    prog = Progress(len(selected), len(selected) - len(todo), len(todo), progress)
+    t0 = time.perf_counter()
+    pool: LocalPool | DaskPool | None = None
+    if todo:
+        if scheduler:
+            pool = DaskPool(scheduler)
+        else:
+            log_dir = os.path.join(out_dir, "logs")
+            os.makedirs(log_dir, exist_ok=True)
+            pool = LocalPool(workers or os.cpu_count() or 1, log_dir)
+        names = {r.key: r.name for r in todo}
+        payloads = [payload(c, r, out_dir, keep, include_paths) for r in todo]
+        prog.update(force=True)
+        try:
+            for rec in pool.results(payloads):
+                if rec.get("run_dir"):
+                    rec["run_dir"] = os.path.relpath(rec["run_dir"], out_dir)
+                rec["row"] = names[rec["key"]]
+                rec["finished"] = time.time()
+                store.save(rec)
+                records[rec["key"]] = rec
+                result.ran.append(rec["row"])
+                prog.update(rec.get("status"))
+        except KeyboardInterrupt:
+            result.interrupted = True
+        finally:
+            if result.interrupted:
+                pool.stop()
+            else:
+                pool.close()
+        prog.close()
+    result.wall_s = time.perf_counter() - t0
+    result.table = table_rows(c, rows, records)
+    keys = {r.key for r in rows}
+    result.records = {k: rec for k, rec in records.items() if k in keys}
+    result.parquet, result.csv = write_tables(out_dir, c, result.table)
+    if report:
+        from bt_engine.campaign.report import write_report
+
+        result.report = write_report(out_dir, c, result.table)
+    return result

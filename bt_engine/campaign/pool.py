@@ -1,0 +1,295 @@
+"""Where a campaign's runs execute: a local pool of worker processes, or a Dask cluster.
+
+Either way a run executes in a :class:`WorkerProcess`: a fresh Python interpreter (spawned,
+never forked: no inherited threads or locks) running :mod:`bt_engine.campaign.worker`,
+which stays up from run to run so imports and loaded models are reused. The process is
+supervised from outside: a run that outlives its time-out has its process killed (row
+``TIMEOUT``), a process that dies mid-run (row ``CRASHED``) is replaced, and the campaign
+goes on. The results are the same whoever supervises:
+
+* :class:`LocalPool` (default): one supervising thread per worker process on this machine;
+* :class:`DaskPool` (``--scheduler tcp://HOST:8786``): each task of a ``dask.distributed``
+  cluster runs :func:`run_on_dask_worker`, which keeps one :class:`WorkerProcess` per Dask
+  worker thread. Dask workers are daemonic processes (they may not fork children with
+  ``multiprocessing``), hence a plain subprocess. The cluster's machines must see the
+  campaign's files and output folder at the same paths (a shared file system) and have
+  btrun installed.
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import os
+import queue
+import selectors
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from typing import Any
+
+from bt_engine.campaign.worker import ONE_THREAD_ENV, keep_folder
+
+#: Seconds a new worker process may take to import everything and say it is ready.
+STARTUP_TIMEOUT_S = 300.0
+
+
+class WorkerError(RuntimeError):
+    """A worker process could not be started."""
+
+
+class WorkerProcess:
+    """One supervised worker process (started on first use, restarted after a kill)."""
+
+    def __init__(self, log_path: str | None = None) -> None:
+        self.log_path = log_path
+        self.proc: subprocess.Popen | None = None
+        self.runs = 0
+
+    def _start(self) -> None:
+        env = {**os.environ, **ONE_THREAD_ENV}
+        log = open(self.log_path, "ab") if self.log_path else None  # noqa: SIM115
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "bt_engine.campaign.worker"],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=log,
+                env=env,
+                start_new_session=True,  # a terminal's Ctrl-C is the campaign's, not the run's
+            )
+        finally:
+            if log is not None:
+                log.close()
+        reply = self._read(STARTUP_TIMEOUT_S)
+        if not isinstance(reply, dict) or not reply.get("ready"):
+            rc = self.kill()
+            where = f"; see {self.log_path}" if self.log_path else ""
+            raise WorkerError(f"a campaign worker process failed to start ({rc}){where}")
+
+    def _read(self, timeout_s: float) -> dict | str:
+        """The next answer line, ``"timeout"`` or ``"died"``."""
+        assert self.proc is not None and self.proc.stdout is not None
+        with selectors.DefaultSelector() as sel:
+            sel.register(self.proc.stdout, selectors.EVENT_READ)
+            if not sel.select(timeout=max(timeout_s, 0.0)):
+                return "timeout"
+        line = self.proc.stdout.readline()
+        if not line.endswith(b"\n"):
+            return "died"
+        try:
+            return json.loads(line)
+        except ValueError:
+            return "died"
+
+    def kill(self) -> str:
+        """Kill the process (and anything it started); return how it ended."""
+        proc, self.proc = self.proc, None
+        if proc is None:
+            return "not running"
+        if proc.poll() is None:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except OSError:
+                proc.kill()
+        rc = proc.wait()
+        for stream in (proc.stdin, proc.stdout):
+            try:
+                stream.close()  # type: ignore[union-attr]
+            except OSError:
+                pass
+        return _exit_text(rc)
+
+    def close(self) -> None:
+        """Ask the process to stop after its current run; kill it if it does not."""
+        proc = self.proc
+        if proc is None:
+            return
+        try:
+            proc.stdin.write(b'{"stop": true}\n')  # type: ignore[union-attr]
+            proc.stdin.flush()  # type: ignore[union-attr]
+            proc.wait(timeout=5.0)
+        except (OSError, subprocess.TimeoutExpired):
+            pass
+        self.kill()
+
+    def run(self, payload: dict[str, Any]) -> dict[str, Any]:
+        """Run one row (``payload`` from :func:`bt_engine.campaign.execution.payload`); a run
+        that outlives ``payload["timeout_s"]`` or kills its process gets a TIMEOUT or CRASHED
+        result (and the process is replaced at the next run)."""
+        if self.proc is None or self.proc.poll() is not None:
+            self.kill()
+            self._start()
+        assert self.proc is not None and self.proc.stdin is not None
+        t0 = time.perf_counter()
+        try:
+            self.proc.stdin.write((json.dumps({"row": payload}) + "\n").encode())
+            self.proc.stdin.flush()
+            reply = self._read(float(payload["timeout_s"]))
+        except OSError:
+            reply = "died"
+        self.runs += 1
+        if isinstance(reply, dict) and "result" in reply:
+            return reply["result"]
+        if reply == "timeout":
+            self.kill()
+            status = "TIMEOUT"
+            reason = (
+                f"no result within the {payload['timeout_s']:g} s time-out; "
+                "the worker process was killed"
+            )
+        else:
+            status = "CRASHED"
+            reason = f"the worker process died during the run ({self.kill()})"
+        run_dir = payload["run_dir"]
+        kept = keep_folder(payload.get("keep", "failed"), status)
+        if not kept:
+            shutil.rmtree(run_dir, ignore_errors=True)
+        return {
+            "key": payload["key"],
+            "status": status,
+            "reason": reason,
+            "metrics": {name: None for name, _ in payload.get("metrics", ())},
+            "wall_s": round(time.perf_counter() - t0, 4),
+            "run_dir": run_dir if kept and os.path.isdir(run_dir) else "",
+            "pid": None,
+        }
+
+
+def _exit_text(rc: int) -> str:
+    if rc < 0:
+        try:
+            return f"killed by {signal.Signals(-rc).name}"
+        except ValueError:
+            return f"killed by signal {-rc}"
+    return f"exit code {rc}"
+
+
+class LocalPool:
+    """``workers`` worker processes on this machine, each supervised by a thread."""
+
+    def __init__(self, workers: int, log_dir: str | None = None) -> None:
+        self.workers = max(1, int(workers))
+        self.log_dir = log_dir
+        self._stop = threading.Event()
+        self._procs: list[WorkerProcess] = []
+        self._threads: list[threading.Thread] = []
+
+    def results(self, payloads: list[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+        """Run every payload; yield the results as they finish (any order)."""
+        todo: queue.Queue = queue.Queue()
+        for p in payloads:
+            todo.put(p)
+        done: queue.Queue = queue.Queue()
+        n = min(self.workers, len(payloads))
+        for i in range(n):
+            log = os.path.join(self.log_dir, f"worker-{i}.log") if self.log_dir else None
+            wp = WorkerProcess(log)
+            self._procs.append(wp)
+            t = threading.Thread(target=self._serve, args=(wp, todo, done), daemon=True)
+            self._threads.append(t)
+            t.start()
+        remaining = len(payloads)
+        while remaining:
+            try:
+                item = done.get(timeout=0.2)  # short waits: Ctrl-C is seen at once
+            except queue.Empty:
+                if not any(t.is_alive() for t in self._threads) and done.empty():
+                    raise WorkerError("every campaign worker stopped") from None
+                continue
+            if isinstance(item, BaseException):
+                raise item
+            remaining -= 1
+            yield item
+
+    def _serve(self, wp: WorkerProcess, todo: queue.Queue, done: queue.Queue) -> None:
+        try:
+            while not self._stop.is_set():
+                try:
+                    payload = todo.get_nowait()
+                except queue.Empty:
+                    break
+                result = wp.run(payload)
+                if not self._stop.is_set():
+                    done.put(result)
+        except Exception as exc:  # a worker that cannot start: the campaign must hear of it
+            done.put(exc)
+        finally:
+            if self._stop.is_set():
+                wp.kill()
+            else:
+                wp.close()
+
+    def stop(self) -> None:
+        """Stop now: kill the worker processes (their runs are lost, not recorded)."""
+        self._stop.set()
+        for wp in self._procs:
+            wp.kill()
+        for t in self._threads:
+            t.join(timeout=10.0)
+
+    def close(self) -> None:
+        """Release the worker processes (all runs done: they have stopped already)."""
+        self.stop()
+
+
+class DaskPool:
+    """The runs as tasks of a ``dask.distributed`` cluster (its scheduler's address)."""
+
+    def __init__(self, address: str) -> None:
+        from dask.distributed import Client
+
+        self.client = Client(address, set_as_default=False)
+        self._futures: list[Any] = []
+
+    def results(self, payloads: list[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+        """Submit every payload; yield the results as they finish (any order)."""
+        from dask.distributed import as_completed
+
+        session = uuid.uuid4().hex[:8]  # a task key is unique to this submission
+        self._futures = [
+            self.client.submit(
+                run_on_dask_worker, p, key=f"btrun-run-{p['key'][:16]}-{session}", pure=False
+            )
+            for p in payloads
+        ]
+        for future in as_completed(self._futures, loop=self.client.loop):
+            yield future.result()
+
+    def stop(self) -> None:
+        """Cancel the tasks not finished (a run already going ends on its worker)."""
+        try:
+            if self._futures:
+                self.client.cancel(self._futures)
+        finally:
+            self.client.close()
+
+    def close(self) -> None:
+        """Disconnect from the cluster."""
+        self.client.close()
+
+
+_DASK_WORKERS: dict[int, WorkerProcess] = {}
+_DASK_LOCK = threading.Lock()
+
+
+def run_on_dask_worker(payload: dict[str, Any]) -> dict[str, Any]:
+    """A Dask task: run the row in this Dask worker thread's own :class:`WorkerProcess`."""
+    with _DASK_LOCK:
+        wp = _DASK_WORKERS.get(threading.get_ident())
+        if wp is None:
+            if not _DASK_WORKERS:
+                atexit.register(_close_dask_workers)
+            wp = _DASK_WORKERS[threading.get_ident()] = WorkerProcess()
+    return wp.run(payload)
+
+
+def _close_dask_workers() -> None:
+    for wp in list(_DASK_WORKERS.values()):
+        wp.kill()
+    _DASK_WORKERS.clear()

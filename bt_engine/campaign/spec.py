@@ -1,0 +1,411 @@
+"""The campaign file (YAML): its keys, how it is read, and the :class:`Campaign` it describes.
+
+Reading walks PyYAML's composed node graph (safe loader only; tags, anchors and aliases are
+refused), so every problem carries ``file:line:col``, the offending value and what was
+expected; all problems are collected before anything is reported, as for missions.
+``docs/campaigns.md`` documents every key. What needs the plug-in (missions against the
+node registry, settings against the rig schema) is checked in :mod:`bt_engine.campaign.check`.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+from dataclasses import dataclass, field
+from typing import Any
+
+import yaml
+from yaml.nodes import MappingNode, Node, SequenceNode
+
+from bt_engine.campaign.metrics import Metric, metric_from_data
+from bt_engine.campaign.yaml_reader import SAFE, Reader, scan, show
+from bt_engine.files import read_text
+from bt_engine.registry import suggest_name
+from bt_engine.spec import Loc, MissionError, Problem
+
+#: Every top-level key of a campaign file, with what it holds (docs/campaigns.md).
+TOP_KEYS: dict[str, str] = {
+    "name": "a short name (default: the file name)",
+    "description": "free text",
+    "missions": "mission files (a list, or one path)",
+    "rigs": "rig files (null: the plug-in's default rig)",
+    "worlds": "world files (set as world.path; null: the rig's own world)",
+    "seeds": "a list of seeds, or {start: N, count: M}",
+    "set": "settings fixed for every run (any --set key: value)",
+    "grid": "settings crossed with each other (key: [values])",
+    "cycle": "settings that cycle with the seed (key: [values]; run k takes value k mod n)",
+    "random": "settings drawn per run (key: {uniform|randint|normal|choice: ...})",
+    "draw_seed": "seed of the random draws (default 0)",
+    "faults": "fault schedules crossed with the rest: [{name, set, timeout_s}]",
+    "timeout_s": "wall-clock seconds one run may take (default 600)",
+    "max_time_s": "mission-time limit of one run in s (default 900)",
+    "rate_hz": "tick rate (default 50)",
+    "metrics": "columns read from each run's summary.json (name: path or operation)",
+    "keep_runs": "which run folders to keep: failed (default), all or none",
+    "flight_reports": "flight reports in kept folders: kept (default), failed or none",
+}
+DRAWS = ("uniform", "randint", "normal", "choice")
+KEEP_RUNS = ("failed", "all", "none")
+FLIGHT_REPORTS = ("kept", "failed", "none")
+#: Columns every results table has (parameter and metric names must differ from these).
+FIXED_COLUMNS = ("row", "mission", "rig", "world", "seed", "fault", "status", "reason")
+
+
+@dataclass(frozen=True)
+class Draw:
+    """A random draw of one setting: ``uniform [lo, hi]`` (numbers, or lists of numbers
+    drawn item by item), ``randint [lo, hi]``, ``normal [mean, std]`` or ``choice [...]``;
+    ``digits`` rounds uniform and normal draws."""
+
+    kind: str
+    args: tuple
+    digits: int | None = None
+
+    def sample(self, rng: random.Random) -> Any:
+        """One value (the same ``rng`` state gives the same value on any machine)."""
+        if self.kind == "choice":
+            return self.args[rng.randrange(len(self.args))]
+        if self.kind == "randint":
+            return rng.randint(int(self.args[0]), int(self.args[1]))
+        lo, hi = self.args
+        if isinstance(lo, list):
+            return [self._round(rng.uniform(a, b)) for a, b in zip(lo, hi, strict=True)]
+        if self.kind == "normal":
+            return self._round(rng.gauss(lo, hi))
+        return self._round(rng.uniform(lo, hi))
+
+    def _round(self, x: float) -> float:
+        return round(x, self.digits) if self.digits is not None else x
+
+    def extremes(self) -> list[Any]:
+        """Values that bound every draw, to validate before anything flies (a normal draw:
+        mean +- 4 standard deviations)."""
+        if self.kind == "choice":
+            return list(self.args)
+        if self.kind == "normal":
+            mean, std = self.args
+            return [self._round(mean - 4 * std), self._round(mean + 4 * std)]
+        return list(self.args)
+
+
+@dataclass
+class FaultCase:
+    """One fault schedule: its name, settings (fixed values and draws), its own time-out."""
+
+    name: str
+    sets: dict[str, Any] = field(default_factory=dict)
+    draws: dict[str, Draw] = field(default_factory=dict)
+    timeout_s: float | None = None
+
+
+@dataclass
+class Campaign:
+    """A validated campaign file (paths as written, and resolved in ``*_paths``)."""
+
+    path: str
+    name: str
+    description: str = ""
+    missions: list[str] = field(default_factory=list)
+    mission_paths: list[str] = field(default_factory=list)
+    rigs: list[str | None] = field(default_factory=lambda: [None])
+    rig_paths: list[str | None] = field(default_factory=lambda: [None])
+    worlds: list[str | None] = field(default_factory=lambda: [None])
+    world_paths: list[str | None] = field(default_factory=lambda: [None])
+    seeds: list[int] = field(default_factory=lambda: [0])
+    fixed: dict[str, Any] = field(default_factory=dict)
+    grid: dict[str, list] = field(default_factory=dict)
+    cycle: dict[str, list] = field(default_factory=dict)
+    random: dict[str, Draw] = field(default_factory=dict)
+    draw_seed: int = 0
+    faults: list[FaultCase] | None = None
+    timeout_s: float = 600.0
+    max_time_s: float = 900.0
+    rate_hz: float = 50.0
+    metrics: list[Metric] = field(default_factory=list)
+    keep_runs: str = "failed"
+    flight_reports: str = "kept"
+    #: where each setting key was written (for the plug-in's problems with its value)
+    key_locs: dict[str, Loc] = field(default_factory=dict)
+    #: where each mission / rig / world entry was written, by resolved path
+    file_locs: dict[str, Loc] = field(default_factory=dict)
+
+    def parameters(self) -> list[str]:
+        """The setting keys that vary between runs (the table's parameter columns)."""
+        keys = [*self.grid, *self.cycle, *self.random]
+        for case in self.faults or ():
+            keys += [k for k in [*case.sets, *case.draws] if k not in keys]
+        return list(dict.fromkeys(keys))
+
+
+def setting_key(key: str) -> str:
+    """A ``--set`` key as the run reads it (a leading ``rig.`` is dropped)."""
+    return key[4:] if key.startswith("rig.") and "." in key[4:] else key
+
+
+def load_campaign(path: str) -> Campaign:
+    """Read and check a campaign file; raises :class:`MissionError` with every located
+    problem (nothing runs). Missions and settings are checked later, with the plug-in
+    (:func:`bt_engine.campaign.check.check_campaign`)."""
+    problems: list[Problem] = []
+    text = read_text(path, problems)
+    if text is None:
+        raise MissionError(problems)
+    problems = scan(text, path)
+    if problems:
+        raise MissionError(problems)
+    root = yaml.compose(text, Loader=SAFE)
+    r = Reader(path)
+    if not isinstance(root, MappingNode):
+        got = "the file is empty" if root is None else f"got {show(r, root)}"
+        raise MissionError(
+            [Problem(Loc(path, 1, 1), f"expected a mapping of campaign keys ({got})")]
+        )
+    c = Campaign(path=path, name=os.path.splitext(os.path.basename(path))[0])
+    first: dict[str, tuple[str, Loc]] = {}  # setting key -> (section, where), for conflicts
+    seen_top: set[str] = set()
+    for key, knode, v in r.pairs(root, "campaign"):
+        seen_top.add(key)
+        if key not in TOP_KEYS:
+            close = suggest_name(key, list(TOP_KEYS))
+            hint = f" (did you mean '{close}'?)" if close else ""
+            r.bad(knode, f"unknown key '{key}'{hint}; expected one of: {', '.join(TOP_KEYS)}")
+        elif key in ("name", "description"):
+            setattr(c, key, r.text(v, key) or getattr(c, key))
+        elif key == "missions":
+            c.missions, c.mission_paths = [], []
+            for item in r.items(v):
+                shown, found = r.file(item, "missions")
+                c.missions.append(shown)
+                c.mission_paths.append(found or "")
+                if found:
+                    c.file_locs.setdefault(found, r.loc(item))
+            if not c.missions:
+                r.bad(v, "missions: expected at least one mission file")
+        elif key in ("rigs", "worlds"):
+            shown_list, found_list = [], []
+            for item in r.items(v):
+                shown, found = r.file(item, key, allow_null=True)
+                shown_list.append(shown)
+                found_list.append(found)
+                if found:
+                    c.file_locs.setdefault(found, r.loc(item))
+            if not shown_list:
+                r.bad(v, f"{key}: expected at least one entry (null: the default)")
+            else:
+                setattr(c, key, shown_list)
+                setattr(c, key[:-1] + "_paths", found_list)
+        elif key == "seeds":
+            c.seeds = _seeds(r, v)
+        elif key == "draw_seed":
+            c.draw_seed = r.integer(v, key) or 0
+        elif key in ("timeout_s", "max_time_s", "rate_hz"):
+            n = r.number(v, key, minimum=0.0)
+            if n is not None:
+                setattr(c, key, n)
+        elif key in ("keep_runs", "flight_reports"):
+            kv, choices = r.value(v), KEEP_RUNS if key == "keep_runs" else FLIGHT_REPORTS
+            if kv not in choices:
+                r.bad(v, f"{key}: expected one of {', '.join(choices)}, got {kv!r}")
+            else:
+                setattr(c, key, kv)
+        elif key == "set":
+            for k, kn, vn in _settings(r, v, "set", first):
+                c.fixed[k] = _plain_value(r, vn, f"set.{k}")
+                c.key_locs.setdefault(k, r.loc(kn))
+        elif key in ("grid", "cycle"):
+            for k, kn, vn in _settings(r, v, key, first):
+                values = r.value(vn)
+                if not isinstance(values, list) or not values:
+                    r.bad(vn, f"{key}.{k}: expected a non-empty list of values, got {show(r, vn)}")
+                    continue
+                getattr(c, key)[k] = [_plain_value(r, item, f"{key}.{k}") for item in vn.value]
+                c.key_locs.setdefault(k, r.loc(kn))
+        elif key == "random":
+            for k, kn, vn in _settings(r, v, "random", first):
+                d = _draw(r, vn, f"random.{k}")
+                if d is not None:
+                    c.random[k] = d
+                c.key_locs.setdefault(k, r.loc(kn))
+        elif key == "faults":
+            c.faults = _faults(r, v, first, c.key_locs)
+        elif key == "metrics":
+            c.metrics = _metrics(r, v, c.key_locs)
+    if "missions" not in seen_top:
+        r.bad(root, "missing required key 'missions' (the mission files to fly)")
+    _check_columns(r, c, root)
+    if "world.path" in first and c.worlds != [None]:
+        r.bad(first["world.path"][1], "world.path is set here and by worlds: keep one")
+    if r.problems:
+        raise MissionError(r.problems)
+    return c
+
+
+def _seeds(r: Reader, node: Node) -> list[int]:
+    if isinstance(node, MappingNode):
+        got = {k: vn for k, _, vn in r.pairs(node, "seeds")}
+        extra = set(got) - {"start", "count"}
+        if extra or "count" not in got:
+            r.bad(node, f"seeds: expected {{start: N, count: M}}, got keys {sorted(got)}")
+            return [0]
+        start = r.integer(got["start"], "seeds.start") if "start" in got else 0
+        count = r.integer(got["count"], "seeds.count")
+        if count is not None and count < 1:
+            r.bad(got["count"], f"seeds.count: expected at least 1, got {count}")
+            return [0]
+        return list(range(start or 0, (start or 0) + (count or 1)))
+    seeds = [r.integer(item, "seeds") for item in r.items(node)]
+    if not seeds:
+        r.bad(node, "seeds: expected at least one seed")
+    if len(set(seeds)) != len(seeds):
+        r.bad(node, "seeds: a seed is listed twice (the runs would be identical)")
+    return [s for s in seeds if s is not None] or [0]
+
+
+def _settings(r: Reader, node: Node, section: str, first: dict) -> list[tuple[str, Node, Node]]:
+    """The ``key: value`` pairs of a settings section; a key set in two sections is a problem."""
+    out = []
+    for k, kn, vn in r.pairs(node, section):
+        key = setting_key(k.strip())
+        if "=" in key or any(ch.isspace() for ch in key):
+            r.bad(kn, f"{section}: '{k}' is not a setting key (e.g. wind.gust_std_mps, scan_speed)")
+            continue
+        if key in first and not (
+            section.startswith("faults") and first[key][0].startswith("faults")
+        ):
+            sec, loc = first[key]
+            r.bad(kn, f"{section}: '{key}' is already set in {sec} (line {loc.line}); set it once")
+            continue
+        first.setdefault(key, (section, r.loc(kn)))
+        out.append((key, kn, vn))
+    return out
+
+
+def _plain_value(r: Reader, node: Node, where: str) -> Any:
+    v = r.value(node)
+    ok = v is None or isinstance(v, (str, int, float, bool))
+    if isinstance(v, list):
+        ok = all(isinstance(x, (str, int, float, bool)) for x in v)
+    if not ok:
+        r.bad(node, f"{where}: expected a value or a list of values, got {show(r, node)}")
+    return v
+
+
+def _draw(r: Reader, node: Node, where: str) -> Draw | None:
+    spec = r.value(node)
+    if not isinstance(spec, dict):
+        r.bad(node, f"{where}: expected a draw such as {{uniform: [0, 1]}}, got {show(r, node)}")
+        return None
+    kinds = [k for k in spec if k in DRAWS]
+    extra = [k for k in spec if k not in DRAWS and k != "round"]
+    if len(kinds) != 1 or extra:
+        r.bad(
+            node,
+            f"{where}: expected one of {', '.join(DRAWS)} (and optionally round), "
+            f"got keys {sorted(spec)}",
+        )
+        return None
+    kind, args = kinds[0], spec[kinds[0]]
+    digits = spec.get("round")
+    if digits is not None and (
+        not isinstance(digits, int) or isinstance(digits, bool) or digits < 0
+    ):
+        r.bad(node, f"{where}.round: expected a number of decimals (0 or more), got {digits!r}")
+        return None
+    if kind == "choice":
+        if not isinstance(args, list) or not args:
+            r.bad(node, f"{where}.choice: expected a non-empty list of values, got {args!r}")
+            return None
+        return Draw(kind, tuple(args))
+
+    def num(x: Any) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+    pair = isinstance(args, list) and len(args) == 2
+    if pair and kind == "uniform" and all(isinstance(a, list) for a in args):
+        lo, hi = args
+        if (
+            len(lo) == len(hi)
+            and lo
+            and all(num(x) for x in lo + hi)
+            and all(a <= b for a, b in zip(lo, hi, strict=True))
+        ):
+            return Draw(kind, (list(map(float, lo)), list(map(float, hi))), digits)
+    elif pair and all(num(a) for a in args):
+        a, b = args
+        if kind == "randint" and all(isinstance(x, int) for x in args) and a <= b:
+            return Draw(kind, (a, b))
+        if kind == "uniform" and a <= b:
+            return Draw(kind, (float(a), float(b)), digits)
+        if kind == "normal" and b >= 0:
+            return Draw(kind, (float(a), float(b)), digits)
+    want = {
+        "uniform": "[low, high] (numbers, low <= high; or two lists of numbers)",
+        "randint": "[low, high] (integers, low <= high)",
+        "normal": "[mean, standard deviation >= 0]",
+    }[kind]
+    r.bad(node, f"{where}.{kind}: expected {want}, got {args!r}")
+    return None
+
+
+def _faults(r: Reader, node: Node, first: dict, key_locs: dict) -> list[FaultCase]:
+    if not isinstance(node, SequenceNode) or not node.value:
+        r.bad(
+            node,
+            f"faults: expected a list of fault schedules ({{name, set}}), got {show(r, node)}",
+        )
+        return []
+    cases: list[FaultCase] = []
+    for i, item in enumerate(node.value):
+        where = f"faults[{i}]"
+        fields = {k: (kn, vn) for k, kn, vn in r.pairs(item, where)}
+        for k, (kn, _) in fields.items():
+            if k not in ("name", "set", "timeout_s"):
+                r.bad(kn, f"{where}: unknown key '{k}' (expected name, set, timeout_s)")
+        if "name" not in fields:
+            r.bad(item, f"{where}: missing 'name' (it names the fault in the results)")
+            continue
+        name = r.text(fields["name"][1], f"{where}.name") or "?"
+        if any(c.name == name for c in cases):
+            r.bad(fields["name"][1], f"{where}.name: '{name}' is used twice")
+        case = FaultCase(name)
+        if "timeout_s" in fields:
+            case.timeout_s = r.number(fields["timeout_s"][1], f"{where}.timeout_s", minimum=0.0)
+        if "set" in fields:
+            for k, kn, vn in _settings(r, fields["set"][1], f"faults[{name}]", first):
+                key_locs.setdefault(k, r.loc(kn))
+                if isinstance(vn, MappingNode):
+                    d = _draw(r, vn, f"{where}.set.{k}")
+                    if d is not None:
+                        case.draws[k] = d
+                else:
+                    case.sets[k] = _plain_value(r, vn, f"{where}.set.{k}")
+        cases.append(case)
+    return cases
+
+
+def _metrics(r: Reader, node: Node, locs: dict[str, Loc]) -> list[Metric]:
+    out = []
+    for name, kn, vn in r.pairs(node, "metrics"):
+        locs[f"metrics.{name}"] = r.loc(kn)
+        try:
+            out.append(metric_from_data(name, r.value(vn)))
+        except ValueError as exc:
+            r.bad(vn, f"metrics.{name}: {exc}")
+    return out
+
+
+def _check_columns(r: Reader, c: Campaign, root: Node) -> None:
+    """Parameter and metric names become columns: they must not clash."""
+    taken = set(FIXED_COLUMNS) | {"wall_s", "run_dir"}
+    for key in c.parameters():
+        if key in taken:
+            r.bad(
+                c.key_locs.get(key, r.loc(root)),
+                f"'{key}' is a column of its own; "
+                f"a setting may not be named {', '.join(sorted(taken))}",
+            )
+    params = set(c.parameters())
+    for m in c.metrics:
+        if m.name in taken or m.name in params:
+            where = c.key_locs.get(f"metrics.{m.name}", r.loc(root))
+            r.bad(where, f"metrics: '{m.name}' is already a column (fixed or a setting); rename it")
