@@ -36,7 +36,7 @@ import zmq
 from bt_engine.catalogue import groot_palette
 from bt_engine.mission import Mission
 from bt_engine.node import IDLE, BTNode, NodeStatus
-from bt_engine.ports import NO_DEFAULT
+from bt_engine.ports import NO_DEFAULT, number_text
 from bt_engine.registry import SUBTREE
 
 #: the default request port (the publisher binds the next one), as BehaviorTree.CPP
@@ -82,10 +82,14 @@ def _esc(text: str) -> str:
 
 
 def _text(value: Any) -> str:
+    """A native attribute value (from a YAML mission) as the XML writer spells it (50.0 ->
+    "50"), so the tree Groot2 gets is the one BehaviorTree.CPP reads from the XML."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, (list, tuple)):
         return ";".join(_text(v) for v in value)
+    if isinstance(value, float):
+        return number_text(value)
     return str(value)
 
 

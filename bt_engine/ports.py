@@ -357,9 +357,13 @@ def _short(value: Any, limit: int = 200) -> str:
     return text if len(text) <= limit else text[:limit] + f"... ({len(text)} characters)"
 
 
-def _num_text(v: Any) -> str:
+def number_text(v: Any) -> str:
+    """A number as mission files spell it: integral values without ".0" (50.0 -> "50")."""
     f = float(v)
     return str(int(f)) if f.is_integer() and abs(f) < 1e15 else repr(f)
+
+
+_num_text = number_text
 
 
 ANY = AnyType()

@@ -36,6 +36,27 @@ DEMO = "demo"  # gallery name of the built-in demo gallery (the world's pallets)
 TORCH_THREADS = 1
 
 
+#: Models loaded in this process, by (kind, path), with the weights file's size and time:
+#: a process that flies many missions (a campaign worker) loads each once; a changed file is
+#: loaded again. Inference does not change a model, so runs stay independent.
+_MODELS: dict[tuple[str, str], tuple[tuple[int, float] | None, Any]] = {}
+
+
+def _cached(key: tuple[str, str], load: Callable[[], Any]) -> Any:
+    path = key[1]
+    try:
+        st = os.stat(path) if path else None
+        stamp = (st.st_size, st.st_mtime) if st else None
+    except OSError:
+        stamp = None
+    hit = _MODELS.get(key)
+    if hit is not None and hit[0] == stamp and (stamp is not None or not path):
+        return hit[1]
+    model = load()
+    _MODELS[key] = (stamp, model)
+    return model
+
+
 class PerceptionError(Exception):
     """A perception problem with a message meant for the user (no traceback needed)."""
 
@@ -138,7 +159,10 @@ class PerceptionSession:
             from perception.detector import BlockDetector
 
             try:
-                self._detectors[path] = BlockDetector.load(path or None, threads=TORCH_THREADS)
+                self._detectors[path] = _cached(
+                    ("detector", path),
+                    lambda: BlockDetector.load(path or None, threads=TORCH_THREADS),
+                )
             except ModelError as exc:
                 raise PerceptionError(f"block detector: {exc}") from None
         return self._detectors[path]
@@ -149,7 +173,10 @@ class PerceptionSession:
             from perception.embedder import BlockEmbedder
 
             try:
-                self._embedders[path] = BlockEmbedder.load(path or None, threads=TORCH_THREADS)
+                self._embedders[path] = _cached(
+                    ("embedder", path),
+                    lambda: BlockEmbedder.load(path or None, threads=TORCH_THREADS),
+                )
             except ModelError as exc:
                 raise PerceptionError(f"block embedder: {exc}") from None
         return self._embedders[path]

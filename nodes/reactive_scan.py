@@ -200,7 +200,8 @@ class LocatePallet(_Reactive):
             face = self.tracker.fit(self.facing, self.prior, self.get_input("window"))
             if face is not None:
                 return self._found(face)
-        self.point_index = 0
+        self.point_index = self.looked = 0
+        self.refused: list[str] = []
         self.looking_since: float | None = None
         return self._next_point() or self.on_running()
 
@@ -223,12 +224,20 @@ class LocatePallet(_Reactive):
             why = self.fly(p, self.facing, self.get_input("speed"), self.get_input("pos_threshold"))
             if not why:
                 self.looking_since = None
+                self.looked += 1
                 return None
+            self.refused.append(why)
             self.ctx.log(f"{self.describe()}: skipping look point: {why}")
         x, y, z = self.prior
+        if not self.looked:
+            return self._fail(
+                f"no look point near ({x:.2f}, {y:.2f}, {z:.2f}) could be flown to: "
+                + "; ".join(self.refused)
+            )
+        refused = f" ({len(self.refused)} more refused)" if self.refused else ""
         return self._fail(
             f"no pallet found near ({x:.2f}, {y:.2f}, {z:.2f}): no support block seen from "
-            f"{len(points)} look point(s)"
+            f"{self.looked} look point(s){refused}"
         )
 
     def _found(self, face: Any) -> NodeStatus:

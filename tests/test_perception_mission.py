@@ -109,6 +109,7 @@ def test_missed_block_triggers_one_rescan():
             '<DetectBlocks name="detect_blocks" stall_timeout="6"',
         )
     )
+
     def watch(m, pf):
         # blind while block 2 (y = -0.05) crosses the image during the first scan only
         session = m.ctx.resources.get("perception")

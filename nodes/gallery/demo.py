@@ -193,11 +193,22 @@ def ensure_demo_gallery(
     from drivers.sim.world import load_world
 
     path = demo_gallery_path(world_path, detector, embedder, camera)
-    if not os.path.exists(path):
-        identities = load_world(world_path).identities()
-        log(
-            f"building the demo gallery ({len(identities)} pallet sides of "
-            f"{os.path.basename(world_path)}) in {path}"
-        )
-        build_gallery(path, world_path, identities, detector, embedder, camera, log)
+    if os.path.exists(path):
+        return path
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    # One builder at a time (campaign workers start together): the others wait, then use it.
+    with open(path + ".lock", "a") as lock:
+        try:
+            import fcntl
+
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        except (ImportError, OSError):  # no flock here: each builds its own (still atomic)
+            pass
+        if not os.path.exists(path):
+            identities = load_world(world_path).identities()
+            log(
+                f"building the demo gallery ({len(identities)} pallet sides of "
+                f"{os.path.basename(world_path)}) in {path}"
+            )
+            build_gallery(path, world_path, identities, detector, embedder, camera, log)
     return path
