@@ -35,7 +35,7 @@ CLUSTER_GAP_M = 0.2  # sightings closer than this along the face belong to one b
 EDGE_PX = 3.0  # a box this close to the top or bottom border is cut: no depth from it
 SIDE_EDGE_PX = 10.0  # ... to a side border: its centre is not the block's (partial box)
 MISS_MARGIN_PX = 30.0  # a predicted block this far inside the image should have been seen
-MISS_RADIUS_PX = 45.0  # a detection this close to a predicted block explains it
+MISS_RADIUS_PX = 30.0  # a detection this close to a predicted block explains it
 MISS_RATIO = 0.7  # drop a hypothesis when this share of its predicted sightings is missing
 MIN_PREDICTED = 3  # ... over at least this many frames
 CENTRAL_PX = 80.0  # boxes this close to the image centre (columns) give a trusted depth
@@ -44,6 +44,7 @@ ROW_Z_TOL_M = (
     0.07  # a sighting whose ray meets the face this far off the row height is not a block of it
 )
 MIN_TRI_RAYS = 6  # rays needed to triangulate a block
+MAX_TRI_MISS_M = 0.02  # rays missing the triangulated point by more (rms) are not one block
 MIN_TRI_SPREAD = 0.02  # mean sin^2 of the rays' spread (about 8 deg): enough to triangulate
 PAIR_BAND_M = 0.12  # blocks that set the facing were seen at most this much farther apart
 REFIT_TURN_DEG = 25.0  # a refit may turn the face this much from the first estimate
@@ -456,7 +457,8 @@ def _cut(
 
 def _triangulate(orig: np.ndarray, dirs: np.ndarray) -> np.ndarray | None:
     """The 2-D point nearest to every ray (``orig`` + t ``dirs``), or None when the rays
-    are too nearly parallel to tell depth (seen from about one place)."""
+    are too nearly parallel to tell depth (seen from about one place) or do not meet (they
+    are not all one block's)."""
     if len(orig) < MIN_TRI_RAYS:
         return None
     u = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
@@ -465,7 +467,12 @@ def _triangulate(orig: np.ndarray, dirs: np.ndarray) -> np.ndarray | None:
     b = np.einsum("nij,nj->i", proj, orig)
     if float(np.linalg.eigvalsh(a)[0]) / len(orig) < MIN_TRI_SPREAD:
         return None
-    return np.linalg.solve(a, b)
+    p = np.linalg.solve(a, b)
+    # Rays of one block meet; rays of two blocks grouped together (a wrong plane) do not.
+    miss = np.einsum("nij,nj->ni", proj, p[None, :] - orig)
+    if float(np.sqrt(np.mean(np.sum(miss**2, axis=1)))) > MAX_TRI_MISS_M:
+        return None
+    return p
 
 
 def _clusters(s: np.ndarray) -> list[np.ndarray]:
