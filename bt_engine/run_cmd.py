@@ -63,7 +63,7 @@ def parse_sets(items: list[str]) -> tuple[dict[str, Any], dict[str, str], list[P
 
 
 def _run_dir(args) -> str:
-    if args.out:
+    if getattr(args, "out", None):
         return args.out
     stem = os.path.splitext(os.path.basename(args.mission))[0]
     return os.path.join("runs", f"{stem}-{time.strftime('%Y%m%d-%H%M%S')}")
@@ -119,10 +119,42 @@ class PreparedRun:
     groot: Any = None
 
 
+def resume_settings(args) -> list[Problem]:
+    """``--resume RUN``: take the rig, seed and ``--set`` items of the interrupted run from
+    its tick log's header where this call does not give them (in place on ``args``);
+    problems if RUN is no run folder or flew another mission."""
+    previous = getattr(args, "resume", None)
+    if not previous:
+        if getattr(args, "seed", None) is None:
+            args.seed = 0
+        return []
+    from bt_engine.ticklog import read_log
+
+    where = Loc("--resume", 0, 0)
+    log = os.path.join(previous, "ticks.jsonl")
+    if not os.path.isfile(log):
+        return [Problem(where, f"{previous} is not a run folder (no ticks.jsonl in it)")]
+    header, _ = read_log(log)
+    flown = header.get("mission")
+    if flown and os.path.abspath(flown) != os.path.abspath(args.mission):
+        return [Problem(where, f"{previous} flew {flown}: resume it with that mission")]
+    if args.seed is None:
+        args.seed = int(header.get("seed") or 0)
+    if args.rig is None and header.get("rig_arg"):
+        args.rig = header["rig_arg"]
+    if not args.set and header.get("sets"):
+        args.set = list(header["sets"])
+    return []
+
+
 def prepare(args) -> PreparedRun:
     """Load and validate the mission, the ``--set`` items and the rig (raises
     :class:`MissionError` with every located problem: nothing flies), then build the clock,
-    platform, mission, run folder, tick log and hooks."""
+    platform, mission, run folder, tick log and hooks; finally let every node check its
+    inputs against the run target (:meth:`Mission.preflight`)."""
+    resume_problems = resume_settings(args)
+    if resume_problems:
+        raise MissionError(resume_problems)
     bb, rig_over, problems = parse_sets(args.set)
     warnings: list[Problem] = []
     spec, mission_problems = check_mission(args.mission, REGISTRY, None, warnings)
@@ -137,6 +169,7 @@ def prepare(args) -> PreparedRun:
         raise MissionError([Problem(where, "no vehicle plug-in is installed to use a rig")])
     factor = args.realtime or (target.realtime_factor if target is not None else None)
     clock = WallClock(factor) if factor else SimClock()
+    run_dir = _run_dir(args)
     platform = target.make_platform(clock, args.seed) if target is not None else None
     mission = Mission(
         spec,
@@ -145,11 +178,17 @@ def prepare(args) -> PreparedRun:
         resources={
             "platform": platform,
             "seed": args.seed,
+            "run_dir": run_dir,
+            "resume_from": getattr(args, "resume", None),
             **(target.resources() if target is not None else {}),
         },
         blackboard=bb,
     )
-    run_dir = _run_dir(args)
+    preflight = mission.preflight(set_keys=set(bb))
+    if preflight:
+        if platform is not None:
+            platform.shutdown("pre-flight check failed")
+        raise MissionError(preflight)
     os.makedirs(run_dir, exist_ok=True)
     if target is not None:  # a target may write files of its own beside the tick log
         target.run_dir = run_dir  # type: ignore[attr-defined]
@@ -158,6 +197,8 @@ def prepare(args) -> PreparedRun:
         "mission": os.path.abspath(args.mission),
         "rig": target.path if target is not None else None,
         "seed": args.seed,
+        "rig_arg": args.rig,
+        "sets": list(args.set),
         "rate_hz": args.rate,
         "nodes": [
             [n.path, r.label, r.depth, list(r.last_flags)]

@@ -27,6 +27,7 @@ from perception.errors import ModelError
 
 FRAME_HW = (244, 324)  # the AI-deck camera: 324 x 244 pixels
 DEMO = "demo"  # gallery name of the built-in demo gallery (the world's pallets)
+MAX_RESULT_LINES = 5  # more identifications than this are counted, not listed
 
 
 #: torch threads for the mission's models. One: the detector does a frame in about 4 ms on
@@ -238,6 +239,18 @@ class PerceptionSession:
         from perception.synth.camera_model import CameraModel
 
         self.tracker = FaceTracker(CameraModel.from_dict(self.camera))
+        self.tracker_place = None
+        return self.tracker
+
+    def tracker_for(self, place: Any) -> Any:
+        """The face tracker of the pallet place ``place`` (x, y, z): the running one if it
+        tracks that place (a second LocatePallet pass keeps everything seen so far), a new
+        one for a new place (an inventory: what was seen at one place must not shape the
+        next place's face)."""
+        key = tuple(round(float(v), 4) for v in place) if place is not None else None
+        if self.tracker is None or getattr(self, "tracker_place", None) != key:
+            self.start_tracking()
+            self.tracker_place = key
         return self.tracker
 
     def _track(self, frame: Any, dets: list) -> None:
@@ -301,7 +314,15 @@ class PerceptionSession:
         unless it is the usual ``pallet_id``), its answer and how sure it is, or why it
         failed; and what was enrolled (``btrun`` prints these after the status line)."""
         out = []
-        for r in self.identifications:
+        if len(self.identifications) > MAX_RESULT_LINES:  # an inventory: count, do not list
+            known = sum(1 for r in self.identifications if r.get("known"))
+            failed = sum(1 for r in self.identifications if "failed" in r)
+            unknown = len(self.identifications) - known - failed
+            out.append(
+                f"pallets: {len(self.identifications)} identifications, {known} known, "
+                f"{unknown} unknown, {failed} failed (each in summary.json perception)"
+            )
+        for r in self.identifications[: 0 if out else None]:
             key = r.get("key") or ""
             label = "pallet:" if key in ("", "pallet_id") else f"pallet {{{key}}}:"
             if "failed" in r:

@@ -164,8 +164,9 @@ class LocatePallet(_Reactive):
     ``place`` (the mapped centre of the block row, x;y;z), facing ``facing_deg``; hold for
     ``look_time`` while the detector looks; fit the face (:mod:`perception.face`). If no block
     is seen, look again from points ``search_step`` to either side (``search_points`` in
-    all). SUCCESS with ``face``; FAILURE "no pallet found" (or on a refused motion, or after
-    ``timeout``)."""
+    all). SUCCESS with ``face``; FAILURE "no pallet found" (``blocks_seen`` 0: an empty
+    place), or on a refused motion or after ``timeout`` (``blocks_seen`` -1: it could not
+    look)."""
 
     bt_id = "LocatePallet"
     ports = (
@@ -184,7 +185,12 @@ class LocatePallet(_Reactive):
         _MIN_SCORE,
         input_port("timeout", DURATION, 60.0, "FAILURE if not done within this time, s"),
         output_port("face", ANY, "the face estimate (for AlignToPallet and ScanFace)"),
-        output_port("blocks_seen", INT, "distinct blocks seen"),
+        output_port(
+            "blocks_seen",
+            INT,
+            "distinct blocks seen: -1 until it has looked, 0 when it looked and saw none "
+            "(no pallet found)",
+        ),
     )
 
     def on_start(self) -> NodeStatus:
@@ -193,9 +199,10 @@ class LocatePallet(_Reactive):
             self.detector = self.session.detector(self.get_input("detector"))
         except PerceptionError as exc:
             return self._fail(str(exc))
-        self.tracker = self.session.tracker or self.session.start_tracking()
         self.prior = self.get_input("place")
+        self.tracker = self.session.tracker_for(self.prior)
         self.facing = math.radians(self.get_input("facing_deg"))
+        self.set_output("blocks_seen", -1)  # not looked yet (0: looked, saw no block)
         if self.tracker.sightings:  # a second pass: everything seen so far counts
             face = self.tracker.fit(self.facing, self.prior, self.get_input("window"))
             if face is not None:
@@ -235,6 +242,7 @@ class LocatePallet(_Reactive):
                 + "; ".join(self.refused)
             )
         refused = f" ({len(self.refused)} more refused)" if self.refused else ""
+        self.set_output("blocks_seen", 0)
         return self._fail(
             f"no pallet found near ({x:.2f}, {y:.2f}, {z:.2f}): no support block seen from "
             f"{self.looked} look point(s){refused}"

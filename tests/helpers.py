@@ -53,11 +53,17 @@ def wrap(body: str, extra: str = "") -> str:
 
 
 def sim_mission(
-    xml_or_path: str, seed: int = 0, overrides: dict | None = None, rate_hz: float = 50.0, **kw
+    xml_or_path: str,
+    seed: int = 0,
+    overrides: dict | None = None,
+    rate_hz: float = 50.0,
+    rig: str | None = None,
+    **kw,
 ):
     """A mission flying the in-process simulator: returns ``(mission, runner, platform)``.
 
-    ``xml_or_path`` is a mission file path or inline XML text.
+    ``xml_or_path`` is a mission file path or inline XML text; ``rig`` a rig file (relative
+    to the repository; default rigs/sim.yaml).
     """
     import nodes  # noqa: F401  (registers the drone leaves)
     from bt_engine import Runner
@@ -65,7 +71,7 @@ def sim_mission(
     from drivers.rig.loader import load_rig
 
     clock = SimClock()
-    rig = load_rig(None, overrides)
+    rig = load_rig(os.path.join(REPO, rig) if rig else None, overrides)
     platform = make_platform(rig, clock, seed)
     if xml_or_path.lstrip().startswith("<"):
         spec = load_xml("inline.xml", text=xml_or_path)

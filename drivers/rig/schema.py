@@ -259,6 +259,19 @@ RIG_SCHEMA = _m(
                     "float", 1.0, "state of charge at start (0..1)", min=0.0, max=1.0
                 ),
                 "capacity_mah": _f("float", 250.0, "capacity", min=1.0),
+                "charge_current_a": _f(
+                    "float",
+                    0.5,
+                    "charging current on a charging pad (ChangeBattery mode=charge)",
+                    min=0.01,
+                ),
+                "swap_soc": _f(
+                    "float",
+                    1.0,
+                    "state of charge of a fresh battery (ChangeBattery mode=swap)",
+                    min=0.0,
+                    max=1.0,
+                ),
             }
         ),
         "faults": _m(

@@ -231,6 +231,22 @@ class Vehicle:
         self._armed_cmd, self._armed_cmd_s = False, self.now_s
         return bool(self.link.arm(False))
 
+    def battery_service(self, kind: str) -> str:
+        """Ask for a battery service on the ground: ``swap`` (a fresh battery), ``charge``
+        or ``stop_charging`` (a charging pad's current). Returns "" when done, else why it
+        cannot be done (in flight, the link cannot do it: a real battery is swapped by
+        hand)."""
+        if self.is_flying:
+            return "the drone is flying: land first"
+        service = getattr(self.link, "battery_service", None)
+        if service is None:
+            return "this link offers no battery service"
+        why = service(kind)
+        if not why and kind == "swap":
+            # a new cell: forget the old one's filtered voltage and sag, read it afresh
+            self._battery_v = self._sag_v = self._takeoff_v = None
+        return why
+
     def takeoff(self, height_m: float = 1.0, speed_mps: float = 0.5) -> MotionProgress:
         """Climb ``height_m`` above the current position at ``speed_mps``.
 

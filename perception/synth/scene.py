@@ -19,6 +19,7 @@ import numpy as np
 
 from perception.synth import appearance as ap
 from perception.synth.appearance import EPAL, PalletGeometry, SideStyle
+from perception.synth.materials import MATERIALS
 
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -170,14 +171,17 @@ def box_quads(
     half: tuple[float, float, float],
     yaw_rad: float,
     light: SceneLight,
+    material: str = "stand",
 ) -> list[Quad]:
-    """The four vertical faces of a yawed box (stand, obstacle), with the stand texture."""
+    """The four vertical faces of a yawed box (stand, obstacle, rack steel), drawn with
+    ``material``'s texture (:data:`perception.synth.materials.MATERIALS`)."""
+
     cx, cy, cz = centre
     hx, hy, hz = half
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
     ex, ey = np.array([c, s, 0.0]), np.array([-s, c, 0.0])
     quads = []
-    tex = ap.stand_texture
+    tex = MATERIALS.get(material, ap.stand_texture)
     for normal, half_depth, width in (
         (ex, hx, 2 * hy),
         (-ex, hx, 2 * hy),
@@ -245,7 +249,7 @@ class Scene:
         cls,
         pallets: list[PalletSpec],
         *,
-        boxes: Sequence[tuple[tuple[float, float, float], tuple[float, float, float], float]] = (),
+        boxes: Sequence[tuple] = (),
         floor: tuple[tuple[float, float], tuple[float, float], float] | None = (
             (-2.0, -6.0),
             (16.0, 12.0),
@@ -253,14 +257,14 @@ class Scene:
         ),
         light: SceneLight | None = None,
     ) -> Scene:
-        """Scene from pallets, boxes ((centre), (half sizes), yaw) and a floor
+        """Scene from pallets, boxes ((centre), (half sizes), yaw[, material]) and a floor
         ((origin x, y), (size x, y), z) with walls on its edges (None: no floor, no walls)."""
         light = light or SceneLight()
         quads: list[Quad] = []
         if floor is not None:
             quads += floor_and_walls(floor[0], floor[1], floor[2], light)
-        for centre, half, yaw in boxes:
-            quads += box_quads(centre, half, yaw, light)
+        for box in boxes:
+            quads += box_quads(*box[:3], light, *box[3:4])
         for p in pallets:
             quads += pallet_quads(p, light)
         return cls(quads, light)

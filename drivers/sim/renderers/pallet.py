@@ -52,7 +52,7 @@ def scene_from_world(world: World | None) -> Scene:
             PalletSpec(p.pallet_id, p.shown_side, fx, fy, p.z_m, p.facing_rad, geometry, styles)
         )
     boxes = [
-        ((b.cx, b.cy, b.cz), (b.hx, b.hy, b.hz), b.yaw_rad)
+        ((b.cx, b.cy, b.cz), (b.hx, b.hy, b.hz), b.yaw_rad, b.material)
         for b in world.boxes
         if not b.name.startswith("pallet ")
     ]
