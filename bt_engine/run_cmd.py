@@ -117,6 +117,8 @@ class PreparedRun:
     log: TickLog
     #: the Groot2 monitoring server (``--groot``), also in ``hooks``; closed by run_command
     groot: Any = None
+    #: summary.json's content once :func:`finish` wrote it
+    summary: dict | None = None
 
 
 def resume_settings(args) -> list[Problem]:
@@ -147,18 +149,24 @@ def resume_settings(args) -> list[Problem]:
     return []
 
 
-def prepare(args) -> PreparedRun:
+def prepare(
+    args, clock: Any = None, resources: dict[str, Any] | None = None, warn: bool = True
+) -> PreparedRun:
     """Load and validate the mission, the ``--set`` items and the rig (raises
     :class:`MissionError` with every located problem: nothing flies), then build the clock,
     platform, mission, run folder, tick log and hooks; finally let every node check its
-    inputs against the run target (:meth:`Mission.preflight`)."""
+    inputs against the run target (:meth:`Mission.preflight`).
+
+    A fleet passes its shared ``clock`` and extra mission ``resources`` (the drone's name,
+    where its inventory rows go); ``warn=False`` leaves the validation warnings unprinted
+    (the fleet prints them once)."""
     resume_problems = resume_settings(args)
     if resume_problems:
         raise MissionError(resume_problems)
     bb, rig_over, problems = parse_sets(args.set)
     warnings: list[Problem] = []
     spec, mission_problems = check_mission(args.mission, REGISTRY, None, warnings)
-    for w in warnings:  # file:line:col: warning: ... (the mission still flies)
+    for w in warnings if warn else ():  # file:line:col: warning: ... (the mission still flies)
         print(str(w), file=sys.stderr)
     problems += mission_problems
     if problems:
@@ -168,7 +176,8 @@ def prepare(args) -> PreparedRun:
         where = Loc(args.rig or "--set", 0, 0)
         raise MissionError([Problem(where, "no vehicle plug-in is installed to use a rig")])
     factor = args.realtime or (target.realtime_factor if target is not None else None)
-    clock = WallClock(factor) if factor else SimClock()
+    if clock is None:
+        clock = WallClock(factor) if factor else SimClock()
     run_dir = _run_dir(args)
     platform = target.make_platform(clock, args.seed) if target is not None else None
     mission = Mission(
@@ -181,6 +190,7 @@ def prepare(args) -> PreparedRun:
             "run_dir": run_dir,
             "resume_from": getattr(args, "resume", None),
             **(target.resources() if target is not None else {}),
+            **(resources or {}),
         },
         blackboard=bb,
     )
@@ -228,16 +238,15 @@ def prepare(args) -> PreparedRun:
     )
 
 
-def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
-    """Tick the mission to its end (live tree view on a terminal, one line per action
-    otherwise); the tick log is closed afterwards."""
-    args, mission, clock = run.args, run.mission, run.clock
+def make_runner(run: PreparedRun) -> Runner:
+    """The runner of a prepared run: its hooks, tick log, telemetry and tick watchdog."""
+    args = run.args
     telemetry = run.platform.telemetry_row if run.platform is not None else None
     budget = getattr(args, "tick_budget", None)
     if budget is None:  # real time: the drone is waiting; lock-step: only a hang matters
         budget = REALTIME_TICK_BUDGET_S if run.factor else LOCKSTEP_TICK_BUDGET_S
-    runner = Runner(
-        mission,
+    return Runner(
+        run.mission,
         args.rate,
         hooks=run.hooks,
         log=run.log,
@@ -249,6 +258,13 @@ def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
             else None
         ),
     )
+
+
+def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
+    """Tick the mission to its end (live tree view on a terminal, one line per action
+    otherwise); the tick log is closed afterwards."""
+    args, mission, clock = run.args, run.mission, run.clock
+    runner = make_runner(run)
     if not args.quiet:
         where = f"rig {run.target.path or '-'}" if run.target is not None else "no vehicle"
         mode = f"real time x{run.factor:g}" if run.factor else f"lock-step, seed {args.seed}"
@@ -280,9 +296,10 @@ def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
     return runner, result
 
 
-def finish(run: PreparedRun, runner: Runner, result: RunResult) -> int:
+def finish(run: PreparedRun, runner: Runner, result: RunResult, echo: bool = True) -> int:
     """Write summary.json (atomically), error.log and the report; print the outcome and the
-    plug-ins' headline lines; return the exit code (0 only for SUCCESS)."""
+    plug-ins' headline lines (unless ``echo`` is false); return the exit code (0 only for
+    SUCCESS). The summary is kept in ``run.summary``."""
     args, mission = run.args, run.mission
     sections: dict[str, Any] = {}
     if run.target is not None and run.platform is not None:
@@ -305,8 +322,11 @@ def finish(run: PreparedRun, runner: Runner, result: RunResult) -> int:
     if report:
         summary["report"] = os.path.relpath(report, run.run_dir)
     write_summary(run.run_dir, summary)
+    run.summary = summary
     headlines = result_lines(mission) + handled_failure_lines(mission, result.reason)
     mission.close()
+    if not echo:
+        return 0 if result.status == "SUCCESS" else 1
     speed = result.mission_time_s / result.wall_time_s if result.wall_time_s > 0 else 0.0
     print(
         f"{result.status}: {result.reason} "

@@ -22,9 +22,9 @@ from nodes.common import vehicle_of
 
 CATEGORY_ENERGY = "energy"
 #: charge (percent points) a reading must rise by to count as a new battery
-NEW_BATTERY_JUMP = 5.0
+NEW_BATTERY_JUMP = 20.0
 #: airborne seconds on one battery before its measured consumption is trusted
-MEASURE_AFTER_S = 30.0
+MEASURE_AFTER_S = 20.0
 
 
 def needed_percent(
@@ -47,7 +47,7 @@ class EnoughEnergy(ConditionNode):
     """SUCCESS if the battery covers the next task and the way home: flying to ``target``,
     ``task_time`` there (once two tasks were timed on this battery: their median), flying
     to ``home`` at ``speed`` and landing, with ``reserve`` percent left. The consumption is
-    measured on the current battery after 30 s airborne (before that: a full battery lasts
+    measured on the current battery after 20 s airborne (before that: a full battery lasts
     ``endurance``). FAILURE says how much is left and how much is needed."""
 
     bt_id = "EnoughEnergy"

@@ -100,7 +100,7 @@ class InventoryLog:
         resume_from: str | None = None,
         drone: str = "",
         truth: Callable[[], tuple[dict[str, str | None], set[str]] | None] | None = None,
-        sink: Callable[[list[dict]], None] | None = None,
+        sink: Callable[[InventoryLog], None] | None = None,
         layout: dict[str, list] | None = None,
     ) -> None:
         self.run_dir = run_dir
@@ -113,6 +113,7 @@ class InventoryLog:
         self.sink = sink
         #: place -> [rack, bay, level] (the report draws the racks from it)
         self.layout: dict[str, list] = dict(layout or {})
+        self._plans: dict[str, list[str]] = {}  # a fleet's merged log: each drone's plan
         self._truth: tuple[dict[str, str | None], set[str]] | None = None
         if resume_from:
             for row in read_inventory(resume_from):
@@ -180,13 +181,26 @@ class InventoryLog:
 
     def write(self) -> None:
         """Rewrite ``inventory.json`` and ``inventory.csv`` atomically (if there is a run
-        folder), then hand the rows to the sink (a fleet merging its drones' rows)."""
+        folder), then hand the log to the sink (a fleet merging its drones' rows)."""
         rows = self.ordered_rows()
         if self.run_dir:
             os.makedirs(self.run_dir, exist_ok=True)
             write_inventory(self.run_dir, rows, self.planned)
         if self.sink is not None:
-            self.sink(rows)
+            self.sink(self)
+
+    def absorb(self, other: InventoryLog) -> None:
+        """Take ``other``'s rows and plan into this one (a fleet's merged inventory is the
+        sink of every drone's log) and write the merged files."""
+        self._plans[other.drone] = list(other.planned)
+        for place, row in other.rows.items():
+            if place not in other.carried:
+                self.rows[place] = dict(row)
+                self.carried.discard(place)
+        carried = [p for p in self.planned if p in self.carried]
+        merged = carried + [p for plan in self._plans.values() for p in plan]
+        self.planned = list(dict.fromkeys(merged))
+        self.write()
 
     # -- reporting ------------------------------------------------------------------------
     def truth(self) -> tuple[dict[str, str | None], set[str]] | None:
@@ -247,7 +261,7 @@ def summarise(
         "places": len(places),
         "rows": {p: by_place.get(p) for p in places},
         "status": status,
-        "not_scanned": [
+        "not_scanned_places": [
             p for p in places if (by_place.get(p) or {}).get("status", NOT_SCANNED) == NOT_SCANNED
         ],
         "carried_over": carried,

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from drivers.vehicle.angles import path_facing_yaw_rad, wrap_angle_rad, yaw_error_rad
 from drivers.vehicle.battery import percent_from_voltage
 from drivers.vehicle.config import VehicleConfig
+from drivers.vehicle.gate import GatedMotion, MotionGate
 from drivers.vehicle.health import HealthTracker
 from drivers.vehicle.interfaces import CameraSource, Link, LinkTelemetry, PoseSample, PoseSource
 from drivers.vehicle.progress import MotionProgress
@@ -82,6 +83,11 @@ class Vehicle:
         self._takeoff_v: float | None = None  # resting voltage just before take-off
         self._sag_v: float | None = None  # load sag measured early in the flight
         self._next_step_s = 0.0
+        #: the airspace of a fleet: asked before a take-off, go-to or path starts (gate.py)
+        self.motion_gate: MotionGate | None = None
+        self._gated: GatedMotion | None = None  # the current gated motion (running or waiting)
+        self.waits = 0  # motions that had to wait at the gate
+        self.pauses = 0  # motions paused by a supervisor
         self.setpoints_sent = 0
         self.refused_requests = 0  # motion requests refused (non-finite, out of envelope)
         self.refused_setpoints = 0  # non-finite set-points held back (never sent)
@@ -277,10 +283,15 @@ class Vehicle:
                 progress.fail("not armed")
                 return progress
             self.arm()
-        self._ground_z = p[2]
-        self._flight_start_s = self.now_s
-        self._ref = LineReference(p, goal, yaw, yaw, self._limits(speed_mps), self.now_s)
-        self.flight_state = FlightState.TAKING_OFF
+        limits = self._limits(speed_mps)
+
+        def begin(start: tuple[float, float, float], yaw0: float, t0: float) -> Reference:
+            self._ground_z = start[2]
+            self._flight_start_s = t0
+            self.flight_state = FlightState.TAKING_OFF
+            return LineReference(start, goal, yaw0, yaw0, limits, t0)
+
+        self._launch(GatedMotion(progress, "takeoff", goal, yaw, limits, begin))
         return progress
 
     def go_to(
@@ -319,8 +330,16 @@ class Vehicle:
         )
         if self._refuse_unless_flying(progress):
             return progress
-        self._ref = LineReference(
-            start, goal, start_yaw, goal_yaw, self._limits(speed_mps), self.now_s
+        limits = self._limits(speed_mps)
+        self._launch(
+            GatedMotion(
+                progress,
+                "go_to",
+                goal,
+                goal_yaw,
+                limits,
+                lambda s0, y0, t0: LineReference(s0, goal, y0, goal_yaw, limits, t0),
+            )
         )
         return progress
 
@@ -367,7 +386,19 @@ class Vehicle:
             return progress
         if self._refuse_unless_flying(progress):
             return progress
-        self._ref = PathReference(points, yaws, start_yaw, self._limits(speed_mps), self.now_s)
+        limits = self._limits(speed_mps)
+        rest = points[1:]
+        self._launch(
+            GatedMotion(
+                progress,
+                "follow_path",
+                points[-1],
+                yaws[-1],
+                limits,
+                lambda s0, y0, t0: PathReference([s0, *rest], yaws, y0, limits, t0),
+                path=rest,
+            )
+        )
         return progress
 
     def hover(self) -> MotionProgress:
@@ -411,6 +442,41 @@ class Vehicle:
         if self.flight_state != FlightState.CRASHED:
             self.flight_state = FlightState.EMERGENCY
 
+    def pause(self, reason: str) -> bool:
+        """Stop the running take-off, go-to or path at the acceleration limit and hold,
+        keeping the request alive (its progress says ``waiting``); :meth:`resume` sends it
+        on. For a supervisor keeping drones apart. False if there is nothing to pause."""
+        gm = self._gated
+        if (
+            gm is None
+            or gm.paused
+            or not gm.progress.active
+            or gm.progress.reached
+            or self.flight_state not in (FlightState.FLYING, FlightState.TAKING_OFF)
+        ):
+            return False
+        gm.make = gm.restart(self._ref)
+        gm.paused = True
+        gm.progress.waiting = f"paused: {reason}"
+        self.pauses += 1
+        self._hold()
+        return True
+
+    def resume(self) -> bool:
+        """Send a paused motion on (through the gate again) from where the drone is."""
+        gm = self._gated
+        if gm is None or not gm.paused:
+            return False
+        gm.paused = False
+        if gm.progress.active:
+            self._try_start(gm)
+        return True
+
+    @property
+    def paused(self) -> bool:
+        """True while a supervisor holds the current motion."""
+        return self._gated is not None and self._gated.paused
+
     # ------------------------------------------------------------------ loop
     def update(self, t_s: float) -> None:
         """Run every control step due up to mission time ``t_s`` (for asynchronous links)."""
@@ -423,6 +489,9 @@ class Vehicle:
         """One control step: read sources, update state and progress, send a set-point."""
         self.now_s = t_s
         self._ingest(t_s)
+        gm = self._gated
+        if gm is not None and gm.progress.waiting and not gm.paused and gm.progress.active:
+            self._try_start(gm)  # waiting at the gate: ask again
         self._update_flight_state(t_s)
         ref = self._ref.sample(t_s) if self._ref is not None else None
         self._ref_sample = ref
@@ -506,6 +575,14 @@ class Vehicle:
         if m is None or not m.active or ref is None or self._ref is None:
             return
         pose = self.pose
+        if m.waiting:  # holding for the airspace or paused: the goal is still ahead
+            m.update(
+                t_s,
+                math.dist(pose.position, m.goal),
+                yaw_error_rad(m.goal_yaw_rad, pose.yaw_rad),
+                False,
+            )
+            return
         if m.kind == "land":
             m.update(
                 t_s,
@@ -633,8 +710,37 @@ class Vehicle:
             return path_facing_yaw_rad(start, goal, current, self.config.path_facing_min_distance_m)
         return current
 
+    def _launch(self, gm: GatedMotion) -> None:
+        """Start a motion through the gate (or leave it waiting there)."""
+        self._gated = gm
+        self._try_start(gm)
+
+    def _try_start(self, gm: GatedMotion) -> bool:
+        """Ask the gate; start ``gm``'s reference from here if it may go, else hold."""
+        start, yaw = self._start_state()
+        why = self.motion_gate(self.name, gm.kind, start, gm.goal) if self.motion_gate else ""
+        if why:
+            if not gm.progress.waiting:
+                self.waits += 1
+            gm.progress.waiting = why
+            self._hold()
+            return False
+        gm.progress.waiting = ""
+        self._ref = gm.make(start, yaw, self.now_s)
+        return True
+
+    def _hold(self) -> None:
+        """In the air: stop at the acceleration limit and hold (a waiting motion)."""
+        if self.flight_state not in AIRBORNE or isinstance(self._ref, StopReference):
+            return
+        start, yaw = self._start_state()
+        r = self._ref_sample
+        vel = (r.vx_mps, r.vy_mps, r.vz_mps) if r is not None and self._ref else (0, 0, 0)
+        self._ref = StopReference(start, vel, yaw, self._limits(None), self.now_s)
+
     def _new_motion(self, kind, goal, goal_yaw, pos_tol, yaw_tol, timeout_s) -> MotionProgress:
         c = self.config
+        self._gated = None  # a new request replaces a waiting or paused one
         if self._motion is not None:
             self._motion.cancel(f"replaced by {kind}")
         self._motion = MotionProgress(
