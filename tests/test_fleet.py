@@ -154,3 +154,34 @@ def test_a_drone_that_loses_its_link_lands_and_the_other_finishes(tmp_path):
     missing = s["inventory"]["not_scanned_places"]
     assert missing and all(p.startswith("A-07") for p in missing)
     assert set(missing) | {p for p in rows if p.startswith("A-07")} == {"A-07-1", "A-07-2"}
+
+
+@pytest.mark.slow
+@pytest.mark.sitl
+def test_a_sitl_fleet_runs_one_emulator_per_drone(tmp_path):
+    """Two drones through the real cflib and their own CRTP emulators on loopback (real time)."""
+    mission = tmp_path / "hop.xml"
+    mission.write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="Hop"><BehaviorTree ID="Hop"><Sequence>'
+        '<TakeOff height="0.5" speed="0.5"/><Sleep msec="1000"/><Land speed="0.5"/>'
+        "</Sequence></BehaviorTree></root>"
+    )
+    path = tmp_path / "fleet.yaml"
+    path.write_text(
+        f"name: sitl\nmission: {mission}\nrig: {os.path.join(REPO, 'rigs', 'sitl.yaml')}\n"
+        "set: {aideck.enabled: false}\n"
+        "drones:\n  - {name: cf1, start_m: [0.0, 0.0, 0.0]}\n  - {name: cf2, start_m: [0.0, -2.0, 0.0]}\n"
+    )
+    out = tmp_path / "run"
+    assert main(["fleet", str(path), "--out", str(out), "-q", "--no-report"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    for name in ("cf1", "cf2"):
+        d = s["drones"][name]
+        assert d["status"] == "SUCCESS" and d["landed"], d
+        vehicle = json.loads((out / "drones" / name / "summary.json").read_text())["vehicle"]
+        assert vehicle["link"]["uri"].startswith("udp://127.0.0.1:")
+    uris = {
+        json.loads((out / "drones" / n / "summary.json").read_text())["vehicle"]["link"]["uri"]
+        for n in ("cf1", "cf2")
+    }
+    assert len(uris) == 2  # one emulator each
