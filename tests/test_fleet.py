@@ -134,6 +134,17 @@ def test_a_fleet_is_deterministic_and_merges_its_inventory(tmp_path):
     inv = a["inventory"]
     assert inv["places"] == 2 and inv["wrong"] == 0 and inv["not_scanned"] == 0
     assert a["separation"]["violations"] == 0 and a["collisions"]["drones"] == 0
+    # the inventory bench reads the same folder (bench/inventory_campaign.py)
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "inventory_campaign", os.path.join(REPO, "bench", "inventory_campaign.py")
+    )
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    fig = bench.figures(str(a["_out"]), 3, 0, 10.0)
+    assert fig["places"] == 2 and fig["in_order"] and fig["violations"] == 0
+    assert fig["realtime_x"] == pytest.approx(a["mission_time_s"] / 10.0, abs=0.01)
 
 
 @pytest.mark.slow
