@@ -47,4 +47,8 @@ MATERIALS: dict[str, Callable[[], np.ndarray]] = {
     "stand": stand_texture,
     "steel_blue": partial(steel_texture, STEEL_BLUE),
     "steel_orange": partial(steel_texture, STEEL_ORANGE),
+    "steel_yellow": partial(steel_texture, (30.0, 190.0, 225.0)),
+    "steel_green": partial(steel_texture, (60.0, 120.0, 40.0)),
+    "steel_grey": partial(steel_texture, (120.0, 118.0, 112.0)),
+    "steel_red": partial(steel_texture, (40.0, 40.0, 170.0)),
 }
