@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 from drivers.settings import (
     ConfigError,
@@ -182,6 +183,12 @@ class Box:
     def top_z(self) -> float:
         """Height of the box top."""
         return self.cz + self.hz
+
+    @cached_property
+    def reach_xy(self) -> tuple[float, float]:
+        """Half sizes (x, y) of the box's axis-aligned bounds in the world."""
+        c, s = abs(math.cos(self.yaw_rad)), abs(math.sin(self.yaw_rad))
+        return c * self.hx + s * self.hy, s * self.hx + c * self.hy
 
 
 @dataclass
@@ -376,7 +383,11 @@ class World:
         """Name of the box a sphere at (x, y, z) touches, or None (cheap when high up)."""
         if z - radius_m > self.max_top_z:
             return None
+        far = radius_m + 1e-9  # beyond this from a box's bounds, distance_m >= radius_m
         for box in self.boxes:
+            ex, ey = box.reach_xy
+            if abs(x - box.cx) - ex > far or abs(y - box.cy) - ey > far:
+                continue  # the common case, without distance_m's trigonometry
             if box.distance_m(x, y, z) < radius_m:
                 return box.name
         return None
