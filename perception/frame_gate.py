@@ -2,9 +2,10 @@
 
 At 15 frames/s the view hardly moves between two frames while the drone hovers to look, or
 scans along a pallet at 7 cm/s (about 2 pixels a frame at 0.4 m): the next frame shows the
-same blocks, a pixel or two further on. With the defaults (5 px, 0.2 s) the scan is
-detected at 5 frames/s (a block crosses the sequencer's 60-pixel window in about ten of
-them), a hover at 5 frames/s, and a flight past the pallet at the full 15. Rendering and detecting it costs as much as a frame
+same blocks, a pixel or two further on. With the defaults (8 px, 0.3 s) the scan is
+detected every fourth frame (8 px apart: a block crosses the block sequencer's 60-pixel
+window in seven or eight of them), a hover every fifth frame (0.33 s), and a flight past
+the pallet at 0.3 m/s (7-8 px a frame) every second frame. Rendering and detecting it costs as much as a frame
 that shows something new, and changes little: the block sequencer keeps the best crop of a
 block over the dozens of frames it crosses the left half of the image in, and the face
 tracker's sightings of a still view repeat each other.
@@ -41,8 +42,8 @@ class FrameGateParams:
             (nearer things move more in the image for the same camera motion).
     """
 
-    min_view_change_px: float = 5.0
-    max_frame_gap_s: float = 0.2
+    min_view_change_px: float = 8.0
+    max_frame_gap_s: float = 0.3
     view_depth_m: float = 0.4
 
     def validate(self) -> None:

@@ -94,11 +94,13 @@ def test_the_session_counts_skipped_frames_and_never_skips_a_frame_without_a_pos
     def frame(k: int, pose: Pose) -> SimpleNamespace:
         return SimpleNamespace(t_s=k / RATE_HZ, pose=pose, index=k)
 
-    assert [session.wants(gate, frame(k, here)) for k in range(4)] == [True, False, False, True]
-    assert session.frames_skipped == 2
+    assert gate.params == FrameGateParams(8.0, 0.3, 0.4)  # the defaults
+    got = [session.wants(gate, frame(k, here)) for k in range(6)]
+    assert got == [True, False, False, False, False, True]  # 0.3 s gap at 15 frames/s
+    assert session.frames_skipped == 4
     unknown = Pose(0.0, 0.0, 0.0, 0.0, source="none")  # e.g. an AI-deck without pose_fn
-    assert all(session.wants(gate, frame(k, unknown)) for k in range(4, 8))
-    assert session.summary()["frames_skipped"] == 2
+    assert all(session.wants(gate, frame(k, unknown)) for k in range(6, 10))
+    assert session.summary()["frames_skipped"] == 4
 
 
 @pytest.mark.slow

@@ -250,7 +250,7 @@ RIG_SCHEMA = _m(
             {
                 "min_view_change_px": _f(
                     "float",
-                    5.0,
+                    8.0,
                     "the perception leaves render and detect a camera frame only once the view "
                     "moved this many pixels since the last frame they processed (image centre "
                     "and corners at view_depth_m; perception/frame_gate.py); 0: every frame",
@@ -258,7 +258,7 @@ RIG_SCHEMA = _m(
                 ),
                 "max_frame_gap_s": _f(
                     "float",
-                    0.2,
+                    0.3,
                     "process a frame anyway once this long has passed since the last one",
                     min=0.0,
                 ),
