@@ -2,13 +2,13 @@
 
 At 15 frames/s the view hardly moves between two frames while the drone hovers to look, or
 scans along a pallet at 7 cm/s (about 2 pixels a frame at 0.4 m): the next frame shows the
-same blocks, a pixel or two further on. With the defaults (8 px, 0.3 s) the scan is
-detected every fourth frame (8 px apart: a block crosses the block sequencer's 60-pixel
-window in seven or eight of them), a hover every fifth frame (0.33 s), and a flight past
-the pallet at 0.3 m/s (7-8 px a frame) every second frame. Rendering and detecting it costs as much as a frame
+same blocks, a pixel or two further on. Rendering and detecting it costs as much as a frame
 that shows something new, and changes little: the block sequencer keeps the best crop of a
 block over the dozens of frames it crosses the left half of the image in, and the face
-tracker's sightings of a still view repeat each other.
+tracker's sightings of a still view repeat each other. With the defaults (8 px, 0.3 s) the
+scan is detected every fourth frame (8 px apart: a block crosses the sequencer's 60-pixel
+window in seven or eight of them), a hover every fifth frame (0.33 s), and the approach to
+the scan start, zooming in on the pallet, every frame.
 
 A :class:`FrameGate` lets a frame through when the view has changed by at least
 ``min_view_change_px`` since the last frame it let through (:func:`view_change_px`: the
@@ -101,7 +101,7 @@ class FrameGate:
 
     >>> gate = FrameGate(CameraModel(), FrameGateParams())
     >>> still = CameraPose.from_yaw(0.0, 0.0, 1.0, 0.0)
-    >>> gate.wants(0.0, still), gate.wants(0.067, still), gate.wants(0.2, still)
+    >>> gate.wants(0.0, still), gate.wants(0.067, still), gate.wants(0.3, still)
     (True, False, True)
     """
 
