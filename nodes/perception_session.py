@@ -129,6 +129,7 @@ class PerceptionSession:
         camera = (data.get("sensors") or {}).get("camera") or {}
         self.camera: dict = dict(camera)
         self.factors = tuple(float(f) for f in camera.get("white_balance", (1.0, 1.0, 1.0)))
+        self.gate_settings: dict = dict(data.get("perception") or {})
         self.log = log or (lambda msg: None)
         self._detectors: dict[str, Any] = {}
         self._embedders: dict[str, Any] = {}
@@ -141,6 +142,7 @@ class PerceptionSession:
         self.latencies_ms: list[float] = []
         self.frames = 0
         self.detections = 0
+        self.frames_skipped = 0  # new frames a leaf's frame gate skipped (view barely moved)
         self.tracker: Any = None  # perception.face.FaceTracker while a reactive scan runs
         self.faces: list[dict] = []  # face estimates of the reactive leaves, for the report
 
@@ -232,6 +234,35 @@ class PerceptionSession:
         self._galleries.clear()
 
     # -- frames ------------------------------------------------------------------------------
+    def frame_gate(self) -> Any:
+        """A new :class:`perception.frame_gate.FrameGate` for one leaf, from the rig's
+        ``perception`` settings (each leaf processes its first frame)."""
+        from perception.frame_gate import FrameGate, FrameGateParams
+        from perception.synth.camera_model import CameraModel
+
+        g = self.gate_settings
+        defaults = FrameGateParams()
+        params = FrameGateParams(
+            float(g.get("min_view_change_px", defaults.min_view_change_px)),
+            float(g.get("max_frame_gap_s", defaults.max_frame_gap_s)),
+            float(g.get("view_depth_m", defaults.view_depth_m)),
+        )
+        return FrameGate(CameraModel.from_dict(self.camera), params)
+
+    def wants(self, gate: Any, frame: Any) -> bool:
+        """True if ``gate`` lets the new camera ``frame`` through (its view changed enough,
+        or enough time passed); a skipped frame is never rendered nor detected."""
+        from perception.synth.camera_model import CameraPose
+
+        pose = getattr(frame, "pose", None)
+        cam = None
+        if pose is not None and getattr(pose, "source", "") != "none":
+            cam = CameraPose.from_quaternion(pose.x_m, pose.y_m, pose.z_m, pose.quaternion)
+        if gate.wants(frame.t_s, cam):
+            return True
+        self.frames_skipped += 1
+        return False
+
     def start_tracking(self) -> Any:
         """A new face tracker (:class:`perception.face.FaceTracker`) fed with every frame
         processed from now on, for the rig's camera model."""
@@ -344,6 +375,7 @@ class PerceptionSession:
         lat = np.asarray(self.latencies_ms) if self.latencies_ms else None
         out: dict[str, Any] = {
             "frames_processed": self.frames,
+            "frames_skipped": self.frames_skipped,
             "detections": self.detections,
             "blocks": [s.count for s in self.scans],
         }

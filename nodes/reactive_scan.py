@@ -14,7 +14,10 @@ Three leaves, meant to run in this order (``missions/pallet_scan.xml``):
   past the expected end while blocks are still missing (up to ``extend``), and stops early
   once the blocks are committed.
 
-Every target is checked against the safety geofence before it is flown, every leaf has a
+LocatePallet and AlignToPallet look at the frames the rig's frame gate lets through (a
+frame whose view barely moved since the last one looked at is skipped:
+``perception.min_view_change_px``, ``max_frame_gap_s``). Every target is checked against
+the safety geofence before it is flown, every leaf has a
 time-out, and each FAILURE says why. The leaves use the Vehicle API only. Re-acquiring a
 lost row is the mission's job: a second LocatePallet / AlignToPallet / ScanFace pass starts
 from everything seen so far (the face tracker keeps the sightings of the whole run).
@@ -62,6 +65,7 @@ class _Reactive(StatefulActionNode):
         self.progress: Any = None
         frame = self.vehicle.camera_frame()
         self.last_index = frame.index if frame is not None else None
+        self.gate = self.session.frame_gate()
 
     def _not_a_face(self, face: Any) -> NodeStatus:
         return self._fail(f"face must be LocatePallet's face output, got {type(face).__name__}")
@@ -129,12 +133,15 @@ class _Reactive(StatefulActionNode):
         return ""
 
     def look(self, detector: Any, min_score: float) -> str:
-        """Process the newest camera frame (if new) into the face tracker; "" or why the
-        frame could not be used (a frame of the wrong size or format)."""
+        """Process the newest camera frame (if new, and if the rig's frame gate lets it
+        through) into the face tracker; "" or why the frame could not be used (a frame of
+        the wrong size or format)."""
         frame = self.vehicle.camera_frame()
         if frame is None or frame.index == self.last_index:
             return ""
         self.last_index = frame.index
+        if not self.session.wants(self.gate, frame):
+            return ""  # the view barely moved since the last frame looked at
         try:
             self.session.observe(frame, detector, min_score)
         except PerceptionError as exc:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 
 @dataclass(frozen=True)
@@ -36,3 +37,9 @@ class Box:
     def top_z(self) -> float:
         """Height of the box top."""
         return self.cz + self.hz
+
+    @cached_property
+    def reach_xy(self) -> tuple[float, float]:
+        """Half sizes (x, y) of the box's axis-aligned bounds in the world."""
+        c, s = abs(math.cos(self.yaw_rad)), abs(math.sin(self.yaw_rad))
+        return c * self.hx + s * self.hy, s * self.hx + c * self.hy

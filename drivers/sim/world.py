@@ -278,7 +278,11 @@ class World:
         far from every box: boxes are indexed on a 1 m grid)."""
         if z - radius_m > self.max_top_z:
             return None
+        far = radius_m + 1e-9  # beyond this from a box's bounds, distance_m >= radius_m
         for box in self._grid.near(x, y, radius_m):
+            ex, ey = box.reach_xy
+            if abs(x - box.cx) - ex > far or abs(y - box.cy) - ey > far:
+                continue  # the common case, without distance_m's trigonometry
             if box.distance_m(x, y, z) < radius_m:
                 return box.name
         return None

@@ -62,9 +62,20 @@ class Quad:
     kind: str = "object"
     blocks: list[tuple[int, str, np.ndarray]] = field(default_factory=list)
     centre: np.ndarray = field(init=False)
+    _texture_map: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.centre = self.corners.mean(axis=0)
+
+    def texture_map(self) -> np.ndarray:
+        """(3, 3) matrix taking a level-0 texel (column, row, 1) to its centre in the world;
+        made once (it does not depend on the camera)."""
+        if self._texture_map is None:
+            th, tw = self.levels[0].shape[:2]
+            c = self.corners
+            U, V = (c[1] - c[0]) / tw, (c[3] - c[0]) / th
+            self._texture_map = np.column_stack([U, V, c[0] + 0.5 * U + 0.5 * V])
+        return self._texture_map
 
     @property
     def levels(self) -> list[np.ndarray]:
