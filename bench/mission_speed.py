@@ -9,6 +9,8 @@ the side at the scan slot cycling 1A .. 5B as in ``campaigns/pallet_scan.yaml``.
 * ``new``: this tree as it is;
 * ``every-frame``: this tree with ``perception.min_view_change_px=0`` (every frame
   rendered and detected, the other speed-ups kept);
+* ``campaign row``: this tree as a campaign worker flies a row (``--no-mcap``: campaigns
+  record run.mcap only with ``mcap: true``);
 * ``baseline`` (with ``--baseline REF``): the tree of git commit REF (``git archive``).
 
 Flights alternate between the variants (A B C, then C B A, ...), one at a time, so a busy
@@ -95,7 +97,7 @@ def fly(seed: int, sets: list[str], out: str, totals: dict[str, list[float]]) ->
     side = SIDES[(seed - 100) % len(SIDES)]
     args = [MISSION, "--seed", str(seed), "--out", out, "-q", "--no-report"]
     for item in [f"world.scan_pallet={side}", "wind.gust_std_mps=0.05", *sets]:
-        args += ["--set", item]
+        args += [item] if item.startswith("--") else ["--set", item]  # a flag, or a setting
     t0, c0 = time.perf_counter(), time.thread_time()
     with contextlib.redirect_stdout(io.StringIO()):
         code = main(args)
@@ -286,7 +288,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.baseline:
             trees = {"baseline": baseline_tree(args.baseline, tmp), "new": REPO}
             variants.append(("baseline", trees["baseline"], []))
-        variants += [("every-frame", REPO, EVERY_FRAME), ("new", REPO, [])]
+        variants += [
+            ("every-frame", REPO, EVERY_FRAME),
+            ("new", REPO, []),
+            ("campaign row", REPO, ["--no-mcap"]),
+        ]
         servers = {tree: Server(tree) for tree in {v[1] for v in variants}}
         seeds = list(range(100, 100 + args.seeds))
         for _, tree, sets in variants:  # warm-up: imports, models, gallery

@@ -89,6 +89,12 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     r.add_argument("--quiet", "-q", action="store_true", help="print only the result")
     r.add_argument("--no-report", action="store_true", help="skip the flight report")
     r.add_argument(
+        "--no-mcap",
+        action="store_true",
+        help="do not record run.mcap (the tick log is kept; a seeded simulated run "
+        "re-flies identically to record it)",
+    )
+    r.add_argument(
         "--groot",
         nargs="?",
         const=1667,

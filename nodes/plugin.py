@@ -62,7 +62,9 @@ class RigTarget:
 
         hook = make_safety_hook(self.rig, platform, mission)
         hooks: list[Any] = [hook] if hook is not None else []
-        recorder = make_mcap_recorder(getattr(self, "run_dir", None), platform, mission, hook)
+        recorder = None
+        if getattr(self, "record_mcap", True):  # btrun run --no-mcap; campaign rows
+            recorder = make_mcap_recorder(getattr(self, "run_dir", None), platform, mission, hook)
         return hooks + ([recorder] if recorder is not None else [])
 
     def at_rest(self, platform: Platform) -> bool:
