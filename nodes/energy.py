@@ -100,11 +100,12 @@ class EnoughEnergy(ConditionNode):
 @register
 class ChangeBattery(StatefulActionNode):
     """On the ground (after Land): ``mode=swap`` puts in a fresh battery and waits
-    ``duration`` (the handling time); ``mode=charge`` charges on the pad until the charge
-    reaches ``target_percent`` (at least ``duration``). Then it waits ``settle`` for the
-    voltage reading to settle. SUCCESS when done; FAILURE in flight, when the vehicle cannot
-    (a real battery is swapped by hand: the run stops there, resume it afterwards), or after
-    ``timeout``."""
+    ``duration`` (the handling time); ``mode=charge`` charges on the pad for at least
+    ``duration`` and until the charge reaches ``target_percent``: every ``check_period`` it
+    stops charging for ``settle`` and reads the rested charge (the voltage reads high while a
+    charging current flows). After a swap it waits ``settle`` for the reading to settle.
+    SUCCESS when done; FAILURE in flight, when the vehicle cannot (a real battery is swapped
+    by hand: the run stops there, resume it afterwards), or after ``timeout``."""
 
     bt_id = "ChangeBattery"
     category = CATEGORY_ENERGY
@@ -112,7 +113,8 @@ class ChangeBattery(StatefulActionNode):
         input_port("mode", STRING, "swap", "swap (a fresh battery) or charge (on the pad)"),
         input_port("duration", DURATION, 60.0, "handling time of a swap / least charging time, s"),
         input_port("target_percent", FLOAT, 95.0, "charge: stop at this charge, %"),
-        input_port("settle", DURATION, 3.0, "wait after the change for the reading to settle, s"),
+        input_port("check_period", DURATION, 60.0, "charge: read the rested charge this often, s"),
+        input_port("settle", DURATION, 3.0, "rest before reading the charge, s"),
         input_port("timeout", DURATION, 3600.0, "FAILURE if not done within this time, s"),
     )
 
@@ -128,7 +130,8 @@ class ChangeBattery(StatefulActionNode):
             return self._fail(f"mode must be swap or charge, got {mode!r}")
         self.mode, self.started_s = mode, self.now()
         self.before = self.vehicle.battery.percent
-        self.done_s: float | None = None
+        self.resting_since: float | None = None  # resting (not charging) since
+        self.charging_since = self.now()
         why = self.vehicle.battery_service(mode)
         if why:
             return self._fail(why)
@@ -145,18 +148,34 @@ class ChangeBattery(StatefulActionNode):
                 f"time-out after {self.get_input('timeout'):g} s at "
                 f"{self.vehicle.battery.percent:.0f} %"
             )
-        if self.done_s is None:
-            if now - self.started_s < self.get_input("duration") - 1e-9:
-                return RUNNING
-            if self.mode == "charge":
-                if self.vehicle.battery.percent < self.get_input("target_percent"):
-                    return RUNNING
-                why = self.vehicle.battery_service("stop_charging")
-                if why:
-                    return self._fail(why)
-            self.done_s = now
-        if now - self.done_s < self.get_input("settle") - 1e-9:
+        if now - self.started_s < self.get_input("duration") - 1e-9:
             return RUNNING
+        settle = self.get_input("settle")
+        if self.mode == "swap":
+            if now - self.started_s < self.get_input("duration") + settle - 1e-9:
+                return RUNNING
+            return self._done(now)
+        if self.resting_since is None:  # charging: time to rest and read?
+            if now - self.charging_since < self.get_input("check_period") - 1e-9 and (
+                now - self.started_s > self.get_input("duration") + 1e-9
+            ):
+                return RUNNING
+            why = self.vehicle.battery_service("stop_charging")
+            if why:
+                return self._fail(why)
+            self.resting_since = now
+            return RUNNING
+        if now - self.resting_since < settle - 1e-9:
+            return RUNNING
+        if self.vehicle.battery.percent >= self.get_input("target_percent"):
+            return self._done(now)
+        why = self.vehicle.battery_service("charge")  # not there yet: charge on
+        if why:
+            return self._fail(why)
+        self.resting_since, self.charging_since = None, now
+        return RUNNING
+
+    def _done(self, now: float) -> NodeStatus:
         self.ctx.log(
             f"{self.describe()}: battery {self.mode} done, {self.before:.0f} % -> "
             f"{self.vehicle.battery.percent:.0f} % after {now - self.started_s:.0f} s"

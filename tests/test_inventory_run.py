@@ -144,3 +144,36 @@ def test_resume_after_a_kill_in_the_middle_of_a_place(tmp_path):
         if msg.startswith("inventory A-")
     ]
     assert flown == [r["place"] for r in rows[len(done) :]]  # no finished place flown again
+
+
+def test_charging_on_the_pad_raises_the_charge_until_the_target():
+    from helpers import sim_mission
+
+    xml = """<root BTCPP_format="4"><BehaviorTree ID="M">
+      <ChangeBattery mode="charge" duration="5" target_percent="80" check_period="20" settle="6"/>
+    </BehaviorTree></root>"""
+    m, run, pf = sim_mission(
+        xml,
+        rig="rigs/aisle.yaml",
+        overrides={"battery.initial_soc": 0.3, "battery.charge_current_a": 5.0},
+    )
+    result = run.run(max_time_s=600)
+    assert result.status == "SUCCESS", result.reason
+    soc = pf.summary()["battery"]["soc"]
+    assert 0.7 < soc < 0.95  # charged to about the target, then stopped
+    assert not pf.drone.battery.charging
+    # 0.3 -> 0.8 of 250 mAh at 4.9 A net: about 92 s of charging, read every 20 s
+    assert 90.0 < result.mission_time_s < 200.0
+
+
+def test_a_battery_change_in_flight_is_refused():
+    from helpers import sim_mission
+
+    xml = """<root BTCPP_format="4"><BehaviorTree ID="M"><Sequence>
+      <TakeOff height="0.5"/><ChangeBattery mode="swap"/>
+    </Sequence></BehaviorTree></root>"""
+    m, run, pf = sim_mission(xml, rig="rigs/aisle.yaml")
+    result = run.run(max_time_s=60)
+    assert result.status == "FAILURE"
+    assert "flying: land first" in result.reason
+    assert pf.summary()["battery"]["swaps"] == 0
