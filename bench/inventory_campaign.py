@@ -13,7 +13,8 @@ merged inventory. Printed per seed and in total, against the issue's targets:
 * battery changes, and whether every drone answered its places in its plan's order with none
   skipped (a change resumes at the place it interrupted);
 * places per hour per drone (mission time), beside the anchor's ~1,300 places per hour;
-* the fleet's speed in lock-step simulation (mission time / wall time).
+* the fleet's speed in lock-step simulation (mission time / wall time), each drone's run
+  without run.mcap, as a campaign row.
 
 Usage::
 
@@ -48,7 +49,7 @@ def fly_seed(job: tuple[str, int, str, list[str]]) -> dict:
     torch.set_num_threads(1)
     from bt_engine.cli import main
 
-    args = ["fleet", fleet, "--seed", str(seed), "--out", out, "-q", "--no-report"]
+    args = ["fleet", fleet, "--seed", str(seed), "--out", out, "-q", "--no-report", "--no-mcap"]
     for s in sets:
         args += ["--set", s]
     buf = io.StringIO()

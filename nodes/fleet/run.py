@@ -56,6 +56,7 @@ def setup(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--quiet", "-q", action="store_true", help="print only the results")
     p.add_argument("--no-report", action="store_true", help="skip the reports")
+    p.add_argument("--no-mcap", action="store_true", help="do not record each drone's run.mcap")
 
 
 def _drone_args(spec: FleetSpec, args: Any, sets: list[str], seed: int, out: str) -> Any:
@@ -71,6 +72,7 @@ def _drone_args(spec: FleetSpec, args: Any, sets: list[str], seed: int, out: str
         tick_budget=None,
         quiet=True,
         no_report=args.no_report,
+        no_mcap=getattr(args, "no_mcap", False),
         groot=None,
         groot_address=None,
         include_path=[],
