@@ -75,7 +75,7 @@ def write_fleet_report(
         rows.append(
             f"<tr><td class=l>{target}</td><td class='l {esc(d['status'])}'>{esc(d['status'])}</td>"
             f"<td class=l>{esc(str(d['reason']))}</td><td>{d['mission_time_s']:.1f}</td>"
-            f"<td>{d['places']}</td><td>{d.get('battery_swaps') or 0}</td>"
+            f"<td>{d['answered']} / {d['places']}</td><td>{d.get('battery_swaps') or 0}</td>"
             f"<td>{d['waits']}</td><td>{d['pauses']}</td><td>{d['collisions']}</td></tr>"
         )
     sep = summary["separation"]
@@ -93,7 +93,7 @@ def write_fleet_report(
         f"<p>{len(summary['drones'])} drones, seed {summary['seed']}, "
         f"{summary['mission_time_s']:.1f} s mission time, {summary['wall_time_s']:.1f} s wall.</p>",
         "<h2>Drones</h2><table><tr><th class=l>drone</th><th class=l>status</th>"
-        "<th class=l>reason</th><th>mission time (s)</th><th>places</th><th>battery "
+        "<th class=l>reason</th><th>mission time (s)</th><th>places answered</th><th>battery "
         "changes</th><th>airspace waits</th><th>holds</th><th>collisions</th></tr>",
         *rows,
         "</table>",

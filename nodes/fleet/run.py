@@ -282,6 +282,7 @@ def _summary(
         res = results[name]
         s = r.summary or {}
         truth = s.get("sim") or s.get("vehicle") or {}
+        inv = s.get("inventory") or {}
         hits = truth.get("collisions") or []
         world_hits += [{"drone": name, **h} for h in hits]
         drones[name] = {
@@ -290,7 +291,8 @@ def _summary(
             "mission_time_s": round(res.mission_time_s, 3),
             "ticks": res.ticks,
             "run_dir": os.path.relpath(r.run_dir, out),
-            "places": len(((s.get("inventory") or {}).get("rows")) or {}),
+            "places": inv.get("places", 0),
+            "answered": inv.get("places", 0) - (inv.get("status") or {}).get("not_scanned", 0),
             "battery_swaps": (truth.get("battery") or {}).get("swaps"),
             "landed": truth.get("landed"),
             "collisions": len(hits),
@@ -331,7 +333,8 @@ def _print(summary: dict, out: str) -> None:
     )
     for name, d in summary["drones"].items():
         print(
-            f"  {name}: {d['status']}: {d['reason']} ({d['mission_time_s']:.1f} s, {d['places']} places)"
+            f"  {name}: {d['status']}: {d['reason']} ({d['mission_time_s']:.1f} s, "
+            f"{d['answered']} of {d['places']} places answered)"
         )
     inv = summary.get("inventory")
     if inv:
