@@ -19,6 +19,7 @@ goes on. The results are the same whoever supervises:
 from __future__ import annotations
 
 import atexit
+import itertools
 import json
 import os
 import queue
@@ -248,18 +249,38 @@ class DaskPool:
         self._futures: list[Any] = []
 
     def results(self, payloads: list[dict[str, Any]]) -> Iterator[dict[str, Any]]:
-        """Submit every payload; yield the results as they finish (any order)."""
+        """Run every payload; yield the results as they finish (any order).
+
+        One run in flight per worker thread of the cluster (counted again after every run,
+        so a cluster that grows gets more): a finished run's thread takes the next one.
+        Submitting every run at once let the scheduler share them out before it knew how
+        long they take, and a worker that drew more runs finished last.
+        """
         from dask.distributed import as_completed
 
         session = uuid.uuid4().hex[:8]  # a task key is unique to this submission
-        self._futures = [
-            self.client.submit(
+        todo = iter(payloads)
+
+        def submit(p: dict[str, Any]) -> Any:
+            return self.client.submit(
                 run_on_dask_worker, p, key=f"btrun-run-{p['key'][:16]}-{session}", pure=False
             )
-            for p in payloads
-        ]
-        for future in as_completed(self._futures, loop=self.client.loop):
+
+        running = as_completed(loop=self.client.loop)
+        for p in itertools.islice(todo, self._threads()):
+            running.add(future := submit(p))
+            self._futures.append(future)
+        for future in running:
+            self._futures.remove(future)
+            want = max(self._threads() - len(self._futures), 0 if self._futures else 1)
+            for p in itertools.islice(todo, want):
+                running.add(nxt := submit(p))
+                self._futures.append(nxt)
             yield future.result()
+
+    def _threads(self) -> int:
+        """Worker threads in the cluster now (at least 1)."""
+        return max(1, sum(self.client.nthreads().values()))
 
     def stop(self) -> None:
         """Cancel the tasks not finished (a run already going ends on its worker)."""
