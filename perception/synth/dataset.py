@@ -16,6 +16,7 @@ deterministic for a given ``numpy.random.Generator`` state.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import lru_cache
 
 import cv2
@@ -23,9 +24,12 @@ import numpy as np
 
 from perception.synth.appearance import EPAL, SideStyle, split_identity
 from perception.synth.camera_model import CameraModel, CameraPose
-from perception.synth.render import BlockBox, Lighting, SensorModel, render_frame
+from perception.synth.render import BlockBox, Lighting, SensorModel, block_boxes, render_frame
 from perception.synth.scene import PalletSpec, Scene, SceneLight
+from perception.synth.views import ViewConditions, develop, take_frame
 from perception.white_balance import calibrate, preprocess, render_white_target
+
+Conditions = ViewConditions | Callable[[np.random.Generator], ViewConditions] | None
 
 NOMINAL_K = 4000.0  # colour temperature the white balance is calibrated under
 
@@ -82,12 +86,16 @@ def render_detection_sample(
     yaw_deg: float = 15.0,
     height_m: float = 0.05,
     blur_probability: float = 0.3,
+    conditions: ViewConditions | None = None,
 ) -> tuple[np.ndarray, list[BlockBox]]:
     """A raw Bayer frame and its ground-truth block boxes, everything randomised.
 
     Pallet identity from ``identities`` (default: 100 synthetic ones; ``styles`` maps
     identity -> :class:`SideStyle`), distance, lateral offset along the face, yaw, height
     around the block centre line, stand height, light, exposure, blur, noise.
+    ``conditions``: take the frame under these instead (light, optics, sensor noise,
+    Bayer JPEG; see :mod:`perception.synth.views`; develop it with
+    :func:`perception.synth.views.develop` for the lower resolution).
     """
     camera = camera or CameraModel()
     identities = identities or identity_names(100)
@@ -105,6 +113,8 @@ def render_detection_sample(
         pitch=math.radians(rng.normal(0.0, 2.0)),
         roll=math.radians(rng.normal(0.0, 2.0)),
     )
+    if conditions is not None:
+        return take_frame(camera, pose, scene, rng, conditions), block_boxes(camera, pose, scene)
     velocity = None
     if rng.random() < blur_probability:
         velocity = (0.0, float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-0.1, 0.1)))
@@ -156,6 +166,8 @@ def block_crops(
     max_occlusion: float = 0.3,
     blur_probability: float = 0.3,
     min_size_px: int = 8,
+    yaw_deg: float = 15.0,
+    conditions: Conditions = None,
 ) -> list[np.ndarray]:
     """``n`` white-balanced BGR crops of block ``block_index`` (0, 1, 2 left to right) of a
     pallet side, as the mission's detector would cut them.
@@ -165,7 +177,10 @@ def block_crops(
     lateral offset, yaw +-15 deg, height +-5 cm; light, colour temperature, exposure, blur,
     noise), decoded and white-balanced with factors calibrated at 4000 K, cut along the
     ground-truth box with jittered margins, sometimes partly occluded. Crops keep their
-    native size (about 20..100 px wide).
+    native size (about 20..100 px wide). ``yaw_deg``: the largest yaw off square;
+    ``conditions``: light, optics and sensor of every frame (a :class:`ViewConditions`,
+    or a function drawing one from the generator; default: the renderer's own light,
+    exposure, motion blur and noise).
     """
     camera = camera or CameraModel()
     pallet_id, side = split_identity(identity, side)
@@ -181,7 +196,7 @@ def block_crops(
         kelvin, lighting = _random_light(rng)
         scene = _scene(pallet_id, side, style, base_z)
         d = rng.uniform(*distance_m)
-        yaw = math.radians(rng.uniform(-15.0, 15.0))
+        yaw = math.radians(rng.uniform(-yaw_deg, yaw_deg))
         # Aim roughly at the block: lateral position so the block lands near the centre.
         y = block_y - d * math.tan(yaw) + rng.uniform(-0.25, 0.25) * d
         pose = CameraPose.from_yaw(
@@ -192,26 +207,33 @@ def block_crops(
             pitch=math.radians(rng.normal(0, 2)),
             roll=math.radians(rng.normal(0, 2)),
         )
-        velocity = None
-        if rng.random() < blur_probability:
-            velocity = (0.0, float(rng.uniform(-0.4, 0.4)), 0.0)
-        raw, boxes = render_frame(
-            camera,
-            pose,
-            scene,
-            rng,
-            velocity=velocity,
-            lighting=lighting,
-            colour_temperature_k=kelvin,
-            return_boxes=True,
-        )
+        cond = conditions(rng) if callable(conditions) else conditions
+        if cond is not None:
+            raw, boxes = (
+                take_frame(camera, pose, scene, rng, cond),
+                block_boxes(camera, pose, scene),
+            )
+        else:
+            velocity = None
+            if rng.random() < blur_probability:
+                velocity = (0.0, float(rng.uniform(-0.4, 0.4)), 0.0)
+            raw, boxes = render_frame(
+                camera,
+                pose,
+                scene,
+                rng,
+                velocity=velocity,
+                lighting=lighting,
+                colour_temperature_k=kelvin,
+                return_boxes=True,
+            )
         box = next(
             (b for b in boxes if b.block == block_index and b.identity == f"{pallet_id}{side}"),
             None,
         )
         if box is None or box.visible < 0.7 or box.x2 - box.x1 < min_size_px:
             continue
-        bgr = preprocess(raw, factors)
+        bgr = develop(raw, factors, cond) if cond is not None else preprocess(raw, factors)
         w, h = box.x2 - box.x1, box.y2 - box.y1
         x1 = int(round(box.x1 - w * rng.uniform(-0.06, 0.12)))
         x2 = int(round(box.x2 + w * rng.uniform(-0.06, 0.12)))
