@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import asdict, fields
+from dataclasses import asdict, dataclass, fields
 
 import cv2
 import numpy as np
@@ -79,6 +79,16 @@ def to_tensor(images: list[np.ndarray]) -> torch.Tensor:
 def gallery_features(raw: torch.Tensor, parts: int) -> torch.Tensor:
     """PCB's eval output (per-part L2-normalised, concatenated) -> unit-norm rows."""
     return raw / math.sqrt(parts)
+
+
+@dataclass(frozen=True)
+class BlockDescriptors:
+    """What the embedder says about n crops: unit-norm embeddings (n, dim) and how visible
+    each of their ``parts`` stripes is (n, parts), 0 hidden .. 1 visible (all 1 for a
+    model without a visibility head)."""
+
+    vectors: np.ndarray
+    visibility: np.ndarray
 
 
 class BlockEmbedder:
@@ -166,13 +176,32 @@ class BlockEmbedder:
 
         Raises :class:`ModelError` for an empty crop, a wrong shape or a wrong dtype.
         """
+        return self.describe(crops).vectors
+
+    def describe(self, crops: list[np.ndarray]) -> BlockDescriptors:
+        """Embeddings and stripe visibilities of BGR uint8 crops (any size); the gallery
+        weighs each stripe by its visibility (``Gallery.match(..., visibility=)``).
+
+        Raises :class:`ModelError` for an empty crop, a wrong shape or a wrong dtype.
+        """
         crops = list(crops)
+        parts = self.config.parts
         if not crops:
-            return np.zeros((0, self.dim), np.float32)
+            return BlockDescriptors(
+                np.zeros((0, self.dim), np.float32), np.zeros((0, parts), np.float32)
+            )
         x = self.preprocess(crops)
         with torch.inference_mode():
-            f = gallery_features(self.model(x), self.config.parts)
-        return f.numpy().astype(np.float32, copy=False)
+            raw, vis = self.model.describe(x)
+            f = gallery_features(raw, parts)
+        return BlockDescriptors(
+            f.numpy().astype(np.float32, copy=False), vis.numpy().astype(np.float32, copy=False)
+        )
+
+    @property
+    def occlusion_aware(self) -> bool:
+        """True if the model predicts stripe visibilities (else they are all 1)."""
+        return bool(self.config.visibility)
 
     def __repr__(self) -> str:
         return f"BlockEmbedder({self.model_version}, dim={self.dim}, {self.thresholds})"
