@@ -151,6 +151,7 @@ def prepare(args) -> PreparedRun:
     )
     run_dir = _run_dir(args)
     os.makedirs(run_dir, exist_ok=True)
+    mission.ctx.resources["run_dir"] = run_dir  # leaves may name their run (gallery history)
     if target is not None:  # a target may write files of its own beside the tick log
         target.run_dir = run_dir  # type: ignore[attr-defined]
     rows = spec_rows(spec)
