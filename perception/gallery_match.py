@@ -48,14 +48,15 @@ class Thresholds:
 @dataclass
 class _Rows:
     """Every active view in memory: identities, rows (m, 3, dim), owner index (m,),
-    stripe visibilities (m, 3, parts) or None, and per (block, stripe) contiguous unit
-    stripe arrays for the fast screen."""
+    stripe visibilities (m, 3, parts) or None, and for the fast screen the unit stripes
+    and the blocks' squared norms."""
 
     ids: list[str]
     rows: np.ndarray
     owner: np.ndarray
     vis: np.ndarray | None
-    stripes: list[np.ndarray] = field(default_factory=list)
+    unit: np.ndarray | None = None  # unit stripes (m, 3 * parts, dim / parts), float32
+    sq: np.ndarray | None = None  # squared norms of the rows' blocks (m, 3)
 
 
 class MatchingMixin:
@@ -90,8 +91,9 @@ class MatchingMixin:
         all_rows = np.concatenate(rows) if rows else np.zeros((0, BLOCKS, self.dim), np.float32)
         unit = all_rows.reshape(len(owner), BLOCKS, parts, -1).astype(np.float32)
         unit = unit / np.maximum(np.linalg.norm(unit, axis=-1, keepdims=True), 1e-12)
-        stripes = [np.ascontiguousarray(unit[:, b, p]) for b in range(BLOCKS) for p in range(parts)]
-        self._rows[parts] = _Rows(ids, all_rows, owner, vis, stripes)
+        unit = np.ascontiguousarray(unit.reshape(len(owner), BLOCKS * parts, -1))
+        sq = np.einsum("nbd,nbd->nb", all_rows, all_rows)
+        self._rows[parts] = _Rows(ids, all_rows, owner, vis, unit, sq)
         return self._rows[parts]
 
     # -- matching --------------------------------------------------------------------------
@@ -161,23 +163,17 @@ class MatchingMixin:
         """Approximate per-identity block distances (n, 3) with float32 dot products:
         ``|g|^2 + |q|^2 - 2 g.q`` per block, or per-stripe cosines when the query has
         stripe visibilities."""
+        # einsum, not BLAS: OpenBLAS's threads stall for milliseconds per call when the
+        # other core is busy (the mission shares the machine with the simulator).
         m = len(data.owner)
         if qvis is None:
-            blocks = data.stripes  # parts == 1: one (m, dim) array per block
-            sq = np.stack(
-                [np.einsum("nd,nd->n", data.rows[:, b], data.rows[:, b]) for b in range(BLOCKS)], 1
-            )
-            dots = np.stack([data.rows[:, b] @ q[b] for b in range(BLOCKS)], axis=1)
-            d2 = sq + np.einsum("bd,bd->b", q, q)[None, :] - 2.0 * dots
-            del blocks
+            dots = np.einsum("nbd,bd->nb", data.rows, q)
+            d2 = data.sq + np.einsum("bd,bd->b", q, q)[None, :] - 2.0 * dots
             per_row = np.sqrt(np.maximum(d2, 0.0))
         else:
-            qs = q.reshape(BLOCKS, parts, -1)
+            qs = q.reshape(BLOCKS * parts, -1)
             qs = qs / np.maximum(np.linalg.norm(qs, axis=-1, keepdims=True), 1e-12)
-            cos = np.empty((m, BLOCKS, parts), np.float32)
-            for b in range(BLOCKS):
-                for p in range(parts):
-                    cos[:, b, p] = data.stripes[b * parts + p] @ qs[b, p]
+            cos = np.einsum("nkd,kd->nk", data.unit, qs).reshape(m, BLOCKS, parts)
             w = gm.stripe_weights(qvis, data.vis, m, parts)
             per_row = gm.weighted_block_distances(cos, w)
         return gm.closest_views(per_row, data.owner, len(data.ids))

@@ -75,9 +75,16 @@ def side_distance(per_block: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 def closest_views(per_row: np.ndarray, owner: np.ndarray, count: int) -> np.ndarray:
     """Per identity and block, the smallest distance over its views: (count, 3) from
-    per-row distances (m, 3) and the identity index of each row (m,)."""
-    out = np.full((count, per_row.shape[1]), np.inf)
-    np.minimum.at(out, owner, per_row)
+    per-row distances (m, 3) and the identity index of each row (m,). Fast when the first
+    ``count`` rows are the identities' own rows in order (the gallery's layout)."""
+    if len(owner) >= count and np.array_equal(owner[:count], np.arange(count)):
+        out = np.array(per_row[:count], dtype=np.float64)
+        rest = slice(count, None)
+    else:
+        out = np.full((count, per_row.shape[1]), np.inf)
+        rest = slice(0, None)
+    if len(owner[rest]):
+        np.minimum.at(out, owner[rest], per_row[rest])
     return out
 
 
