@@ -133,7 +133,9 @@ def _history(args: argparse.Namespace) -> int:
         figures = ""
         if e["distance"] is not None:
             figures = f"  distance {e['distance']:.3f} margin {e['margin']:.3f}"
-        view = f" view {e['view']}" if e["view"] is not None else ""
+        view = ""
+        if e["view"] is not None:
+            view = f"{'' if 'view' in e['action'] else ' view'} {e['view']}"
         extra = "  " + "  ".join(x for x in (e["run"] and f"run {e['run']}", e["note"]) if x)
         print(
             f"  #{e['event']:<4} {when}  {e['identity']:<10} {e['action']}{view}{figures}{extra.rstrip()}"
