@@ -29,7 +29,12 @@ def fly(tmp_path, mission: str, name: str, sets: dict[str, str]) -> dict:
 def test_grey_and_painted_pallets_are_enrolled_and_identified_in_flight(tmp_path, capsys):
     g = str(tmp_path / "weathered.sqlite")
     for side in ("1A", "5A"):  # grey wood; painted blue
-        s = fly(tmp_path, "enroll_pallet.xml", f"enrol-{side}", {"pallet": side, "gallery": g, "world.scan_pallet": side})
+        s = fly(
+            tmp_path,
+            "enroll_pallet.xml",
+            f"enrol-{side}",
+            {"pallet": side, "gallery": g, "world.scan_pallet": side},
+        )
         assert s["status"] == "SUCCESS", s.get("reason")
     s = fly(
         tmp_path,
