@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from perception.gallery import Gallery
+from perception.gallery import Gallery, Match
 from perception.sequencer import Detection
 from perception.synth.ageing import Ageing, progressive
 from perception.synth.appearance import EPAL, SideStyle, split_identity
@@ -275,6 +275,8 @@ def _enrol(g: Gallery, name: str, vec: np.ndarray, vis: np.ndarray | None) -> No
 
 
 def _match(g: Gallery, vec: np.ndarray, vis: np.ndarray | None) -> Any:
+    if len(g) == 0:  # nothing could be enrolled (the detector found no blocks)
+        return Match("unknown", "", float("inf"), None, None, 0.0, False, "empty gallery")
     return g.match(vec, visibility=vis) if vis is not None else g.match(vec)
 
 
