@@ -13,6 +13,7 @@ issue 17, met or not. ``--json`` keeps every figure.
     .venv/bin/python bench/robustness.py                      # full table (about 40 min)
     .venv/bin/python bench/robustness.py --enrolled 40 --unknown 40 --only wood paint
     .venv/bin/python bench/robustness.py --clean-unknown 400   # the non-enrolled target
+    .venv/bin/python bench/robustness.py --markdown before.json after.json   # a docs table
 """
 
 from __future__ import annotations
@@ -88,8 +89,42 @@ def check_targets(rows: list[dict], extra: dict | None = None) -> list[str]:
     return out
 
 
+def _cell(r: dict | None) -> tuple[str, str]:
+    if r is None:
+        return "-", "-"
+    det = f"{100 * r['all3_rate']:.0f} % (P {r['precision']:.3f} R {r['recall']:.3f})"
+    ident = (
+        f"{100 * r['right_rate']:.1f} % right, {r['wrong']} wrong, {r['unknown']} unknown; "
+        f"non-enrolled {r['accepted']}/{r['non_enrolled']}"
+    )
+    return det, ident
+
+
+def markdown(before_path: str, after_path: str) -> str:
+    """A markdown table of two ``--json`` runs side by side (before / after)."""
+    runs = []
+    for p in (before_path, after_path):
+        with open(p, encoding="utf-8") as f:
+            runs.append(json.load(f))
+    b = {(r["group"], r["name"]): r for r in runs[0]["rows"]}
+    a = {(r["group"], r["name"]): r for r in runs[1]["rows"]}
+    lines = [
+        "| group | condition | all 3 blocks found, before | after | identification, before | after |",
+        "|---|---|---|---|---|---|",
+    ]
+    for key in list(dict.fromkeys([*b, *a])):
+        (db, ib), (da, ia) = _cell(b.get(key)), _cell(a.get(key))
+        lines.append(f"| {key[0]} | {key[1]} | {db} | {da} | {ib} | {ia} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the table and print it."""
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv[:1] == ["--markdown"]:
+        print(markdown(argv[1], argv[2]))
+        return 0
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--enrolled", type=int, default=100, help="enrolled sides per look")
     ap.add_argument("--unknown", type=int, default=100, help="non-enrolled sides per row")

@@ -67,12 +67,26 @@ def resize_crop(crop: np.ndarray, input_hw: tuple[int, int]) -> np.ndarray:
     return cv2.resize(crop, (w, h), interpolation=interp)
 
 
-def to_tensor(images: list[np.ndarray]) -> torch.Tensor:
+#: how a crop is standardised (``PCBConfig.normalisation``)
+NORMALISATIONS = ("mean_std", "robust")
+
+
+def to_tensor(images: list[np.ndarray], normalisation: str = "mean_std") -> torch.Tensor:
     """Stack equally-sized BGR uint8 images into a float tensor (N, 3, H, W), each image
-    standardised on its own (per-channel mean removed, divided by its standard deviation)."""
+    standardised on its own: ``mean_std`` removes the per-channel mean and divides by the
+    standard deviation; ``robust`` removes the per-channel median and divides by the spread
+    between the 10th and 90th percentiles / 2.56 (about one standard deviation), so a strap,
+    film or stain over part of the block barely shifts the rest of the crop."""
     x = np.stack(images).astype(np.float32)
-    x -= x.mean(axis=(1, 2), keepdims=True)
-    x /= x.std(axis=(1, 2, 3), keepdims=True) + np.float32(STD_FLOOR)
+    if normalisation == "robust":  # statistics of every second row and column (fast)
+        n = len(x)
+        sub = x[:, ::2, ::2].reshape(n, -1, 3)
+        x -= np.median(sub, axis=1)[:, None, None, :]
+        lo, hi = np.percentile(x[:, ::2, ::2].reshape(n, -1), (10.0, 90.0), axis=1)
+        x /= ((hi - lo) / 2.56)[:, None, None, None].astype(np.float32) + np.float32(STD_FLOOR)
+    else:
+        x -= x.mean(axis=(1, 2), keepdims=True)
+        x /= x.std(axis=(1, 2, 3), keepdims=True) + np.float32(STD_FLOOR)
     return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2)))
 
 
@@ -169,7 +183,8 @@ class BlockEmbedder:
     def preprocess(self, crops: list[np.ndarray]) -> torch.Tensor:
         """Validate and resize crops to the model input; a normalised (N, 3, H, W) tensor."""
         hw = tuple(self.config.input_hw)
-        return to_tensor([resize_crop(check_crop(c, i), hw) for i, c in enumerate(crops)])
+        images = [resize_crop(check_crop(c, i), hw) for i, c in enumerate(crops)]
+        return to_tensor(images, self.config.normalisation)
 
     def embed(self, crops: list[np.ndarray]) -> np.ndarray:
         """BGR uint8 crops (any size) -> float32 (n, dim) unit-norm rows.

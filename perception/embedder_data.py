@@ -26,7 +26,7 @@ from perception.synth.ageing import age_image, random_ageing
 from perception.synth.appearance import SideStyle, split_identity
 from perception.synth.dataset import block_crops, identity_names
 from perception.synth.looks import random_look
-from perception.synth.views import ViewConditions, random_conditions, resensor_crop
+from perception.synth.views import ViewConditions, resensor_crop
 
 BLOCKS = 3
 Log = Callable[[str], None]
@@ -40,10 +40,29 @@ def split_names(kind: str, pallets: int) -> list[str]:
     return identity_names(2 * pallets, prefix=kind)
 
 
-def look_of(name: str, seed: int) -> SideStyle:
-    """The random look of identity ``name`` (both sides of a pallet share it)."""
+def view_conditions(rng: np.random.Generator) -> ViewConditions:
+    """Conditions of the embedder's crops: as broad as the detector's in kind but not in
+    extremes (a crop nobody could re-identify teaches nothing): exposure 0.6..1.6,
+    3000..6500 K, motion blur in a third, defocus up to 1.5 px in a fifth, noise up to
+    20 DN in a third, Bayer JPEG q15..95 in 30 %, lower resolution in 10 %."""
+    return ViewConditions(
+        exposure=float(np.exp(rng.uniform(np.log(0.6), np.log(1.6)))),
+        contrast=float(rng.uniform(0.75, 1.2)),
+        gradient=float(rng.uniform(0.0, 0.3)),
+        colour_temperature_k=float(rng.uniform(3000.0, 6500.0)),
+        motion_px=float(rng.uniform(-6, 6)) if rng.random() < 0.33 else 0.0,
+        defocus_px=float(rng.uniform(0.4, 1.5)) if rng.random() < 0.2 else 0.0,
+        noise_dn=float(rng.uniform(2.0, 20.0)) if rng.random() < 0.33 else 0.0,
+        jpeg_quality=int(rng.integers(15, 96)) if rng.random() < 0.3 else 0,
+        downscale=float(rng.uniform(1.3, 2.5)) if rng.random() < 0.1 else 1.0,
+    )
+
+
+def look_of(name: str) -> SideStyle:
+    """The random look of identity ``name``: a function of the pallet id alone (both sides
+    of a pallet, and every render of it whatever the render seed, look alike)."""
     pallet_id, _ = split_identity(name)
-    return SideStyle(**random_look(np.random.default_rng([seed, 17, *pallet_id.encode()])))
+    return SideStyle(**random_look(np.random.default_rng([17, *pallet_id.encode()])))
 
 
 def _render_identity(job: tuple[str, int, int, str]) -> list[list[np.ndarray]]:
@@ -51,11 +70,11 @@ def _render_identity(job: tuple[str, int, int, str]) -> list[list[np.ndarray]]:
     rng = np.random.default_rng([seed, *name.encode()])
     if mode == "plain":
         return [block_crops(name, None, b, rng, n) for b in range(BLOCKS)]
-    style = look_of(name, seed)
+    style = look_of(name)
     if mode == "enrol":  # the scan stand-off, square, nominal camera
         view = {"distance_m": (0.36, 0.44), "yaw_deg": 4.0, "conditions": ViewConditions()}
     else:
-        view = {"distance_m": (0.25, 1.2), "yaw_deg": 30.0, "conditions": random_conditions}
+        view = {"distance_m": (0.25, 1.2), "yaw_deg": 30.0, "conditions": view_conditions}
     return [
         block_crops(name, None, b, rng, n, style=style, occlusion_probability=0.0, **view)
         for b in range(BLOCKS)
@@ -111,18 +130,21 @@ def augment(
     ageing: float = 0.5,
     sensor: float = 0.4,
     colour: bool = True,
+    strength: float = 0.8,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One training view of a crop at ``hw`` and its hidden mask (same size, 0..1).
 
-    In the order things happen to a real crop: ageing (probability ``ageing``), the sensor
-    again (``sensor``: noise up to 20 DN, Bayer JPEG 10..95), colour and gain jitter
-    (``colour``), a lower resolution, the crop's scale, shift and rotation, an erased patch.
+    In the order things happen to a real crop: ageing (probability ``ageing``, up to
+    ``strength`` x the largest changes of :func:`perception.synth.ageing.random_ageing`),
+    the sensor again (``sensor``: noise up to 20 DN, Bayer JPEG 15..95), colour and gain
+    jitter (``colour``), a lower resolution, the crop's scale, shift and rotation, an
+    erased patch.
     """
     hidden = np.zeros(crop.shape[:2], np.float32)
     if rng.random() < ageing:
-        crop, hidden = age_crop(crop, rng)
+        crop, hidden = age_crop(crop, rng, strength)
     if rng.random() < sensor:
-        q = int(rng.integers(10, 96)) if rng.random() < 0.5 else 0
+        q = int(rng.integers(15, 96)) if rng.random() < 0.5 else 0
         crop = resensor_crop(crop, rng, float(rng.uniform(0, 20)), q)
     h, w = hw
     ch, cw = crop.shape[:2]
@@ -190,4 +212,5 @@ __all__ = [
     "render_crops",
     "split_names",
     "stripe_visibility",
+    "view_conditions",
 ]

@@ -207,10 +207,10 @@ def baselines(gallery: list, queries: list, k_gallery: int = 0, k_query: int = 1
     return out
 
 
-def aged_copy(data: list, seed: int) -> list:
+def aged_copy(data: list, seed: int, strength: float = 0.8) -> list:
     """The same crops, each aged at random (stains, dust, occluders, ...), deterministic."""
     rng = np.random.default_rng(seed)
-    return [[[age_crop(c, rng)[0] for c in block] for block in ident] for ident in data]
+    return [[[age_crop(c, rng, strength)[0] for c in block] for block in ident] for ident in data]
 
 
 def condition_split(

@@ -106,6 +106,7 @@ class PCBConfig:
     num_classes: int = 1
     input_hw: tuple[int, int] = (96, 160)
     visibility: bool = False
+    normalisation: str = "mean_std"  # how a crop is standardised (perception.embedder)
 
 
 BACKBONES = {

@@ -23,7 +23,7 @@ import math
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -73,9 +73,12 @@ class TrainConfig:
     triplet_weight: float = 1.0
     visibility: bool = True  # the stripe visibility head (occlusion-aware matching)
     visibility_weight: float = 0.5
+    normalisation: str = "robust"  # crop standardisation (perception.embedder.to_tensor)
     ageing: float = 0.5  # share of views aged (stains, dust, occluders, ...)
+    ageing_strength: float = 0.8  # x the largest random ageing (25 % stains, 45 % hidden)
     sensor: float = 0.4  # share of views taken through the sensor again (noise, Bayer JPEG)
     mode: str = "varied"  # how crops are rendered (perception.embedder_data.MODES)
+    init: str = ""  # start from these btrun-pcb weights (empty: from scratch)
     val_pallets: int = 150
     val_unknown_pallets: int = 200
 
@@ -165,18 +168,32 @@ def _batch(
         for k in rng.choice(
             counts[c], cfg.crops_per_class, replace=counts[c] < cfg.crops_per_class
         ):
-            img, hidden = augment(crops[c][k], rng, input_hw, cfg.ageing, cfg.sensor)
+            img, hidden = augment(
+                crops[c][k], rng, input_hw, cfg.ageing, cfg.sensor, strength=cfg.ageing_strength
+            )
             imgs.append(img)
             labels.append(int(c))
             cells = cv2.resize(hidden, (fmap_hw[1], fmap_hw[0]), interpolation=cv2.INTER_AREA)
             maps.append(1.0 - cells)
             stripes.append(stripe_visibility(hidden, parts))
     return (
-        to_tensor(imgs),
+        to_tensor(imgs, cfg.normalisation),
         torch.tensor(labels),
         torch.from_numpy(np.stack(maps)[:, None].astype(np.float32)),
         torch.from_numpy(np.stack(stripes)),
     )
+
+
+def _init_from(model: PCB, path: str, log: Log) -> None:
+    """Start from a btrun-pcb checkpoint's backbone and reduction (the classifiers and a
+    visibility head it lacks start fresh)."""
+    blob = torch.load(path, map_location="cpu", weights_only=True)
+    state = {k: v for k, v in blob["state_dict"].items() if not k.startswith("classifier.")}
+    missing, unexpected = model.load_state_dict(state, strict=False)
+    fresh = [k for k in missing if not k.startswith(("classifier.", "visibility."))]
+    if fresh or unexpected:
+        raise ValueError(f"{path} does not fit: missing {fresh}, unexpected {unexpected}")
+    log(f"initialised from {path} (fresh: {', '.join(sorted({k.split('.')[0] for k in missing}))})")
 
 
 def train(
@@ -194,8 +211,15 @@ def train(
     render_s = time.perf_counter() - t0
     log(f"{int(counts.sum())} crops of {n_classes} classes rendered in {render_s:.0f} s")
     model = PCB(
-        PCBConfig(num_classes=n_classes, input_hw=input_hw, visibility=cfg.visibility)
+        PCBConfig(
+            num_classes=n_classes,
+            input_hw=input_hw,
+            visibility=cfg.visibility,
+            normalisation=cfg.normalisation,
+        )
     ).train()
+    if cfg.init:
+        _init_from(model, cfg.init, log)
     with torch.no_grad():
         fmap_hw = tuple(model.featuremaps(torch.zeros(1, 3, *input_hw)).shape[2:])
     parts = model.config.parts
@@ -269,6 +293,7 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
     """Train, calibrate the thresholds on the validation split, save the checkpoint."""
     t0 = time.perf_counter()
     cfg = SMOKE if args.smoke else TrainConfig(pallets=args.pallets, steps=args.steps)
+    cfg = replace(cfg, init=args.init or "", lr=args.lr or cfg.lr)
     model, stats = train(cfg, args.seed, args.jobs, log)
     tmp_emb = BlockEmbedder(model, "calibrating", Thresholds())
     th, figures = validate(
@@ -344,6 +369,8 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--pallets", type=int, default=TrainConfig.pallets)
     tr.add_argument("--steps", type=int, default=TrainConfig.steps)
     tr.add_argument("--smoke", action="store_true", help="tiny run for tests (seconds)")
+    tr.add_argument("--init", default="", help="start from these btrun-pcb weights")
+    tr.add_argument("--lr", type=float, default=None, help="peak learning rate")
     ca = sub.add_parser("calibrate", help="recalibrate a checkpoint's unknown thresholds")
     ca.add_argument("--weights", required=True)
     ca.add_argument("--out", default="", help="write here (default: over --weights)")
