@@ -55,9 +55,18 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         help="set a blackboard input (target=1;2;1) or a rig/world setting "
         "(world.scan_pallet=3A, rig.realtime=1); repeatable",
     )
-    r.add_argument("--seed", type=int, default=0, help="random seed of the simulator (default 0)")
+    r.add_argument(
+        "--seed", type=int, default=None, help="random seed of the simulator (default 0)"
+    )
     r.add_argument("--rate", type=float, default=50.0, help="tick rate in Hz (default 50)")
     r.add_argument("--out", help="run folder (default runs/<mission>-<time>)")
+    r.add_argument(
+        "--resume",
+        metavar="RUN",
+        help="continue an interrupted run from its folder: the same rig, seed and --set "
+        "items unless given again; leaves that keep their work in the run folder (the "
+        "inventory) carry it over and skip what is done",
+    )
     r.add_argument(
         "--max-time", type=float, default=900.0, help="mission time limit in s (default 900)"
     )
@@ -79,6 +88,12 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     )
     r.add_argument("--quiet", "-q", action="store_true", help="print only the result")
     r.add_argument("--no-report", action="store_true", help="skip the flight report")
+    r.add_argument(
+        "--no-mcap",
+        action="store_true",
+        help="do not record run.mcap (the tick log is kept; a seeded simulated run "
+        "re-flies identically to record it)",
+    )
     r.add_argument(
         "--groot",
         nargs="?",

@@ -70,3 +70,24 @@ def read_text(path: str, problems: list[Problem], loc: Loc | None = None) -> str
     except UnicodeDecodeError as exc:
         problems.append(Problem(where, f"file is not UTF-8 text (byte {exc.start})"))
         return None
+
+
+def atomic_write_text(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` so that a crash at any moment leaves either the old file or
+    the new one, whole: a temporary file beside it, flushed to disk, then renamed over it
+    (and the folder entry flushed too)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # pragma: no cover - a platform without directory handles
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

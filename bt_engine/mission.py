@@ -20,7 +20,7 @@ from bt_engine.clock import Clock, SimClock
 from bt_engine.loading import load_spec
 from bt_engine.node import FAILURE, RUNNING, SKIPPED, SUCCESS, BTNode, MissionContext, NodeStatus
 from bt_engine.registry import REGISTRY, Registry
-from bt_engine.spec import MissionError, MissionSpec, Problem
+from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
 from bt_engine.validate import validate
 
 
@@ -183,6 +183,37 @@ class Mission:
         self.ticks += 1
         self.status = status
         return status
+
+    def preflight(self, set_keys: set[str] | None = None) -> list[Problem]:
+        """Let every node check its inputs against the run before anything flies.
+
+        A node class may define ``preflight() -> list[Problem | tuple[str, str]]`` (e.g. an
+        inventory plan naming places the world does not have). A ``(port, message)`` pair
+        is located where the port's value came from: the node's element in the mission
+        file, or ``--set`` when it reads a blackboard entry given there (``set_keys``).
+        A preflight that raises is reported as a problem, never as a traceback.
+        """
+        out: list[Problem] = []
+        for node in self.nodes:
+            check = getattr(node, "preflight", None)
+            if check is None:
+                continue
+            try:
+                found = list(check() or ())
+            except Exception as exc:  # a broken check must not hide the others
+                found = [("", f"pre-flight check failed: {type(exc).__name__}: {exc}")]
+            for item in found:
+                if isinstance(item, Problem):
+                    out.append(item)
+                    continue
+                port, message = item
+                key = node.input_entry(port) if port else None
+                if key is not None and key in (set_keys or ()):
+                    out.append(Problem(Loc("--set", 0, 0), f"{key}: {message}"))
+                else:
+                    where = node.loc or Loc("<mission>")
+                    out.append(Problem(where, f"{node.describe()}: {message}"))
+        return out
 
     def _note_failure(self, text: str) -> None:
         """Remember a leaf failure (each distinct one once, counted; bounded)."""

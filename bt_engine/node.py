@@ -325,6 +325,11 @@ class BTNode(py_trees.behaviour.Behaviour):
         self.scope.set(b[1], value)
         return True
 
+    def input_entry(self, name: str) -> str | None:
+        """The blackboard entry an input port reads, or None (a literal or its default)."""
+        b = self._bindings.get(name)
+        return b[1] if b is not None and b[0] == _REF else None
+
     def output_key(self, name: str) -> str | None:
         """The blackboard entry an output port is bound to, or None."""
         b = self._bindings.get(name)

@@ -63,7 +63,7 @@ def parse_sets(items: list[str]) -> tuple[dict[str, Any], dict[str, str], list[P
 
 
 def _run_dir(args) -> str:
-    if args.out:
+    if getattr(args, "out", None):
         return args.out
     stem = os.path.splitext(os.path.basename(args.mission))[0]
     return os.path.join("runs", f"{stem}-{time.strftime('%Y%m%d-%H%M%S')}")
@@ -117,16 +117,56 @@ class PreparedRun:
     log: TickLog
     #: the Groot2 monitoring server (``--groot``), also in ``hooks``; closed by run_command
     groot: Any = None
+    #: summary.json's content once :func:`finish` wrote it
+    summary: dict | None = None
 
 
-def prepare(args) -> PreparedRun:
+def resume_settings(args) -> list[Problem]:
+    """``--resume RUN``: take the rig, seed and ``--set`` items of the interrupted run from
+    its tick log's header where this call does not give them (in place on ``args``);
+    problems if RUN is no run folder or flew another mission."""
+    previous = getattr(args, "resume", None)
+    if not previous:
+        if getattr(args, "seed", None) is None:
+            args.seed = 0
+        return []
+    from bt_engine.ticklog import read_log
+
+    where = Loc("--resume", 0, 0)
+    log = os.path.join(previous, "ticks.jsonl")
+    if not os.path.isfile(log):
+        return [Problem(where, f"{previous} is not a run folder (no ticks.jsonl in it)")]
+    header, _ = read_log(log)
+    flown = header.get("mission")
+    if flown and os.path.abspath(flown) != os.path.abspath(args.mission):
+        return [Problem(where, f"{previous} flew {flown}: resume it with that mission")]
+    if args.seed is None:
+        args.seed = int(header.get("seed") or 0)
+    if args.rig is None and header.get("rig_arg"):
+        args.rig = header["rig_arg"]
+    if not args.set and header.get("sets"):
+        args.set = list(header["sets"])
+    return []
+
+
+def prepare(
+    args, clock: Any = None, resources: dict[str, Any] | None = None, warn: bool = True
+) -> PreparedRun:
     """Load and validate the mission, the ``--set`` items and the rig (raises
     :class:`MissionError` with every located problem: nothing flies), then build the clock,
-    platform, mission, run folder, tick log and hooks."""
+    platform, mission, run folder, tick log and hooks; finally let every node check its
+    inputs against the run target (:meth:`Mission.preflight`).
+
+    A fleet passes its shared ``clock`` and extra mission ``resources`` (the drone's name,
+    where its inventory rows go); ``warn=False`` leaves the validation warnings unprinted
+    (the fleet prints them once)."""
+    resume_problems = resume_settings(args)
+    if resume_problems:
+        raise MissionError(resume_problems)
     bb, rig_over, problems = parse_sets(args.set)
     warnings: list[Problem] = []
     spec, mission_problems = check_mission(args.mission, REGISTRY, None, warnings)
-    for w in warnings:  # file:line:col: warning: ... (the mission still flies)
+    for w in warnings if warn else ():  # file:line:col: warning: ... (the mission still flies)
         print(str(w), file=sys.stderr)
     problems += mission_problems
     if problems:
@@ -136,7 +176,9 @@ def prepare(args) -> PreparedRun:
         where = Loc(args.rig or "--set", 0, 0)
         raise MissionError([Problem(where, "no vehicle plug-in is installed to use a rig")])
     factor = args.realtime or (target.realtime_factor if target is not None else None)
-    clock = WallClock(factor) if factor else SimClock()
+    if clock is None:
+        clock = WallClock(factor) if factor else SimClock()
+    run_dir = _run_dir(args)
     platform = target.make_platform(clock, args.seed) if target is not None else None
     mission = Mission(
         spec,
@@ -145,20 +187,29 @@ def prepare(args) -> PreparedRun:
         resources={
             "platform": platform,
             "seed": args.seed,
+            "run_dir": run_dir,
+            "resume_from": getattr(args, "resume", None),
             **(target.resources() if target is not None else {}),
+            **(resources or {}),
         },
         blackboard=bb,
     )
-    run_dir = _run_dir(args)
+    preflight = mission.preflight(set_keys=set(bb))
+    if preflight:
+        if platform is not None:
+            platform.shutdown("pre-flight check failed")
+        raise MissionError(preflight)
     os.makedirs(run_dir, exist_ok=True)
-    mission.ctx.resources["run_dir"] = run_dir  # leaves may name their run (gallery history)
     if target is not None:  # a target may write files of its own beside the tick log
         target.run_dir = run_dir  # type: ignore[attr-defined]
+        target.record_mcap = not getattr(args, "no_mcap", False)  # type: ignore[attr-defined]
     rows = spec_rows(spec)
     header = {
         "mission": os.path.abspath(args.mission),
         "rig": target.path if target is not None else None,
         "seed": args.seed,
+        "rig_arg": args.rig,
+        "sets": list(args.set),
         "rate_hz": args.rate,
         "nodes": [
             [n.path, r.label, r.depth, list(r.last_flags)]
@@ -188,16 +239,15 @@ def prepare(args) -> PreparedRun:
     )
 
 
-def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
-    """Tick the mission to its end (live tree view on a terminal, one line per action
-    otherwise); the tick log is closed afterwards."""
-    args, mission, clock = run.args, run.mission, run.clock
+def make_runner(run: PreparedRun) -> Runner:
+    """The runner of a prepared run: its hooks, tick log, telemetry and tick watchdog."""
+    args = run.args
     telemetry = run.platform.telemetry_row if run.platform is not None else None
     budget = getattr(args, "tick_budget", None)
     if budget is None:  # real time: the drone is waiting; lock-step: only a hang matters
         budget = REALTIME_TICK_BUDGET_S if run.factor else LOCKSTEP_TICK_BUDGET_S
-    runner = Runner(
-        mission,
+    return Runner(
+        run.mission,
         args.rate,
         hooks=run.hooks,
         log=run.log,
@@ -209,6 +259,13 @@ def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
             else None
         ),
     )
+
+
+def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
+    """Tick the mission to its end (live tree view on a terminal, one line per action
+    otherwise); the tick log is closed afterwards."""
+    args, mission, clock = run.args, run.mission, run.clock
+    runner = make_runner(run)
     if not args.quiet:
         where = f"rig {run.target.path or '-'}" if run.target is not None else "no vehicle"
         mode = f"real time x{run.factor:g}" if run.factor else f"lock-step, seed {args.seed}"
@@ -240,9 +297,10 @@ def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
     return runner, result
 
 
-def finish(run: PreparedRun, runner: Runner, result: RunResult) -> int:
+def finish(run: PreparedRun, runner: Runner, result: RunResult, echo: bool = True) -> int:
     """Write summary.json (atomically), error.log and the report; print the outcome and the
-    plug-ins' headline lines; return the exit code (0 only for SUCCESS)."""
+    plug-ins' headline lines (unless ``echo`` is false); return the exit code (0 only for
+    SUCCESS). The summary is kept in ``run.summary``."""
     args, mission = run.args, run.mission
     sections: dict[str, Any] = {}
     if run.target is not None and run.platform is not None:
@@ -265,8 +323,11 @@ def finish(run: PreparedRun, runner: Runner, result: RunResult) -> int:
     if report:
         summary["report"] = os.path.relpath(report, run.run_dir)
     write_summary(run.run_dir, summary)
+    run.summary = summary
     headlines = result_lines(mission) + handled_failure_lines(mission, result.reason)
     mission.close()
+    if not echo:
+        return 0 if result.status == "SUCCESS" else 1
     speed = result.mission_time_s / result.wall_time_s if result.wall_time_s > 0 else 0.0
     print(
         f"{result.status}: {result.reason} "

@@ -108,6 +108,11 @@ class Runner:
         self._last_wall: float | None = None
         self._t0 = self.clock.now()
         self._steps = 0
+        self.outcome: tuple[str, str] | None = None
+        self.result: RunResult | None = None
+        self._wall0 = time.perf_counter()
+        self._start_t = self._t0
+        self._max_time_s: float | None = None
 
     # -- one step -------------------------------------------------------------------------
     def step(self) -> NodeStatus:
@@ -185,11 +190,29 @@ class Runner:
     # -- whole run ------------------------------------------------------------------------
     def run(self, max_time_s: float | None = None) -> RunResult:
         """Tick until the root finishes, a hook aborts, Ctrl-C, or ``max_time_s`` passes."""
-        wall0 = time.perf_counter()
-        start_t = self.clock.now()
-        reason = ""
-        result = "FAILURE"
         old = _install_sigint(self)
+        try:
+            self.begin(max_time_s)
+            try:
+                while self.outcome is None:
+                    self.advance()
+            finally:
+                self.conclude()
+        finally:
+            _restore_sigint(old)
+        assert self.result is not None
+        return self.result
+
+    def begin(self, max_time_s: float | None = None) -> None:
+        """Start a run stepped from outside (:meth:`advance` until :attr:`outcome` is set,
+        then :meth:`conclude`): several runners on one clock (a fleet) use these three; the
+        caller routes SIGINT/SIGTERM to :meth:`interrupt`."""
+        self._wall0 = time.perf_counter()
+        self._start_t = self.clock.now()
+        self._max_time_s = max_time_s
+        #: (status, reason) once the run has ended (SUCCESS, FAILURE or ABORTED), else None
+        self.outcome: tuple[str, str] | None = None
+        self.result: RunResult | None = None
         if self.tick_budget_s is not None and self.watchdog is None:
             self.watchdog = TickWatchdog(
                 self.tick_budget_s,
@@ -204,80 +227,82 @@ class Runner:
             self.interrupt_source = PENDING_INTERRUPTS[-1]
             self._interrupted = 1
             PENDING_INTERRUPTS.clear()
+
+    def advance(self) -> tuple[str, str] | None:
+        """One step of a run started with :meth:`begin`; returns (and keeps in
+        :attr:`outcome`) how the run ended, or None while it goes on."""
+        if self.outcome is not None:
+            return self.outcome
+        self.outcome = self._step_outcome()
+        return self.outcome
+
+    def _step_outcome(self) -> tuple[str, str] | None:
+        if self._interrupted:
+            return "ABORTED", f"operator interrupt ({self.interrupt_source})"
         try:
-            while True:
-                if self._interrupted:
-                    result, reason = "ABORTED", f"operator interrupt ({self.interrupt_source})"
-                    break
+            status = self.step()
+        except Abort as exc:
+            return "ABORTED", str(exc)
+        except TickOverrun:
+            wd = self.watchdog
+            reason = (wd.reason if wd else None) or "watchdog"
+            self.mission.ctx.log(reason)
+            return "ABORTED", reason
+        except NodeRuntimeError as exc:
+            return "ABORTED", str(exc)
+        except Exception as exc:  # a bug in a leaf must not leave the drone flying
+            self.error_traceback = traceback.format_exc()
+            return "ABORTED", f"internal error{_raising_node(exc)}: {type(exc).__name__}: {exc}"
+        if self.mission.ctx.halt_errors:
+            return "ABORTED", self.mission.ctx.halt_errors[0]
+        if status is SUCCESS:
+            return "SUCCESS", "the mission tree returned SUCCESS"
+        if status is FAILURE:
+            return "FAILURE", _failure_reason(self.mission)
+        if status is not RUNNING:
+            return "FAILURE", f"the root returned {status.value}"
+        limit = self._max_time_s
+        if limit is not None and self.clock.now() - self._start_t >= limit:
+            return "ABORTED", f"mission time limit of {limit:g} s reached"
+        return None
+
+    def conclude(self) -> RunResult:
+        """End a run: halt the tree unless it succeeded, run every shutdown hook (land the
+        drone), flush the log; the :class:`RunResult` is kept in :attr:`result`."""
+        result, reason = self.outcome or ("ABORTED", "the run was stopped")
+        try:
+            self._close_watchdog()
+            # Nothing that happens while halting may skip the landing: a failing halt is
+            # recorded, and every shutdown hook still runs.
+            if result != "SUCCESS" or self.mission.root.bt_status is RUNNING:
                 try:
-                    status = self.step()
-                except Abort as exc:
-                    result, reason = "ABORTED", str(exc)
-                    break
-                except TickOverrun:
-                    wd = self.watchdog
-                    result, reason = "ABORTED", (wd.reason if wd else None) or "watchdog"
-                    self.mission.ctx.log(reason)
-                    break
-                except NodeRuntimeError as exc:
-                    result, reason = "ABORTED", str(exc)
-                    break
-                except Exception as exc:  # a bug in a leaf must not leave the drone flying
-                    self.error_traceback = traceback.format_exc()
-                    where = _raising_node(exc)
-                    result, reason = (
-                        "ABORTED",
-                        f"internal error{where}: {type(exc).__name__}: {exc}",
-                    )
-                    break
-                if self.mission.ctx.halt_errors:
-                    result, reason = "ABORTED", self.mission.ctx.halt_errors[0]
-                    break
-                if status is SUCCESS:
-                    result, reason = "SUCCESS", "the mission tree returned SUCCESS"
-                    break
-                if status is FAILURE:
-                    result, reason = "FAILURE", _failure_reason(self.mission)
-                    break
-                if status is not RUNNING:
-                    result, reason = "FAILURE", f"the root returned {status.value}"
-                    break
-                if max_time_s is not None and self.clock.now() - start_t >= max_time_s:
-                    result, reason = "ABORTED", f"mission time limit of {max_time_s:g} s reached"
-                    break
+                    self.mission.halt()
+                except Exception as exc:
+                    self.error_traceback += traceback.format_exc()
+                    reason += f"; halting the tree failed: {type(exc).__name__}: {exc}"
+                    result = "ABORTED" if result == "SUCCESS" else result
+                errors = self.mission.ctx.halt_errors
+                if errors and result != "ABORTED":
+                    result, reason = "ABORTED", errors[0]
+                elif errors and errors[0] not in reason:
+                    reason += f"; while halting: {errors[0]}"
+            # Signals stay routed while the shutdown hooks land the drone: a second
+            # SIGINT/SIGTERM raises KeyboardInterrupt there (the supervisor cuts the motors).
+            self._shutdown_hooks(reason if result != "SUCCESS" else "mission complete")
         finally:
             self._close_watchdog()
-            try:
-                # Nothing that happens while halting may skip the landing: a failing halt is
-                # recorded, and every shutdown hook still runs.
-                if result != "SUCCESS" or self.mission.root.bt_status is RUNNING:
-                    try:
-                        self.mission.halt()
-                    except Exception as exc:
-                        self.error_traceback += traceback.format_exc()
-                        reason += f"; halting the tree failed: {type(exc).__name__}: {exc}"
-                        result = "ABORTED" if result == "SUCCESS" else result
-                    errors = self.mission.ctx.halt_errors
-                    if errors and result != "ABORTED":
-                        result, reason = "ABORTED", errors[0]
-                    elif errors and errors[0] not in reason:
-                        reason += f"; while halting: {errors[0]}"
-                # Signals stay ours while the shutdown hooks land the drone: a second
-                # SIGINT/SIGTERM raises KeyboardInterrupt there (the supervisor cuts the motors).
-                self._shutdown_hooks(reason if result != "SUCCESS" else "mission complete")
-            finally:
-                self._close_watchdog()
-                _restore_sigint(old)
-                if self.log is not None:
-                    self.log.flush()
-        return RunResult(
+            if self.log is not None:
+                self.log.flush()
+        self.outcome = (result, reason)
+        self.result = RunResult(
             result,
             reason,
             self.mission.ticks,
-            self.clock.now() - start_t,
-            time.perf_counter() - wall0,
+            self.clock.now() - self._start_t,
+            time.perf_counter() - self._wall0,
             self.tick_periods_s,
         )
+        return self.result
 
     def _close_watchdog(self) -> None:
         """Stop the watchdog before halting and landing (a stop it raised late lands here)."""

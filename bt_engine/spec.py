@@ -43,6 +43,11 @@ class Loc:
     def __str__(self) -> str:
         return f"{self.file}:{self.line}:{self.col}"
 
+    @property
+    def is_option(self) -> bool:
+        """True for a command-line option (``--set``, ``--resume``) rather than a file."""
+        return self.line == 0 and self.file.startswith("--")
+
 
 @dataclass(frozen=True)
 class Problem:
@@ -57,9 +62,10 @@ class Problem:
     severity: str = ERROR
 
     def __str__(self) -> str:
+        where = f"{self.loc.file} " if self.loc.is_option else f"{self.loc}: "
         if self.severity == WARNING:
-            return f"{self.loc}: warning: {self.message}"
-        return f"{self.loc}: {self.message}"
+            return f"{where}warning: {self.message}"
+        return f"{where}{self.message}"
 
 
 class MissionError(Exception):

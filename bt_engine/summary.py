@@ -14,6 +14,7 @@ import json
 import os
 from typing import Any
 
+from bt_engine.files import atomic_write_text
 from bt_engine.mission import Mission
 from bt_engine.plugins import RunReporter
 from bt_engine.runner import RunResult
@@ -81,8 +82,5 @@ def handled_failure_lines(mission: Mission, reason: str, limit: int = 10) -> lis
 def write_summary(run_dir: str, summary: dict[str, Any]) -> str:
     """Write ``summary.json`` in ``run_dir`` atomically (a temporary file, then a rename)."""
     path = os.path.join(run_dir, "summary.json")
-    tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(summary, f, indent=2)
-    os.replace(tmp, path)
+    atomic_write_text(path, json.dumps(summary, indent=2))
     return path

@@ -6,8 +6,10 @@ loading, safety hook, report, extra commands) is :data:`nodes.plugin.PLUGIN`.
 
 from nodes import (  # noqa: F401  (registration)
     conditions,
+    energy,
     flight,
     geometry,
+    inventory,
     perception,
     reactive_scan,
     safety,

@@ -48,6 +48,12 @@ HEADER_METADATA = "btrun.header"
 # camera optical frame (x right, y down, z forward) in the body frame (x forward, z up)
 _OPTICAL_Q = (-0.5, 0.5, -0.5, 0.5)
 _SAFETY_KEYS = ("safety_state", "safety_fault", "safety_faults")
+#: the camera's transform in /tf after its timestamp (it never moves on the body)
+_CAMERA_TF = (
+    f',"parent_frame_id":"{BODY}","child_frame_id":"{CAMERA}",'
+    f'"translation":{{"x":0.0,"y":0.0,"z":0.0}},'
+    f'"rotation":{{"x":{_OPTICAL_Q[0]},"y":{_OPTICAL_Q[1]},"z":{_OPTICAL_Q[2]},"w":{_OPTICAL_Q[3]}}}}}'
+)
 
 
 def _stamp(t: float) -> str:
@@ -224,17 +230,20 @@ class McapRecorder:
     def _vehicle(self, ts: str, tick: int, t: float, v: dict) -> None:
         x, y, z, yaw = v.get("x", 0.0), v.get("y", 0.0), v.get("z", 0.0), v.get("yaw", 0.0)
         qz, qw = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
-        pose = (
-            f'{{"position":{{"x":{x},"y":{y},"z":{z}}},'
-            f'"orientation":{{"x":0.0,"y":0.0,"z":{qz!r},"w":{qw!r}}}}}'
+        # the position and the rotation appear in the pose and in the body transform
+        xyz = f'{{"x":{x},"y":{y},"z":{z}}}'
+        rot = f'{{"x":0.0,"y":0.0,"z":{qz!r},"w":{qw!r}}}'
+        self._put(
+            "/vehicle/pose",
+            t,
+            f'{{"timestamp":{ts},"frame_id":"{WORLD}","pose":'
+            f'{{"position":{xyz},"orientation":{rot}}}}}',
         )
-        self._put("/vehicle/pose", t, f'{{"timestamp":{ts},"frame_id":"{WORLD}","pose":{pose}}}')
         self._put(
             "/vehicle/telemetry",
             t,
             json.dumps({"tick": tick, "t": t, "vehicle": v}, separators=(",", ":")),
         )
-        ox, oy, oz, ow = _OPTICAL_Q
         ref = ""
         if "ref_x" in v:
             ry = v.get("ref_yaw", 0.0)
@@ -249,11 +258,8 @@ class McapRecorder:
             "/tf",
             t,
             f'{{"transforms":[{{"timestamp":{ts},"parent_frame_id":"{WORLD}",'
-            f'"child_frame_id":"{BODY}","translation":{{"x":{x},"y":{y},"z":{z}}},'
-            f'"rotation":{{"x":0.0,"y":0.0,"z":{qz!r},"w":{qw!r}}}}},'
-            f'{{"timestamp":{ts},"parent_frame_id":"{BODY}","child_frame_id":"{CAMERA}",'
-            f'"translation":{{"x":0.0,"y":0.0,"z":0.0}},'
-            f'"rotation":{{"x":{ox},"y":{oy},"z":{oz},"w":{ow}}}}}{ref}]}}',
+            f'"child_frame_id":"{BODY}","translation":{xyz},"rotation":{rot}}},'
+            f'{{"timestamp":{ts}{_CAMERA_TF}{ref}]}}',
         )
         self._plan_update(t, (x, y, z))
 

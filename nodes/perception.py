@@ -101,7 +101,9 @@ class PerceptionReady(SyncActionNode):
 @register
 class DetectBlocks(StatefulActionNode):
     """Consume camera frames as they arrive, detect the support blocks and commit one crop
-    per block, left to right (the block sequencer). RUNNING until ``blocks`` are committed,
+    per block, left to right (the block sequencer). A frame whose view barely moved since
+    the last one processed is skipped (the rig's ``perception.min_view_change_px`` and
+    ``max_frame_gap_s``; docs/performance.md). RUNNING until ``blocks`` are committed,
     then SUCCESS; run it in a Parallel beside the scan flight. ``count`` and ``scan`` are
     written whenever a block is committed, so they hold what was found if the scan ends
     first. FAILURE if the camera delivers no frame for ``stall_timeout``, on a frame of the
@@ -149,6 +151,7 @@ class DetectBlocks(StatefulActionNode):
         self.started_s = self.last_frame_s = self.now()
         frame = self.vehicle.camera_frame()
         self.last_index = frame.index if frame is not None else None  # only frames from now on
+        self.gate = self.session.frame_gate()
         self.result = BlockScan(key=self.output_key("scan") or "", t_s=self.now())
         self.camera_index: dict[int, int] = {}  # sequencer frame number -> camera frame index
         self.session.scans.append(self.result)
@@ -162,25 +165,10 @@ class DetectBlocks(StatefulActionNode):
         frame = self.vehicle.camera_frame()
         if frame is not None and frame.index != self.last_index:
             self.last_index, self.last_frame_s = frame.index, now
-            self.camera_index[self.sequencer.frames + 1] = frame.index
-            try:
-                new = self.session.process(
-                    frame, self.detector, self.sequencer, self.min_score, self.row_offset_px
-                )
-            except PerceptionError as exc:
-                return _fail(self, str(exc))
-            self.result.frames_seen += 1
-            for block in new:
-                r = self.result
-                r.crops.append(block.crop)
-                r.frames.append(self.camera_index.get(block.frame_index, frame.index))
-                r.times_s.append(block.t_s)
-                r.qualities.append(block.quality)
-            if new:
-                self.set_output("count", self.result.count)
-                self.set_output("scan", self.result)
-            if self.sequencer.done:
-                return SUCCESS
+            if self.session.wants(self.gate, frame):
+                status = self._process(frame)
+                if status is not None:
+                    return status
         if now - self.last_frame_s >= self.stall_s - 1e-9:
             return _fail(
                 self,
@@ -194,6 +182,27 @@ class DetectBlocks(StatefulActionNode):
                 f"{self.sequencer.params.blocks} blocks",
             )
         return RUNNING
+
+    def _process(self, frame: Any) -> NodeStatus | None:
+        """Detect and sequence one frame; SUCCESS once done, FAILURE on a bad frame."""
+        self.camera_index[self.sequencer.frames + 1] = frame.index
+        try:
+            new = self.session.process(
+                frame, self.detector, self.sequencer, self.min_score, self.row_offset_px
+            )
+        except PerceptionError as exc:
+            return _fail(self, str(exc))
+        r = self.result
+        r.frames_seen += 1
+        for block in new:
+            r.crops.append(block.crop)
+            r.frames.append(self.camera_index.get(block.frame_index, frame.index))
+            r.times_s.append(block.t_s)
+            r.qualities.append(block.quality)
+        if new:
+            self.set_output("count", r.count)
+            self.set_output("scan", r)
+        return SUCCESS if self.sequencer.done else None
 
 
 @register

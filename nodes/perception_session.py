@@ -27,6 +27,7 @@ from perception.errors import ModelError
 
 FRAME_HW = (244, 324)  # the AI-deck camera: 324 x 244 pixels
 DEMO = "demo"  # gallery name of the built-in demo gallery (the world's pallets)
+MAX_RESULT_LINES = 5  # more identifications than this are counted, not listed
 
 
 #: torch threads for the mission's models. One: the detector does a frame in about 4 ms on
@@ -128,6 +129,7 @@ class PerceptionSession:
         camera = (data.get("sensors") or {}).get("camera") or {}
         self.camera: dict = dict(camera)
         self.factors = tuple(float(f) for f in camera.get("white_balance", (1.0, 1.0, 1.0)))
+        self.gate_settings: dict = dict(data.get("perception") or {})
         self.log = log or (lambda msg: None)
         self._detectors: dict[str, Any] = {}
         self._embedders: dict[str, Any] = {}
@@ -140,6 +142,7 @@ class PerceptionSession:
         self.latencies_ms: list[float] = []
         self.frames = 0
         self.detections = 0
+        self.frames_skipped = 0  # new frames a leaf's frame gate skipped (view barely moved)
         self.tracker: Any = None  # perception.face.FaceTracker while a reactive scan runs
         self.faces: list[dict] = []  # face estimates of the reactive leaves, for the report
 
@@ -236,6 +239,35 @@ class PerceptionSession:
         self._galleries.clear()
 
     # -- frames ------------------------------------------------------------------------------
+    def frame_gate(self) -> Any:
+        """A new :class:`perception.frame_gate.FrameGate` for one leaf, from the rig's
+        ``perception`` settings (each leaf processes its first frame)."""
+        from perception.frame_gate import FrameGate, FrameGateParams
+        from perception.synth.camera_model import CameraModel
+
+        g = self.gate_settings
+        defaults = FrameGateParams()
+        params = FrameGateParams(
+            float(g.get("min_view_change_px", defaults.min_view_change_px)),
+            float(g.get("max_frame_gap_s", defaults.max_frame_gap_s)),
+            float(g.get("view_depth_m", defaults.view_depth_m)),
+        )
+        return FrameGate(CameraModel.from_dict(self.camera), params)
+
+    def wants(self, gate: Any, frame: Any) -> bool:
+        """True if ``gate`` lets the new camera ``frame`` through (its view changed enough,
+        or enough time passed); a skipped frame is never rendered nor detected."""
+        from perception.synth.camera_model import CameraPose
+
+        pose = getattr(frame, "pose", None)
+        cam = None
+        if pose is not None and getattr(pose, "source", "") != "none":
+            cam = CameraPose.from_quaternion(pose.x_m, pose.y_m, pose.z_m, pose.quaternion)
+        if gate.wants(frame.t_s, cam):
+            return True
+        self.frames_skipped += 1
+        return False
+
     def start_tracking(self) -> Any:
         """A new face tracker (:class:`perception.face.FaceTracker`) fed with every frame
         processed from now on, for the rig's camera model."""
@@ -243,6 +275,18 @@ class PerceptionSession:
         from perception.synth.camera_model import CameraModel
 
         self.tracker = FaceTracker(CameraModel.from_dict(self.camera))
+        self.tracker_place = None
+        return self.tracker
+
+    def tracker_for(self, place: Any) -> Any:
+        """The face tracker of the pallet place ``place`` (x, y, z): the running one if it
+        tracks that place (a second LocatePallet pass keeps everything seen so far), a new
+        one for a new place (an inventory: what was seen at one place must not shape the
+        next place's face)."""
+        key = tuple(round(float(v), 4) for v in place) if place is not None else None
+        if self.tracker is None or getattr(self, "tracker_place", None) != key:
+            self.start_tracking()
+            self.tracker_place = key
         return self.tracker
 
     def _track(self, frame: Any, dets: list) -> None:
@@ -306,7 +350,15 @@ class PerceptionSession:
         unless it is the usual ``pallet_id``), its answer and how sure it is, or why it
         failed; and what was enrolled (``btrun`` prints these after the status line)."""
         out = []
-        for r in self.identifications:
+        if len(self.identifications) > MAX_RESULT_LINES:  # an inventory: count, do not list
+            known = sum(1 for r in self.identifications if r.get("known"))
+            failed = sum(1 for r in self.identifications if "failed" in r)
+            unknown = len(self.identifications) - known - failed
+            out.append(
+                f"pallets: {len(self.identifications)} identifications, {known} known, "
+                f"{unknown} unknown, {failed} failed (each in summary.json perception)"
+            )
+        for r in self.identifications[: 0 if out else None]:
             key = r.get("key") or ""
             label = "pallet:" if key in ("", "pallet_id") else f"pallet {{{key}}}:"
             if "failed" in r:
@@ -328,6 +380,7 @@ class PerceptionSession:
         lat = np.asarray(self.latencies_ms) if self.latencies_ms else None
         out: dict[str, Any] = {
             "frames_processed": self.frames,
+            "frames_skipped": self.frames_skipped,
             "detections": self.detections,
             "blocks": [s.count for s in self.scans],
         }

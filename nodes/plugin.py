@@ -11,7 +11,8 @@ Importing it imports :mod:`nodes` (which registers every leaf). It gives the eng
 * :meth:`DronePlugin.write_report` - the flight report (:mod:`nodes.report`);
 * :meth:`DronePlugin.run_sections` - ``motions`` in ``summary.json``: each motion's
   tracking figures (what the report's motion table shows, for campaigns to tabulate);
-* :meth:`DronePlugin.commands` - ``btrun sim serve ...`` and ``btrun gallery ...``.
+* :meth:`DronePlugin.commands` - ``btrun sim serve ...``, ``btrun rig ...``,
+  ``btrun fleet ...`` and ``btrun gallery ...``.
 """
 
 from __future__ import annotations
@@ -61,7 +62,9 @@ class RigTarget:
 
         hook = make_safety_hook(self.rig, platform, mission)
         hooks: list[Any] = [hook] if hook is not None else []
-        recorder = make_mcap_recorder(getattr(self, "run_dir", None), platform, mission, hook)
+        recorder = None
+        if getattr(self, "record_mcap", True):  # btrun run --no-mcap; campaign rows
+            recorder = make_mcap_recorder(getattr(self, "run_dir", None), platform, mission, hook)
         return hooks + ([recorder] if recorder is not None else [])
 
     def at_rest(self, platform: Platform) -> bool:
@@ -107,6 +110,7 @@ class DronePlugin:
 
     def commands(self) -> dict[str, Command]:
         """``btrun sim serve crazyflie|aideck ...`` and ``btrun gallery ...``."""
+        from nodes.fleet import run as fleet_run
         from nodes.gallery import cli as gallery_cli
 
         return {
@@ -117,6 +121,11 @@ class DronePlugin:
                 "rig files: btrun rig settings [--markdown] | btrun rig check RIG [--set k=v]",
                 _rig_setup,
                 _rig_run,
+            ),
+            "fleet": Command(
+                "fly several drones at once: btrun fleet fleets/aisle_2.yaml (docs/fleets.md)",
+                fleet_run.setup,
+                fleet_run.run,
             ),
             "gallery": Command(
                 "enrolled pallets: btrun gallery list|enrol|remove|export|evaluate|demo",

@@ -14,7 +14,10 @@ Three leaves, meant to run in this order (``missions/pallet_scan.xml``):
   past the expected end while blocks are still missing (up to ``extend``), and stops early
   once the blocks are committed.
 
-Every target is checked against the safety geofence before it is flown, every leaf has a
+LocatePallet and AlignToPallet look at the frames the rig's frame gate lets through (a
+frame whose view barely moved since the last one looked at is skipped:
+``perception.min_view_change_px``, ``max_frame_gap_s``). Every target is checked against
+the safety geofence before it is flown, every leaf has a
 time-out, and each FAILURE says why. The leaves use the Vehicle API only. Re-acquiring a
 lost row is the mission's job: a second LocatePallet / AlignToPallet / ScanFace pass starts
 from everything seen so far (the face tracker keeps the sightings of the whole run).
@@ -62,6 +65,7 @@ class _Reactive(StatefulActionNode):
         self.progress: Any = None
         frame = self.vehicle.camera_frame()
         self.last_index = frame.index if frame is not None else None
+        self.gate = self.session.frame_gate()
 
     def _not_a_face(self, face: Any) -> NodeStatus:
         return self._fail(f"face must be LocatePallet's face output, got {type(face).__name__}")
@@ -129,12 +133,15 @@ class _Reactive(StatefulActionNode):
         return ""
 
     def look(self, detector: Any, min_score: float) -> str:
-        """Process the newest camera frame (if new) into the face tracker; "" or why the
-        frame could not be used (a frame of the wrong size or format)."""
+        """Process the newest camera frame (if new, and if the rig's frame gate lets it
+        through) into the face tracker; "" or why the frame could not be used (a frame of
+        the wrong size or format)."""
         frame = self.vehicle.camera_frame()
         if frame is None or frame.index == self.last_index:
             return ""
         self.last_index = frame.index
+        if not self.session.wants(self.gate, frame):
+            return ""  # the view barely moved since the last frame looked at
         try:
             self.session.observe(frame, detector, min_score)
         except PerceptionError as exc:
@@ -164,8 +171,9 @@ class LocatePallet(_Reactive):
     ``place`` (the mapped centre of the block row, x;y;z), facing ``facing_deg``; hold for
     ``look_time`` while the detector looks; fit the face (:mod:`perception.face`). If no block
     is seen, look again from points ``search_step`` to either side (``search_points`` in
-    all). SUCCESS with ``face``; FAILURE "no pallet found" (or on a refused motion, or after
-    ``timeout``)."""
+    all). SUCCESS with ``face``; FAILURE "no pallet found" (``blocks_seen`` 0: an empty
+    place), or on a refused motion or after ``timeout`` (``blocks_seen`` -1: it could not
+    look)."""
 
     bt_id = "LocatePallet"
     ports = (
@@ -184,7 +192,12 @@ class LocatePallet(_Reactive):
         _MIN_SCORE,
         input_port("timeout", DURATION, 60.0, "FAILURE if not done within this time, s"),
         output_port("face", ANY, "the face estimate (for AlignToPallet and ScanFace)"),
-        output_port("blocks_seen", INT, "distinct blocks seen"),
+        output_port(
+            "blocks_seen",
+            INT,
+            "distinct blocks seen: -1 until it has looked, 0 when it looked and saw none "
+            "(no pallet found)",
+        ),
     )
 
     def on_start(self) -> NodeStatus:
@@ -193,9 +206,10 @@ class LocatePallet(_Reactive):
             self.detector = self.session.detector(self.get_input("detector"))
         except PerceptionError as exc:
             return self._fail(str(exc))
-        self.tracker = self.session.tracker or self.session.start_tracking()
         self.prior = self.get_input("place")
+        self.tracker = self.session.tracker_for(self.prior)
         self.facing = math.radians(self.get_input("facing_deg"))
+        self.set_output("blocks_seen", -1)  # not looked yet (0: looked, saw no block)
         if self.tracker.sightings:  # a second pass: everything seen so far counts
             face = self.tracker.fit(self.facing, self.prior, self.get_input("window"))
             if face is not None:
@@ -235,6 +249,7 @@ class LocatePallet(_Reactive):
                 + "; ".join(self.refused)
             )
         refused = f" ({len(self.refused)} more refused)" if self.refused else ""
+        self.set_output("blocks_seen", 0)
         return self._fail(
             f"no pallet found near ({x:.2f}, {y:.2f}, {z:.2f}): no support block seen from "
             f"{self.looked} look point(s){refused}"

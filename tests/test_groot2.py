@@ -649,8 +649,16 @@ def test_every_mission_equals_btcpp_publisher(
     factory = _btcpp_factory(btcpp, peer.used, condition_ok)
     # (behaviortreepy's register_behavior_tree_from_file does not take a path: unusable)
     tree = factory.create_tree_from_file(peer.main)
+    # A queue loop over an entry that only a drone leaf fills (the dummies write nothing):
+    # both engines start with the same two-item queue in it.
+    queues = _loop_queue_entries(peer.main)
+    for key in queues:
+        tree.root_blackboard().set_string(key, "q1;q2")
     mission = Mission.from_file(
-        path, clock=SimClock(), registry=_dummy_registry(drone_models, condition_ok)
+        path,
+        clock=SimClock(),
+        registry=_dummy_registry(drone_models, condition_ok),
+        blackboard={key: "q1;q2" for key in queues},
     )
     runner = Runner(mission, 50.0)
     bt_port = free_port_pair()
@@ -681,6 +689,21 @@ def test_every_mission_equals_btcpp_publisher(
         ours.close()
         server.close()
         del publisher
+
+
+def _loop_queue_entries(main_file: str) -> list[str]:
+    """Blackboard entries the main tree's queue loops (LoopString, ...) read their queue from."""
+    root = ET.parse(main_file).getroot()
+    main = root.get("main_tree_to_execute")
+    out = []
+    for tree in root.findall("BehaviorTree"):
+        if main and tree.get("ID") != main:
+            continue
+        for el in tree.iter():
+            queue = el.get("queue", "")
+            if el.tag.startswith("Loop") and queue.startswith("{") and queue.endswith("}"):
+                out.append(queue[1:-1])
+    return out
 
 
 def _compare_fulltree(t_xml: str, o_xml: str, peer: _BtcppMission, n_nodes: int) -> None:

@@ -66,6 +66,7 @@ def payload(c: Campaign, row: Row, out_dir: str, keep: str, include_paths: list[
         "run_dir": os.path.abspath(os.path.join(out_dir, "runs", row.folder)),
         "keep": keep,
         "flight_reports": c.flight_reports,
+        "mcap": c.mcap,
         "metrics": [[m.name, m.source] for m in c.metrics],
         "include_paths": [os.path.abspath(p) for p in include_paths],
     }

@@ -43,6 +43,8 @@ TOP_KEYS: dict[str, str] = {
     "metrics": "columns read from each run's summary.json (name: path or operation)",
     "keep_runs": "which run folders to keep: failed (default), all or none",
     "flight_reports": "flight reports in kept folders: kept (default), failed or none",
+    "mcap": "record run.mcap in each run (default false: a row re-flies identically with "
+    "btrun run, which records it)",
 }
 DRAWS = ("uniform", "randint", "normal", "choice")
 KEEP_RUNS = ("failed", "all", "none")
@@ -124,6 +126,7 @@ class Campaign:
     metrics: list[Metric] = field(default_factory=list)
     keep_runs: str = "failed"
     flight_reports: str = "kept"
+    mcap: bool = False
     #: where each setting key was written (for the plug-in's problems with its value)
     key_locs: dict[str, Loc] = field(default_factory=dict)
     #: where each mission / rig / world entry was written, by resolved path
@@ -208,6 +211,12 @@ def load_campaign(path: str) -> Campaign:
                 r.bad(v, f"{key}: expected one of {', '.join(choices)}, got {kv!r}")
             else:
                 setattr(c, key, kv)
+        elif key == "mcap":
+            flag = r.value(v)
+            if not isinstance(flag, bool):
+                r.bad(v, f"mcap: expected true or false, got {flag!r}")
+            else:
+                c.mcap = flag
         elif key == "set":
             for k, kn, vn in _settings(r, v, "set", first):
                 c.fixed[k] = _plain_value(r, vn, f"set.{k}")

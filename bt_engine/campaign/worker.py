@@ -75,6 +75,7 @@ def _args(payload: dict[str, Any]) -> argparse.Namespace:
         tick_budget=None,
         quiet=True,
         no_report=True,
+        no_mcap=not payload.get("mcap", False),
         groot=None,
         groot_address=None,
         include_path=list(payload.get("include_paths", ())),

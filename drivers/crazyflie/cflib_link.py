@@ -377,6 +377,20 @@ class CrazyflieLink:
             out.append(dataclasses.replace(tel, t_s=now_s))
         return out
 
+    def battery_service(self, kind: str) -> str:
+        """On a real Crazyflie a battery is swapped by hand (which restarts it and ends the
+        link): ``swap`` is refused with what to do instead. ``charge`` / ``stop_charging``
+        need no command: a Crazyflie with a Qi charging deck charges while it rests on its
+        pad, and the battery voltage shows it."""
+        if kind == "swap":
+            return (
+                "a real battery is swapped by hand: the run stops here; swap it and "
+                "continue with btrun MISSION --resume RUN_FOLDER"
+            )
+        if kind in ("charge", "stop_charging"):
+            return ""
+        return f"unknown battery service {kind!r} (swap, charge, stop_charging)"
+
     def close(self) -> None:
         """Stop the motors (stop set-point, notify stop) and close the link (idempotent)."""
         if self.cf is None or self.closed:

@@ -246,6 +246,31 @@ RIG_SCHEMA = _m(
                 ),
             }
         ),
+        "perception": _m(
+            {
+                "min_view_change_px": _f(
+                    "float",
+                    8.0,
+                    "the perception leaves render and detect a camera frame only once the view "
+                    "moved this many pixels since the last frame they processed (image centre "
+                    "and corners at view_depth_m; perception/frame_gate.py); 0: every frame",
+                    min=0.0,
+                ),
+                "max_frame_gap_s": _f(
+                    "float",
+                    0.3,
+                    "process a frame anyway once this long has passed since the last one",
+                    min=0.0,
+                ),
+                "view_depth_m": _f(
+                    "float",
+                    0.4,
+                    "distance in front of the camera at which the view change is measured",
+                    min=0.01,
+                ),
+            },
+            "which camera frames the perception leaves process (docs/performance.md)",
+        ),
         "wind": _m(
             {
                 "mean_mps": _f("vec", [0.0, 0.0, 0.0], "mean wind (m/s, world frame)", length=3),
@@ -259,6 +284,19 @@ RIG_SCHEMA = _m(
                     "float", 1.0, "state of charge at start (0..1)", min=0.0, max=1.0
                 ),
                 "capacity_mah": _f("float", 250.0, "capacity", min=1.0),
+                "charge_current_a": _f(
+                    "float",
+                    0.5,
+                    "charging current on a charging pad (ChangeBattery mode=charge)",
+                    min=0.01,
+                ),
+                "swap_soc": _f(
+                    "float",
+                    1.0,
+                    "state of charge of a fresh battery (ChangeBattery mode=swap)",
+                    min=0.0,
+                    max=1.0,
+                ),
             }
         ),
         "faults": _m(

@@ -1,4 +1,5 @@
-"""Simulated 1S LiPo: charge drawn by the motors, voltage sag under load, injected sag."""
+"""Simulated 1S LiPo: charge drawn by the motors, voltage sag under load, injected sag,
+swapped for a fresh one or charged on a pad (inventory missions)."""
 
 from __future__ import annotations
 
@@ -16,11 +17,24 @@ class SimBattery:
         self.soc = params["battery_initial_soc"]
         self.current_a = self.idle_a
         self.sag_v = 0.0  # injected extra drop (fault "battery_sag")
+        self.charge_a = float(params.get("battery_charge_current_a", 0.5))
+        self.charging = False
+        self.swaps = 0
         self.voltage_v = ocv_from_soc(self.soc) - self.current_a * self.r_ohm
 
     def update(self, dt_s: float, thrust_n: float) -> None:
-        """Draw current for ``dt_s`` at total motor thrust ``thrust_n``."""
+        """Draw current for ``dt_s`` at total motor thrust ``thrust_n`` (charging instead,
+        while on a charging pad with the motors off)."""
         i = self.idle_a + self.coeff * max(thrust_n, 0.0) ** 1.5
+        if self.charging and thrust_n <= 1e-6:
+            i = self.idle_a - self.charge_a  # negative: charge flows in
         self.current_a = i
-        self.soc = max(0.0, self.soc - i * dt_s / self.capacity_c)
+        self.soc = min(1.0, max(0.0, self.soc - i * dt_s / self.capacity_c))
         self.voltage_v = max(0.0, ocv_from_soc(self.soc) - i * self.r_ohm - self.sag_v)
+
+    def swap(self, soc: float) -> None:
+        """A fresh battery at state of charge ``soc`` (the injected sag goes with the old)."""
+        self.soc = soc
+        self.sag_v = 0.0
+        self.swaps += 1
+        self.voltage_v = ocv_from_soc(self.soc) - self.current_a * self.r_ohm

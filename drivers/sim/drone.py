@@ -95,8 +95,10 @@ class SimCrazyflie:
                 if hit is not None:
                     self._crash(hit, b.speed_mps())
                     b.vx = b.vy = 0.0  # stuck against the obstacle; falls to the floor
-            if b.on_ground is False and b.speed_mps() > self.max_speed_mps:
-                self.max_speed_mps = b.speed_mps()
+            if b.on_ground is False:
+                speed = b.speed_mps()
+                if speed > self.max_speed_mps:
+                    self.max_speed_mps = speed
 
     def true_state(self) -> dict:
         """Ground truth pose and velocity (for summaries and tests)."""

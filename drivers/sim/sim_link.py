@@ -111,5 +111,21 @@ class SimLink:
             )
         ]
 
+    def battery_service(self, kind: str) -> str:
+        """``swap``: a fresh battery; ``charge`` / ``stop_charging``: the charging pad's
+        current on or off. "" when done, else why not (link down, motors running)."""
+        if not self.up:
+            return "the link is down"
+        fw, battery = self.drone.firmware, self.drone.battery
+        if fw.motors_running or not self.drone.body.on_ground:
+            return "the drone must be on the ground with its motors off"
+        if kind == "swap":
+            battery.swap(float(self.drone.params.get("battery_swap_soc", 1.0)))
+        elif kind in ("charge", "stop_charging"):
+            battery.charging = kind == "charge"
+        else:
+            return f"unknown battery service {kind!r} (swap, charge, stop_charging)"
+        return ""
+
     def close(self) -> None:
         self.up = False

@@ -48,6 +48,8 @@ class SimPlatform:
         params = dict(crazyflie_params)
         params["battery_initial_soc"] = rig_data["battery"]["initial_soc"]
         params["battery_capacity_mah"] = rig_data["battery"]["capacity_mah"]
+        params["battery_charge_current_a"] = rig_data["battery"].get("charge_current_a", 0.5)
+        params["battery_swap_soc"] = rig_data["battery"].get("swap_soc", 1.0)
         params.update(s["params"])
         self.params = params
         ob = sensors["onboard"]
@@ -288,6 +290,7 @@ class SimPlatform:
             "battery": {
                 "voltage_v": round(bat.voltage_v, 3),
                 "soc": round(bat.soc, 4),
+                "swaps": bat.swaps,
                 "percent_reported": round(v.battery.percent, 1),
             },
             "max_tracking_error_m": round(self.max_tracking_error_m, 4),

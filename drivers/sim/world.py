@@ -17,203 +17,26 @@ from dataclasses import dataclass, field
 
 from drivers.settings import (
     ConfigError,
-    Field,
     Marks,
     SettingProblem,
     apply_overrides,
     load_yaml_file,
     problem_at,
 )
-
-F, M, L = Field, lambda children, doc="": Field("map", children=children, doc=doc), Field
-
-SLOT = M(
-    {
-        "x_m": F("float", 0.0, "x of the centre of the shown face (m)"),
-        "y_m": F("float", 0.0, "y of the centre of the shown face (m)"),
-        "z_m": F("float", 0.0, "height of the pallet base (m); > 0 stands it on a stand box"),
-        "facing_deg": F("float", 180.0, "direction the shown face looks to (deg, 180 = -x)"),
-    }
+from drivers.sim.racks import (
+    Place,
+    draw_pose_error,
+    draw_stock,
+    generated_pallets,
+    rack_boxes,
+    rack_places,
+    stock_pool,
+    stock_problems,
 )
-# Pallet looks (perception.synth.looks names them; tests/test_rig_world.py checks the lists
-# agree): the wood's tone, a paint, and ageing since enrolment.
-WOODS = ("auto", "fresh", "pale", "yellowed", "orange", "brown", "grey", "silver", "dark", "wet")
-PAINTS = ("auto", "none", "blue", "red", "green", "yellow", "black", "white", "grey", "brown")
-SIDE = M(
-    {
-        "stamp": F("str", "EPAL", "brand stamp text on the blocks"),
-        "wear": F("float", 0.3, "dirt and wear, 0 (new) .. 1 (very used)", min=0.0, max=1.0),
-        "texture_seed": F("int", 0, "seed of the procedural wood texture"),
-        "wood": F("choice", "auto", "wood tone (auto: pallet_look.wood)", choices=WOODS),
-        "paint": F("choice", "auto", "paint (auto: pallet_look.paint)", choices=PAINTS),
-        "age": F(
-            "float",
-            None,
-            "ageing since enrolment 0..1 (default: pallet_look.age)",
-            min=0.0,
-            max=1.0,
-            nullable=True,
-        ),
-    }
-)
-LOOK = M(
-    {
-        "wood": F(
-            "choice", "auto", "wood tone of every side (auto: fresh, per pallet)", choices=WOODS
-        ),
-        "paint": F("choice", "none", "paint of every side", choices=PAINTS[1:]),
-        "age": F(
-            "float",
-            0.0,
-            "stains, dust, scratches, faded stamps since enrolment, 0..1 "
-            "(the demo gallery enrols every side at 0)",
-            min=0.0,
-            max=1.0,
-        ),
-    },
-    doc="the look of every pallet side unless the side sets its own (wood, paint, age)",
-)
-WORLD_SCHEMA = M(
-    {
-        "name": F("str", "world", "world name"),
-        "floor": M(
-            {
-                "size_m": F("vec", [20.0, 10.0], "floor extent along x and y (m)", length=2),
-                "origin_m": F(
-                    "vec", [-2.0, -5.0], "corner of the floor with the smallest x, y", length=2
-                ),
-                "z_m": F("float", 0.0, "floor height (m)"),
-                "texture": F("str", "concrete", "floor texture name (renderer)"),
-            }
-        ),
-        "lighting": M(
-            {
-                "ambient": F("float", 0.6, "ambient light level 0..1", min=0.0, max=1.0),
-                "colour_temperature_k": F("float", 4000.0, "light colour temperature (K)"),
-                "lamps": L(
-                    "list",
-                    [],
-                    "point lamps",
-                    item=M(
-                        {
-                            "position_m": F("vec", [0.0, 0.0, 4.0], "lamp position (m)", length=3),
-                            "intensity": F("float", 1.0, "relative intensity", min=0.0),
-                        }
-                    ),
-                ),
-            }
-        ),
-        "pallet_geometry": M(
-            {
-                "length_m": F("float", 1.2, "EPAL length"),
-                "width_m": F("float", 0.8, "EPAL width"),
-                "height_m": F("float", 0.144, "EPAL height"),
-                "board_m": F("float", 0.022, "bottom and top board thickness"),
-                "block_height_m": F("float", 0.078, "support block height"),
-                "corner_block_m": F(
-                    "vec", [0.145, 0.100], "corner block [along face, depth] (approx.)", length=2
-                ),
-                "middle_block_m": F(
-                    "vec", [0.145, 0.145], "middle block [along face, depth] (approx.)", length=2
-                ),
-            }
-        ),
-        "pallets": L(
-            "list",
-            [],
-            "physical pallets; each has two sides A and B",
-            item=M(
-                {
-                    "id": F("str", None, "pallet number, e.g. '3'", required=True),
-                    "sides": M({"A": SIDE, "B": SIDE}),
-                }
-            ),
-        ),
-        "pallet_look": LOOK,
-        "scan_pallet": F(
-            "str", "3A", "identity (pallet id + side) at the scan slot, or none (empty slot)"
-        ),
-        "scan_slot": SLOT,
-        "placement_error": M(
-            {
-                "lateral_m": F("float", 0.0, "along the face, drawn in +-this (m)", min=0.0),
-                "depth_m": F("float", 0.0, "away from the scan line, in +-this (m)", min=0.0),
-                "height_m": F("float", 0.0, "base height, in +-this (m)", min=0.0),
-                "yaw_deg": F("float", 0.0, "turn about the face centre, in +-this (deg)", min=0.0),
-            },
-            doc="how far the scanned pallet stands off its slot: each offset is drawn "
-            "uniformly per seed (summary.json sim.placement_offset has the draw)",
-        ),
-        "placement_offset": M(
-            {
-                "lateral_m": F("float", 0.0, "along the face, to its left seen from in front (m)"),
-                "depth_m": F("float", 0.0, "away from the scan line (m)"),
-                "height_m": F("float", 0.0, "base height (m)"),
-                "yaw_deg": F("float", 0.0, "turn about the face centre, counter-clockwise (deg)"),
-            },
-            doc="a fixed offset of the scanned pallet from its slot, added to the drawn "
-            "placement error",
-        ),
-        "stand_size_m": F(
-            "vec", [0.8, 1.2], "footprint of the stand under a raised slot", length=2
-        ),
-        "row_slots": L(
-            "list", [], "slots the other pallets fill in id order (side A shown)", item=SLOT
-        ),
-        "obstacles": L(
-            "list",
-            [],
-            "other box obstacles",
-            item=M(
-                {
-                    "name": F("str", "box", "obstacle name"),
-                    "center_m": F("vec", [0.0, 0.0, 0.5], "box centre (m)", length=3),
-                    "size_m": F("vec", [1.0, 1.0, 1.0], "box size along its x, y, z (m)", length=3),
-                    "yaw_deg": F("float", 0.0, "box yaw (deg)"),
-                }
-            ),
-        ),
-        "scan_line": M(
-            {
-                "x_m": F("float", 8.90, "x of the scan line (drone position while scanning)"),
-                "y_from_m": F("float", -0.5, "scan start y"),
-                "y_to_m": F("float", 0.5, "scan end y"),
-                "z_m": F("float", 0.255, "scan height"),
-                "yaw_deg": F("float", 0.0, "drone yaw while scanning"),
-            },
-            doc="where the mission scans (documentation for missions and the renderer)",
-        ),
-    }
-)
+from drivers.sim.shapes import Box
+from drivers.sim.world_schema import LOOK, PAINTS, SIDE, SLOT, WOODS, WORLD_SCHEMA
 
-
-@dataclass(frozen=True)
-class Box:
-    """An oriented box (yaw only): centre, half sizes, yaw; ``name`` says what it is."""
-
-    name: str
-    cx: float
-    cy: float
-    cz: float
-    hx: float
-    hy: float
-    hz: float
-    yaw_rad: float = 0.0
-
-    def distance_m(self, x: float, y: float, z: float) -> float:
-        """Distance from a point to the box (0 inside)."""
-        dx, dy = x - self.cx, y - self.cy
-        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
-        lx, ly, lz = c * dx + s * dy, -s * dx + c * dy, z - self.cz
-        ox = max(abs(lx) - self.hx, 0.0)
-        oy = max(abs(ly) - self.hy, 0.0)
-        oz = max(abs(lz) - self.hz, 0.0)
-        return math.sqrt(ox * ox + oy * oy + oz * oz)
-
-    @property
-    def top_z(self) -> float:
-        """Height of the box top."""
-        return self.cz + self.hz
+__all__ = ["LOOK", "PAINTS", "SIDE", "SLOT", "WOODS", "WORLD_SCHEMA", "Box", "Place", "PlacedPallet", "World", "load_world"]
 
 
 @dataclass
@@ -232,6 +55,7 @@ class PlacedPallet:
     body: Box
     blocks: list[Box] = field(default_factory=list)
     sides: dict = field(default_factory=dict)
+    slot_name: str = "scan"  # "scan", "row[i]" or a rack place name (A-03-2)
 
 
 def place_pallet(pallet: dict, side: str, slot: dict, geometry: dict) -> PlacedPallet:
@@ -329,7 +153,8 @@ class World:
     """
 
     def __init__(self, data: dict, path: str = "<world>", seed: int = 0) -> None:
-        self.data, self.path = data, path
+        data = with_generated_pallets(data)
+        self.data, self.path, self.seed = data, path, seed
         self.floor_z_m = data["floor"]["z_m"]
         g = data["pallet_geometry"]
         pallets = {p["id"]: p for p in data["pallets"]}
@@ -343,11 +168,38 @@ class World:
         self.scan_slot = slot
         self.pallets: list[PlacedPallet] = []
         self.boxes: list[Box] = []
+        #: rack places by name, in order (bay by bay, levels from the floor up)
+        self.places: dict[str, Place] = {
+            p.name: p for rack in data["racks"] for p in rack_places(rack, g)
+        }
+        #: which identity stands in each place for this seed (None: empty)
+        self.stock: dict[str, str | None] = (
+            draw_stock(list(self.places.values()), data, seed) if self.places else {}
+        )
+        #: each racked pallet's offset from its place (drawn per seed)
+        self.place_offsets: dict[str, dict[str, float]] = {}
         if scan_id in pallets:
-            self.pallets.append(place_pallet(pallets[scan_id], scan_side, slot, g))
-        others = [p for pid, p in pallets.items() if pid != scan_id]
-        for pallet, slot in zip(others, data["row_slots"], strict=False):
-            self.pallets.append(place_pallet(pallet, "A", slot, g))
+            placed = place_pallet(pallets[scan_id], scan_side, slot, g)
+            self.pallets.append(placed)
+        racked = set()
+        for name, identity in self.stock.items():
+            if identity is None:
+                continue
+            pid, side = split_identity(identity)
+            if pid == scan_id or pid not in pallets:
+                continue
+            offset = draw_pose_error(data["stock"]["placement_error"], seed, name)
+            self.place_offsets[name] = offset
+            place_slot = offset_slot(self.places[name].slot, offset, self.floor_z_m)
+            placed = place_pallet(pallets[pid], side, place_slot, g)
+            placed.slot_name = name
+            self.pallets.append(placed)
+            racked.add(pid)
+        others = [p for pid, p in pallets.items() if pid != scan_id and pid not in racked]
+        for i, (pallet, row_slot) in enumerate(zip(others, data["row_slots"], strict=False)):
+            placed = place_pallet(pallet, "A", row_slot, g)
+            placed.slot_name = f"row[{i}]"
+            self.pallets.append(placed)
         self.boxes += [p.body for p in self.pallets]
         if slot["z_m"] > 0.0 and self.pallets and not empty:
             sp = self.pallets[0]
@@ -364,6 +216,8 @@ class World:
                     sp.yaw_rad,
                 )
             )
+        for rack in data["racks"]:
+            self.boxes += rack_boxes(rack)
         for ob in data["obstacles"]:
             cx, cy, cz = ob["center_m"]
             sx, sy, sz = ob["size_m"]
@@ -371,20 +225,21 @@ class World:
                 Box(ob["name"], cx, cy, cz, sx / 2, sy / 2, sz / 2, math.radians(ob["yaw_deg"]))
             )
         self.max_top_z = max((b.top_z for b in self.boxes), default=-math.inf)
+        self._grid = _BoxGrid(self.boxes)
 
     def ground_truth(self) -> list[dict]:
         """Which pallet side stands where: per pallet its identity (pallet and side shown),
-        footprint centre, base height, facing and the height of its block centre line (for
-        ``summary.json``'s ``sim.pallets``; the first is the scanned pallet)."""
+        slot (``scan``, ``row[i]`` or a rack place), footprint centre, base height, facing
+        and the height of its block centre line (for ``summary.json``'s ``sim.pallets``; the
+        scanned pallet first)."""
         g = self.data["pallet_geometry"]
         out = []
-        empty = str(self.scan_pallet).strip().lower() in EMPTY
-        for i, p in enumerate(self.pallets, start=1 if empty else 0):
+        for p in self.pallets:
             fx, fy, fz = p.face_center_m
             out.append(
                 {
                     "identity": p.identity,
-                    "slot": "scan" if i == 0 else f"row[{i - 1}]",
+                    "slot": p.slot_name,
                     "centre_m": [round(p.x_m, 4), round(p.y_m, 4)],
                     "base_z_m": round(p.z_m, 4),
                     "face_centre_m": [round(fx, 4), round(fy, 4), round(fz, 4)],
@@ -393,6 +248,20 @@ class World:
                 }
             )
         return out
+
+    def places_truth(self) -> dict[str, str | None]:
+        """Rack place -> the identity standing there (None: empty), for this seed."""
+        return dict(self.stock)
+
+    def not_enrolled(self) -> list[str]:
+        """Identities of the pallets the demo gallery leaves out (``stock.not_enrolled``)."""
+        bad = set(stock_pool(self.data)[1]) if self.places else set()
+        return [i for i in self.identities() if i[:-1] in bad]
+
+    def enrolled_identities(self) -> list[str]:
+        """The identities the demo gallery enrols: every side but the not-enrolled ones."""
+        bad = set(self.not_enrolled())
+        return [i for i in self.identities() if i not in bad]
 
     def identities(self) -> list[str]:
         """All identities ("1A", "1B", ...) that exist in the world file."""
@@ -405,13 +274,53 @@ class World:
         return self.pallets[0] if self.pallets else None
 
     def collision(self, x: float, y: float, z: float, radius_m: float) -> str | None:
-        """Name of the box a sphere at (x, y, z) touches, or None (cheap when high up)."""
+        """Name of the box a sphere at (x, y, z) touches, or None (cheap when high up or
+        far from every box: boxes are indexed on a 1 m grid)."""
         if z - radius_m > self.max_top_z:
             return None
-        for box in self.boxes:
+        far = radius_m + 1e-9  # beyond this from a box's bounds, distance_m >= radius_m
+        for box in self._grid.near(x, y, radius_m):
+            ex, ey = box.reach_xy
+            if abs(x - box.cx) - ex > far or abs(y - box.cy) - ey > far:
+                continue  # the common case, without distance_m's trigonometry
             if box.distance_m(x, y, z) < radius_m:
                 return box.name
         return None
+
+
+class _BoxGrid:
+    """Boxes indexed by the 1 m floor cells their footprint (plus a margin) covers."""
+
+    CELL_M = 1.0
+    MARGIN_M = 0.3  # queries with a larger radius look at every box
+
+    def __init__(self, boxes: list[Box]) -> None:
+        self.boxes = boxes
+        self.cells: dict[tuple[int, int], list[Box]] = {}
+        c = self.CELL_M
+        for b in boxes:
+            r = math.hypot(b.hx, b.hy) + self.MARGIN_M
+            for i in range(math.floor((b.cx - r) / c), math.floor((b.cx + r) / c) + 1):
+                for j in range(math.floor((b.cy - r) / c), math.floor((b.cy + r) / c) + 1):
+                    self.cells.setdefault((i, j), []).append(b)
+
+    def near(self, x: float, y: float, radius_m: float) -> list[Box]:
+        """Boxes that may lie within ``radius_m`` of (x, y)."""
+        if radius_m > self.MARGIN_M:
+            return self.boxes
+        return self.cells.get((math.floor(x / self.CELL_M), math.floor(y / self.CELL_M)), [])
+
+
+def with_generated_pallets(data: dict) -> dict:
+    """``data`` with its ``pallet_pool`` expanded into ``pallets`` (the pool's count set to
+    0, so expanding twice adds nothing)."""
+    pool = data.get("pallet_pool") or {}
+    if not pool.get("count"):
+        return data
+    out = dict(data)
+    out["pallets"] = list(data["pallets"]) + generated_pallets(pool)
+    out["pallet_pool"] = dict(pool, count=0)
+    return out
 
 
 def split_identity(identity: str) -> tuple[str, str]:
@@ -421,8 +330,8 @@ def split_identity(identity: str) -> tuple[str, str]:
 
 
 def identities(data: dict) -> list[str]:
-    """Every pallet identity of a world's data."""
-    return [f"{p['id']}{s}" for p in data["pallets"] for s in ("A", "B")]
+    """Every pallet identity of a world's data (generated pallets included)."""
+    return [f"{p['id']}{s}" for p in with_generated_pallets(data)["pallets"] for s in ("A", "B")]
 
 
 def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
@@ -432,6 +341,7 @@ def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
     def where(key: str, message: str) -> SettingProblem:
         return problem_at(marks, key, path, message)
 
+    data = with_generated_pallets(data)
     seen = set()
     for i, p in enumerate(data["pallets"]):
         if p["id"] in seen:
@@ -447,7 +357,7 @@ def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
                 "none leaves the slot empty)",
             )
         )
-    if len(data["row_slots"]) < max(0, len(data["pallets"]) - 1):
+    if not data["racks"] and len(data["row_slots"]) < max(0, len(data["pallets"]) - 1):
         problems.append(
             where(
                 "row_slots",
@@ -455,6 +365,9 @@ def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
                 f"slots but only {len(data['row_slots'])} are given",
             )
         )
+    places = [p for rack in data["racks"] for p in rack_places(rack, data["pallet_geometry"])]
+    for key, message in stock_problems(data, places):
+        problems.append(where(key, message))
     return problems
 
 
@@ -479,6 +392,11 @@ def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0
                     "the slot empty)",
                 )
             )
+        # what the overrides broke (a stock the pool cannot fill, ...), said as --set
+        before = {p.message for p in problems}
+        for p in check_world(data, {}, path):
+            if p.message not in before:
+                problems.append(SettingProblem("--set", 0, 0, f"world: {p.message}"))
     if problems:
         raise ConfigError(problems)
     return World(data, path, seed)

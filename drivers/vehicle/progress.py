@@ -19,6 +19,8 @@ class MotionProgress:
     * ``settled``: ``reached`` has held for ``settle_time_s``.
     * ``failed`` / ``reason``: the request cannot complete (not armed, link lost, crashed,
       emergency stop, time-out). ``cancelled``: a newer request replaced this one.
+    * ``waiting``: why the motion holds instead of going ("" while it goes): the airspace of
+      a fleet is taken, or a supervisor paused it (see :mod:`drivers.vehicle.gate`).
     """
 
     kind: str
@@ -37,6 +39,7 @@ class MotionProgress:
     failed: bool = False
     cancelled: bool = False
     reason: str = ""
+    waiting: str = ""
     elapsed_s: float = 0.0
     reached_since_s: float | None = None
 

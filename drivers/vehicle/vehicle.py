@@ -14,18 +14,16 @@ control rate; the platform does it (lock-step: inside ``before_tick``).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
-from drivers.vehicle.angles import path_facing_yaw_rad, wrap_angle_rad, yaw_error_rad
+from drivers.vehicle.angles import yaw_error_rad
 from drivers.vehicle.battery import percent_from_voltage
 from drivers.vehicle.config import VehicleConfig
+from drivers.vehicle.gate import GatedMotion, MotionGate
 from drivers.vehicle.health import HealthTracker
 from drivers.vehicle.interfaces import CameraSource, Link, LinkTelemetry, PoseSample, PoseSource
+from drivers.vehicle.motions import AIRBORNE, MotionRequests
 from drivers.vehicle.progress import MotionProgress
 from drivers.vehicle.trajectory import (
-    Limits,
-    LineReference,
-    PathReference,
     Reference,
     RefSample,
     StopReference,
@@ -37,14 +35,12 @@ from drivers.vehicle.types import (
     HealthReport,
     Pose,
     Velocity,
-    YawMode,
 )
 
-AIRBORNE = (FlightState.TAKING_OFF, FlightState.FLYING, FlightState.LANDING)
 LAND_PRESS_MPS = 0.1  # descent speed asked for below the touch-down height while landing
 
 
-class Vehicle:
+class Vehicle(MotionRequests):
     """One drone as the mission sees it (see the module docstring and docs/vehicle.md)."""
 
     def __init__(
@@ -82,6 +78,11 @@ class Vehicle:
         self._takeoff_v: float | None = None  # resting voltage just before take-off
         self._sag_v: float | None = None  # load sag measured early in the flight
         self._next_step_s = 0.0
+        #: the airspace of a fleet: asked before a take-off, go-to or path starts (gate.py)
+        self.motion_gate: MotionGate | None = None
+        self._gated: GatedMotion | None = None  # the current gated motion (running or waiting)
+        self.waits = 0  # motions that had to wait at the gate
+        self.pauses = 0  # motions paused by a supervisor
         self.setpoints_sent = 0
         self.refused_requests = 0  # motion requests refused (non-finite, out of envelope)
         self.refused_setpoints = 0  # non-finite set-points held back (never sent)
@@ -231,169 +232,21 @@ class Vehicle:
         self._armed_cmd, self._armed_cmd_s = False, self.now_s
         return bool(self.link.arm(False))
 
-    def takeoff(self, height_m: float = 1.0, speed_mps: float = 0.5) -> MotionProgress:
-        """Climb ``height_m`` above the current position at ``speed_mps``.
-
-        Refused (a failed progress, nothing sent) for a non-finite or non-positive height or
-        speed, or a goal above ``control.max_altitude_m``.
-        """
-        p, yaw = self.position, self.yaw_rad
-        why = _bad_numbers(height_m=height_m, speed_mps=speed_mps) or _not_positive(
-            height_m=height_m, speed_mps=speed_mps
-        )
-        if why is None and p[2] + height_m - self._ground_ref_z() > self.config.max_altitude_m:
-            why = (
-                f"height_m={height_m!r} would climb above control.max_altitude_m="
-                f"{self.config.max_altitude_m:g} m"
-            )
-        if why is not None:
-            return self._refused("takeoff", why)
-        goal = (p[0], p[1], p[2] + height_m)
-        progress = self._new_motion("takeoff", goal, yaw, None, None, None)
-        if self.flight_state in AIRBORNE:
-            progress.fail("already flying")
-            return progress
-        if self.flight_state == FlightState.CRASHED:
-            progress.fail("crashed")
-            return progress
-        if not self.is_armed:
-            if not self.config.auto_arm:
-                progress.fail("not armed")
-                return progress
-            self.arm()
-        self._ground_z = p[2]
-        self._flight_start_s = self.now_s
-        self._ref = LineReference(p, goal, yaw, yaw, self._limits(speed_mps), self.now_s)
-        self.flight_state = FlightState.TAKING_OFF
-        return progress
-
-    def go_to(
-        self,
-        x_m: float,
-        y_m: float,
-        z_m: float,
-        yaw_mode: YawMode | int = YawMode.KEEP_YAW,
-        yaw_rad: float = 0.0,
-        speed_mps: float = 0.5,
-        *,
-        position_tolerance_m: float | None = None,
-        yaw_tolerance_rad: float | None = None,
-        timeout_s: float | None = None,
-    ) -> MotionProgress:
-        """Fly a straight line to (x, y, z) with a yaw chosen by ``yaw_mode``.
-
-        PATH_FACING is computed at activation (current yaw kept if the horizontal distance is
-        below 0.1 m); yaw always turns the shortest way. Refused (a failed progress, the
-        current motion goes on) for non-finite numbers, a non-positive speed or tolerance, or a
-        goal above ``control.max_altitude_m``.
-        """
-        why = _bad_motion(
-            speed_mps, yaw_rad, position_tolerance_m, yaw_tolerance_rad, timeout_s,
-            x_m=x_m, y_m=y_m, z_m=z_m,
-        )  # fmt: skip
-        if why is None:
-            why = self._above_ceiling(float(z_m))
-        if why is not None:
-            return self._refused("go_to", why)
-        start, start_yaw = self._start_state()
-        goal = (float(x_m), float(y_m), float(z_m))
-        goal_yaw = self._goal_yaw(YawMode(int(yaw_mode)), yaw_rad, start, goal, start_yaw)
-        progress = self._new_motion(
-            "go_to", goal, goal_yaw, position_tolerance_m, yaw_tolerance_rad, timeout_s
-        )
-        if self._refuse_unless_flying(progress):
-            return progress
-        self._ref = LineReference(
-            start, goal, start_yaw, goal_yaw, self._limits(speed_mps), self.now_s
-        )
-        return progress
-
-    def follow_path(
-        self,
-        waypoints: Sequence[Sequence[float]],
-        speed_mps: float = 0.5,
-        yaw_mode: YawMode | int = YawMode.KEEP_YAW,
-        yaw_rad: float = 0.0,
-        *,
-        position_tolerance_m: float | None = None,
-        yaw_tolerance_rad: float | None = None,
-        timeout_s: float | None = None,
-    ) -> MotionProgress:
-        """Fly through ``waypoints`` [(x, y, z), ...] at one speed profile along the path
-        (refused like :meth:`go_to` for bad numbers)."""
-        coords = {f"waypoints[{i}][{j}]": w[j] for i, w in enumerate(waypoints) for j in range(3)}
-        why = _bad_motion(
-            speed_mps, yaw_rad, position_tolerance_m, yaw_tolerance_rad, timeout_s, **coords
-        )
-        if why is None:
-            why = next(
-                (w for w in (self._above_ceiling(float(p[2])) for p in waypoints) if w), None
-            )
-        if why is not None:
-            return self._refused("follow_path", why)
-        start, start_yaw = self._start_state()
-        points = [start] + [(float(w[0]), float(w[1]), float(w[2])) for w in waypoints]
-        mode = YawMode(int(yaw_mode))
-        yaws, yaw = [], start_yaw
-        for a, b in zip(points, points[1:], strict=False):
-            yaw = self._goal_yaw(mode, yaw_rad, a, b, yaw)
-            yaws.append(yaw)
-        progress = self._new_motion(
-            "follow_path",
-            points[-1],
-            yaws[-1] if yaws else start_yaw,
-            position_tolerance_m,
-            yaw_tolerance_rad,
-            timeout_s,
-        )
-        if not waypoints:
-            progress.fail("empty path")
-            return progress
-        if self._refuse_unless_flying(progress):
-            return progress
-        self._ref = PathReference(points, yaws, start_yaw, self._limits(speed_mps), self.now_s)
-        return progress
-
-    def hover(self) -> MotionProgress:
-        """Stop smoothly (acceleration-limited) and hold position and yaw."""
-        return self.stop()
-
-    def stop(self) -> MotionProgress:
-        """Cancel the current motion: decelerate at the acceleration limit and hold."""
-        start, yaw = self._start_state()
-        r = self._ref_sample
-        vel = (r.vx_mps, r.vy_mps, r.vz_mps) if r is not None and self._ref else (0, 0, 0)
-        ref = StopReference(start, vel, yaw, self._limits(None), self.now_s)
-        progress = self._new_motion("hold", ref.goal, yaw, None, None, None)
-        if self._refuse_unless_flying(progress):
-            return progress
-        self._ref = ref
-        return progress
-
-    def land(self, speed_mps: float = 0.5) -> MotionProgress:
-        """Descend to the take-off height at ``speed_mps``, then stop the motors. A bad speed
-        (non-finite, not positive) lands at the default 0.5 m/s instead: a landing is never
-        refused."""
-        if _bad_numbers(speed_mps=speed_mps) or _not_positive(speed_mps=speed_mps):
-            speed_mps = 0.5
-        start, yaw = self._start_state()
-        goal = (start[0], start[1], self._ground_z)
-        progress = self._new_motion("land", goal, yaw, None, None, None)
-        if self._refuse_unless_flying(progress):
-            return progress
-        self._ref = LineReference(start, goal, yaw, yaw, self._limits(speed_mps), self.now_s)
-        self.flight_state = FlightState.LANDING
-        self._touchdown_since = None
-        return progress
-
-    def emergency_stop(self) -> None:
-        """Cut the motors now (the drone falls). The current motion fails."""
-        self.link.emergency_stop()
-        if self._motion is not None:
-            self._motion.fail("emergency stop")
-        self._ref = None
-        if self.flight_state != FlightState.CRASHED:
-            self.flight_state = FlightState.EMERGENCY
+    def battery_service(self, kind: str) -> str:
+        """Ask for a battery service on the ground: ``swap`` (a fresh battery), ``charge``
+        or ``stop_charging`` (a charging pad's current). Returns "" when done, else why it
+        cannot be done (in flight, the link cannot do it: a real battery is swapped by
+        hand)."""
+        if self.is_flying:
+            return "the drone is flying: land first"
+        service = getattr(self.link, "battery_service", None)
+        if service is None:
+            return "this link offers no battery service"
+        why = service(kind)
+        if not why and kind == "swap":
+            # a new cell: forget the old one's filtered voltage and sag, read it afresh
+            self._battery_v = self._sag_v = self._takeoff_v = None
+        return why
 
     # ------------------------------------------------------------------ loop
     def update(self, t_s: float) -> None:
@@ -407,6 +260,9 @@ class Vehicle:
         """One control step: read sources, update state and progress, send a set-point."""
         self.now_s = t_s
         self._ingest(t_s)
+        gm = self._gated
+        if gm is not None and gm.progress.waiting and not gm.paused and gm.progress.active:
+            self._try_start(gm)  # waiting at the gate: ask again
         self._update_flight_state(t_s)
         ref = self._ref.sample(t_s) if self._ref is not None else None
         self._ref_sample = ref
@@ -490,6 +346,14 @@ class Vehicle:
         if m is None or not m.active or ref is None or self._ref is None:
             return
         pose = self.pose
+        if m.waiting:  # holding for the airspace or paused: the goal is still ahead
+            m.update(
+                t_s,
+                math.dist(pose.position, m.goal),
+                yaw_error_rad(m.goal_yaw_rad, pose.yaw_rad),
+                False,
+            )
+            return
         if m.kind == "land":
             m.update(
                 t_s,
@@ -557,31 +421,6 @@ class Vehicle:
         )
 
     # ------------------------------------------------------------------ helpers
-    def _refused(self, kind: str, why: str) -> MotionProgress:
-        """A failed progress for a refused request; the current motion is left alone."""
-        self.refused_requests += 1
-        pose = self.pose
-        progress = MotionProgress(
-            kind=kind,
-            goal=pose.position,
-            goal_yaw_rad=pose.yaw_rad,
-            position_tolerance_m=self.config.position_tolerance_m,
-            yaw_tolerance_rad=self.config.yaw_tolerance_rad,
-            started_s=self.now_s,
-            settle_time_s=self.config.settle_time_s,
-        )
-        progress.fail(f"refused: {why}")
-        return progress
-
-    def _ground_ref_z(self) -> float:
-        return self._ground_z if self.flight_state in AIRBORNE else self.position[2]
-
-    def _above_ceiling(self, z_m: float) -> str | None:
-        ceiling = self._ground_ref_z() + self.config.max_altitude_m
-        if z_m > ceiling:
-            return f"z={z_m:g} m is above control.max_altitude_m ({ceiling:g} m here)"
-        return None
-
     def _hold_here(self, why: str) -> None:
         """Never send a non-finite set-point: hold at the measured pose instead."""
         self.refused_setpoints += 1
@@ -591,99 +430,7 @@ class Vehicle:
         self._ref = StopReference(pose.position, (0.0, 0.0, 0.0), pose.yaw_rad,
                                   self._limits(None), self.now_s)  # fmt: skip
 
-    def _limits(self, speed_mps: float | None) -> Limits:
-        c = self.config
-        speed = c.max_speed_mps if speed_mps is None else min(float(speed_mps), c.max_speed_mps)
-        return Limits(
-            max(speed, 1e-3),
-            c.accel_mps2,
-            math.radians(c.yaw_rate_dps),
-            math.radians(c.yaw_accel_dps2),
-        )
-
-    def _start_state(self) -> tuple[tuple[float, float, float], float]:
-        """Where a new reference starts: the current reference if any, else the pose."""
-        r = self._ref_sample
-        if r is not None and self._ref is not None and self.flight_state in AIRBORNE:
-            if all(math.isfinite(v) for v in (*r.position, r.yaw_rad)):
-                return r.position, r.yaw_rad
-        pose = self.pose
-        return pose.position, pose.yaw_rad
-
-    def _goal_yaw(self, mode: YawMode, yaw_rad: float, start, goal, current: float) -> float:
-        if mode == YawMode.FIXED_YAW:
-            return wrap_angle_rad(float(yaw_rad))
-        if mode == YawMode.PATH_FACING:
-            return path_facing_yaw_rad(start, goal, current, self.config.path_facing_min_distance_m)
-        return current
-
-    def _new_motion(self, kind, goal, goal_yaw, pos_tol, yaw_tol, timeout_s) -> MotionProgress:
-        c = self.config
-        if self._motion is not None:
-            self._motion.cancel(f"replaced by {kind}")
-        self._motion = MotionProgress(
-            kind=kind,
-            goal=tuple(goal),
-            goal_yaw_rad=goal_yaw,
-            position_tolerance_m=c.position_tolerance_m if pos_tol is None else pos_tol,
-            yaw_tolerance_rad=c.yaw_tolerance_rad if yaw_tol is None else yaw_tol,
-            started_s=self.now_s,
-            settle_time_s=c.settle_time_s,
-            timeout_s=timeout_s,
-        )
-        return self._motion
-
-    def _refuse_unless_flying(self, progress: MotionProgress) -> bool:
-        if self.flight_state in AIRBORNE:
-            self.flight_state = FlightState.FLYING
-            return False
-        progress.fail(f"not flying ({self.flight_state.value})")
-        return True
-
 
 #: Seconds of flight after which the load sag of the battery voltage is measured (the ~1 s
 #: voltage filter has settled on the hover load by then).
 SAG_SETTLE_S = 4.0
-
-
-def _bad_motion(
-    speed_mps: object,
-    yaw_rad: object,
-    position_tolerance_m: object,
-    yaw_tolerance_rad: object,
-    timeout_s: object,
-    **coords: object,
-) -> str | None:
-    """Why a go-to or path request is refused (non-finite numbers; a speed, tolerance or
-    time-out not above zero), or None."""
-    limits = {
-        "speed_mps": speed_mps,
-        "position_tolerance_m": position_tolerance_m,
-        "yaw_tolerance_rad": yaw_tolerance_rad,
-        "timeout_s": timeout_s,
-    }
-    return _bad_numbers(yaw_rad=yaw_rad, **coords, **limits) or _not_positive(**limits)
-
-
-def _bad_numbers(**values: object) -> str | None:
-    """Why one of ``values`` (None: not given) is not a finite number, or None."""
-    for name, v in values.items():
-        if v is None:
-            continue
-        if isinstance(v, bool):
-            return f"{name}={v!r} is not a number"
-        try:
-            f = float(v)  # type: ignore[arg-type]
-        except (TypeError, ValueError):
-            return f"{name}={v!r} is not a number"
-        if not math.isfinite(f):
-            return f"{name}={v!r} is not finite"
-    return None
-
-
-def _not_positive(**values: object) -> str | None:
-    """Why one of ``values`` (None: not given) is not above zero, or None."""
-    for name, v in values.items():
-        if v is not None and float(v) <= 0.0:  # type: ignore[arg-type]
-            return f"{name}={v!r} must be above zero"
-    return None

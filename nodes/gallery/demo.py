@@ -6,7 +6,8 @@ the same detector and block sequencer as a mission. The three committed
 crops are embedded and enrolled.
 
 The demo gallery holds every side of the world's pallets ("1A" .. "5B" in
-``worlds/warehouse.yaml``: the reference study's five pallets), each enrolled from the same
+``worlds/warehouse.yaml``: the reference study's five pallets; in a world with racks, every
+side but those of ``stock.not_enrolled``), each enrolled from the same
 canonical pose (alone in a canonical slot, seen from a canonical line), whatever slots the
 world gives them: moving a pallet (``--set world.scan_slot.y_m=...``, a placement error)
 neither rebuilds the gallery nor changes it. It is built on first use, in about ten
@@ -90,8 +91,10 @@ def appearance_key(data: dict) -> bytes:
 
     data = unaged(data)  # ageing since enrolment does not change what was enrolled
     keep = {
-        k: data.get(k) for k in ("pallets", "pallet_look", "pallet_geometry", "lighting", "floor")
+        k: data.get(k)
+        for k in ("pallets", "pallet_pool", "pallet_look", "pallet_geometry", "lighting", "floor")
     }
+    keep["not_enrolled"] = sorted((data.get("stock") or {}).get("not_enrolled") or [])
     return json.dumps(keep, sort_keys=True).encode()
 
 
@@ -245,7 +248,7 @@ def ensure_demo_gallery(
         except (ImportError, OSError):  # no flock here: each builds its own (still atomic)
             pass
         if not os.path.exists(path):
-            identities = load_world(world_path).identities()
+            identities = load_world(world_path).enrolled_identities()
             log(
                 f"building the demo gallery ({len(identities)} pallet sides of "
                 f"{os.path.basename(world_path)}) in {path}"

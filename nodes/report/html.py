@@ -68,9 +68,10 @@ def write_report(run_dir: str, trace: Sequence[dict], summary: dict, mission: An
             plots.plot_timeline(run_dir, spans, short_labels([s[0] for s in spans])),
         ),
     ]
+    from nodes.report.inventory import inventory_section
     from nodes.report.perception import perception_section
 
-    extra = perception_section(run_dir, mission)
+    extra = inventory_section(run_dir, summary or {}) + perception_section(run_dir, mission)
     path = os.path.join(run_dir, "report.html")
     with open(path, "w", encoding="utf-8") as f:
         f.write(

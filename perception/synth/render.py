@@ -107,6 +107,13 @@ def _mip_level(quad: Quad, scale: float) -> int:
     return min(max(int(math.floor(-math.log2(scale) + 0.5)), 0), len(quad.levels) - 1)
 
 
+@lru_cache(maxsize=16)
+def _mip_matrix(level: int) -> np.ndarray:
+    """Level-0 texel coordinates of the texels of mip ``level`` (centres), as a homography."""
+    sc = float(2**level)
+    return np.array([[sc, 0.0, (sc - 1) / 2], [0.0, sc, (sc - 1) / 2], [0.0, 0.0, 1.0]])
+
+
 def _draw_quad(
     canvas: np.ndarray,
     quad: Quad,
@@ -148,10 +155,7 @@ def _draw_quad(
         return None
     levels = quad.levels
     th, tw = levels[0].shape[:2]
-    c = quad.corners
-    U, V = (c[1] - c[0]) / tw, (c[3] - c[0]) / th
-    M = np.column_stack([U, V, c[0] + 0.5 * U + 0.5 * V])
-    A = R @ M
+    A = R @ quad.texture_map()
     A[:, 2] += t
     H0 = K @ A
     if not clipped:  # linear scale from the projected area (shoelace) over the texture area
@@ -164,8 +168,7 @@ def _draw_quad(
             return None
         scale = math.sqrt(abs(float(np.linalg.det(H0)) * float(p[2]) ** 3))
     level = _mip_level(quad, scale)
-    sc = float(2**level)
-    Hroi = H0 @ np.array([[sc, 0.0, (sc - 1) / 2], [0.0, sc, (sc - 1) / 2], [0.0, 0.0, 1.0]])
+    Hroi = H0 @ _mip_matrix(level)
     Hroi[0] -= x0 * Hroi[2]
     Hroi[1] -= y0 * Hroi[2]
     roi = canvas[y0:y1, x0:x1]

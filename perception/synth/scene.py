@@ -19,6 +19,7 @@ import numpy as np
 
 from perception.synth import appearance as ap
 from perception.synth.appearance import EPAL, PalletGeometry, SideStyle
+from perception.synth.materials import MATERIALS
 
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -61,9 +62,20 @@ class Quad:
     kind: str = "object"
     blocks: list[tuple[int, str, np.ndarray]] = field(default_factory=list)
     centre: np.ndarray = field(init=False)
+    _texture_map: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.centre = self.corners.mean(axis=0)
+
+    def texture_map(self) -> np.ndarray:
+        """(3, 3) matrix taking a level-0 texel (column, row, 1) to its centre in the world;
+        made once (it does not depend on the camera)."""
+        if self._texture_map is None:
+            th, tw = self.levels[0].shape[:2]
+            c = self.corners
+            U, V = (c[1] - c[0]) / tw, (c[3] - c[0]) / th
+            self._texture_map = np.column_stack([U, V, c[0] + 0.5 * U + 0.5 * V])
+        return self._texture_map
 
     @property
     def levels(self) -> list[np.ndarray]:
@@ -170,14 +182,17 @@ def box_quads(
     half: tuple[float, float, float],
     yaw_rad: float,
     light: SceneLight,
+    material: str = "stand",
 ) -> list[Quad]:
-    """The four vertical faces of a yawed box (stand, obstacle), with the stand texture."""
+    """The four vertical faces of a yawed box (stand, obstacle, rack steel), drawn with
+    ``material``'s texture (:data:`perception.synth.materials.MATERIALS`)."""
+
     cx, cy, cz = centre
     hx, hy, hz = half
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
     ex, ey = np.array([c, s, 0.0]), np.array([-s, c, 0.0])
     quads = []
-    tex = ap.stand_texture
+    tex = MATERIALS.get(material, ap.stand_texture)
     for normal, half_depth, width in (
         (ex, hx, 2 * hy),
         (-ex, hx, 2 * hy),
@@ -245,7 +260,7 @@ class Scene:
         cls,
         pallets: list[PalletSpec],
         *,
-        boxes: Sequence[tuple[tuple[float, float, float], tuple[float, float, float], float]] = (),
+        boxes: Sequence[tuple] = (),
         floor: tuple[tuple[float, float], tuple[float, float], float] | None = (
             (-2.0, -6.0),
             (16.0, 12.0),
@@ -253,14 +268,14 @@ class Scene:
         ),
         light: SceneLight | None = None,
     ) -> Scene:
-        """Scene from pallets, boxes ((centre), (half sizes), yaw) and a floor
+        """Scene from pallets, boxes ((centre), (half sizes), yaw[, material]) and a floor
         ((origin x, y), (size x, y), z) with walls on its edges (None: no floor, no walls)."""
         light = light or SceneLight()
         quads: list[Quad] = []
         if floor is not None:
             quads += floor_and_walls(floor[0], floor[1], floor[2], light)
-        for centre, half, yaw in boxes:
-            quads += box_quads(centre, half, yaw, light)
+        for box in boxes:
+            quads += box_quads(*box[:3], light, *box[3:4])
         for p in pallets:
             quads += pallet_quads(p, light)
         return cls(quads, light)

@@ -15,8 +15,11 @@ frame like the camera firmware of [study] (docs/references.md). Chosen by the ri
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import random
+from collections import OrderedDict
 from typing import Any
 
 import cv2
@@ -34,10 +37,33 @@ AE_PERIOD = 15  # frames between auto-exposure updates ([study]: every 15th fram
 AE_TARGET = 95.0  # mean raw level the auto-exposure aims for
 
 
+#: Scenes built in this process, by world (its data and seed): the drones of a fleet share
+#: one, and a campaign worker reuses it for rows of the same world and seed. A scene is
+#: static once built (its textures are made on first sight, deterministically), and the
+#: per-frame noise comes from each renderer's own generator, so sharing changes no image.
+_SCENES: OrderedDict[str, Scene] = OrderedDict()
+MAX_SCENES = 4
+
+
 def scene_from_world(world: World | None) -> Scene:
-    """The synthetic scene of a simulated world (pallets, stand and obstacle boxes, floor)."""
+    """The synthetic scene of a simulated world (pallets, stand and obstacle boxes, floor),
+    shared by every renderer of the same world data and seed in this process."""
     if world is None:
         return Scene.build([])
+    key = hashlib.sha1(
+        json.dumps([world.data, world.seed], sort_keys=True, default=repr).encode()
+    ).hexdigest()
+    scene = _SCENES.get(key)
+    if scene is None:
+        scene = _SCENES[key] = _build_scene(world)
+        while len(_SCENES) > MAX_SCENES:
+            _SCENES.popitem(last=False)
+    else:
+        _SCENES.move_to_end(key)
+    return scene
+
+
+def _build_scene(world: World) -> Scene:
     data = world.data
     geometry = PalletGeometry.from_dict(data["pallet_geometry"])
     pallets = []
@@ -53,7 +79,7 @@ def scene_from_world(world: World | None) -> Scene:
             PalletSpec(p.pallet_id, p.shown_side, fx, fy, p.z_m, p.facing_rad, geometry, styles)
         )
     boxes = [
-        ((b.cx, b.cy, b.cz), (b.hx, b.hy, b.hz), b.yaw_rad)
+        ((b.cx, b.cy, b.cz), (b.hx, b.hy, b.hz), b.yaw_rad, b.material)
         for b in world.boxes
         if not b.name.startswith("pallet ")
     ]

@@ -1,0 +1,167 @@
+"""Inventory campaign (issue 14): a fleet takes the inventory of the aisle, seed after seed.
+
+Each seed flies ``btrun fleet FLEET --seed S`` (default ``fleets/aisle_2.yaml``: 2 drones, 16
+places, the stock drawn per seed: empty places, pallets not in the gallery) in a worker
+process, with light gusts (``wind.gust_std_mps``), and reads the fleet's summary.json and
+merged inventory. Printed per seed and in total, against the issue's targets:
+
+* places answered right (an empty place only when answered empty, a pallet not in the
+  gallery only when answered unknown), wrong identities accepted, unknown, missed, not
+  scanned;
+* collisions (with the world, between drones), separation violations under the minimum,
+  the closest approach, the guard's holds and the airspace waits;
+* battery changes, and whether every drone answered its places in its plan's order with none
+  skipped (a change resumes at the place it interrupted);
+* places per hour per drone (mission time), beside the anchor's ~1,300 places per hour;
+* the fleet's speed in lock-step simulation (mission time / wall time), each drone's run
+  without run.mcap, as a campaign row.
+
+Usage::
+
+    .venv/bin/python bench/inventory_campaign.py --seeds 20 --workers 2 --json rows.json
+    .venv/bin/python bench/inventory_campaign.py --seeds 2 --set world.stock.empty_places=4
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import os
+import statistics
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, REPO)
+
+ANCHOR_PLACES_PER_HOUR = 1300  # an autonomous inventory drone: 8,000 places in about 6 hours
+
+
+def fly_seed(job: tuple[str, int, str, list[str]]) -> dict:
+    """One fleet run in this process; its figures."""
+    fleet, seed, out, sets = job
+    import torch
+
+    torch.set_num_threads(1)
+    from bt_engine.cli import main
+
+    args = ["fleet", fleet, "--seed", str(seed), "--out", out, "-q", "--no-report", "--no-mcap"]
+    for s in sets:
+        args += ["--set", s]
+    buf = io.StringIO()
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(buf):
+        code = main(args)
+    wall = time.perf_counter() - t0
+    return figures(out, seed, code, wall)
+
+
+def figures(out: str, seed: int, code: int, wall_s: float) -> dict:
+    """The figures of one fleet run folder."""
+    s = json.load(open(os.path.join(out, "summary.json")))
+    inv = s["inventory"] or {}
+    in_order, swaps, per_hour = True, 0, []
+    for d in s["drones"].values():
+        drone_dir = os.path.join(out, d["run_dir"])
+        doc = json.load(open(os.path.join(drone_dir, "inventory.json")))
+        rows = [r for r in doc["rows"] if r.get("status") != "not_scanned"]
+        recorded = [r["place"] for r in sorted(rows, key=lambda r: r["mission_time_s"])]
+        # the order of the plan, none skipped before the last answered place
+        in_order &= recorded == doc["planned"][: len(recorded)]
+        swaps += d.get("battery_swaps") or 0
+        if d["mission_time_s"] > 0 and rows:
+            per_hour.append(len(rows) / (d["mission_time_s"] / 3600.0))
+    sep = s["separation"]
+    return {
+        "seed": seed,
+        "code": code,
+        "status": s["status"],
+        "places": inv.get("places", 0),
+        "right": inv.get("right", 0),
+        "wrong": inv.get("wrong", 0),
+        "unknown": inv.get("unknown", 0),
+        "missed": inv.get("missed", 0),
+        "not_scanned": inv.get("not_scanned", 0),
+        "world_collisions": len(s["collisions"]["world"]),
+        "drone_collisions": s["collisions"]["drones"],
+        "violations": sep["violations"],
+        "closest_m": sep["closest_m"],
+        "holds": sep["holds"],
+        "waits": sep["airspace_waits"],
+        "swaps": swaps,
+        "in_order": in_order,
+        "places_per_hour_per_drone": round(statistics.mean(per_hour), 1) if per_hour else 0.0,
+        "mission_time_s": s["mission_time_s"],
+        "wall_s": round(wall_s, 2),
+        "realtime_x": round(s["mission_time_s"] / wall_s, 2) if wall_s > 0 else 0.0,
+        "wrong_places": [p for p, g in (inv.get("grades") or {}).items() if g != "right"],
+    }
+
+
+def main() -> int:
+    """Fly the seeds, print the table and the totals against the targets."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--fleet", default=os.path.join(REPO, "fleets", "aisle_2.yaml"))
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--gust", type=float, default=0.05, help="wind.gust_std_mps")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--json", help="write every row here")
+    ap.add_argument("--keep", help="keep the run folders here (default: a temporary folder)")
+    args = ap.parse_args()
+    sets = [f"wind.gust_std_mps={args.gust}", *args.set]
+    root = args.keep or tempfile.mkdtemp(prefix="inventory-bench-")
+    jobs = [
+        (args.fleet, s, os.path.join(root, f"seed{s:03d}"), sets)
+        for s in range(args.first_seed, args.first_seed + args.seeds)
+    ]
+    t0 = time.perf_counter()
+    rows = []
+    print(
+        f"{'seed':>4} {'status':>8} {'right':>7} {'wrong':>5} {'unk':>4} {'miss':>4} {'n/s':>4} "
+        f"{'coll':>4} {'viol':>4} {'closest':>7} {'swaps':>5} {'order':>5} {'pl/h/dr':>7} "
+        f"{'mission':>8} {'x rt':>5}"
+    )
+    with ProcessPoolExecutor(max_workers=args.workers) as pool:
+        for r in pool.map(fly_seed, jobs):
+            rows.append(r)
+            print(
+                f"{r['seed']:>4} {r['status']:>8} {r['right']:>3}/{r['places']:<3} {r['wrong']:>5} "
+                f"{r['unknown']:>4} {r['missed']:>4} {r['not_scanned']:>4} "
+                f"{r['world_collisions'] + r['drone_collisions']:>4} {r['violations']:>4} "
+                f"{r['closest_m'] or 0:>7.2f} {r['swaps']:>5} {'yes' if r['in_order'] else 'NO':>5} "
+                f"{r['places_per_hour_per_drone']:>7.0f} {r['mission_time_s']:>8.1f} "
+                f"{r['realtime_x']:>5.1f}",
+                flush=True,
+            )
+    wall = time.perf_counter() - t0
+    total = sum(r["places"] for r in rows)
+    right = sum(r["right"] for r in rows)
+    print(f"\n{len(rows)} fleet runs in {wall:.0f} s ({args.workers} workers)")
+    checks = [
+        ("places answered right", f"{right}/{total} = {100 * right / max(total, 1):.1f} %", ">= 97 %", right >= 0.97 * total),
+        ("wrong identities accepted", sum(r["wrong"] for r in rows), "0", sum(r["wrong"] for r in rows) == 0),
+        ("collisions", sum(r["world_collisions"] + r["drone_collisions"] for r in rows), "0",
+         all(r["world_collisions"] + r["drone_collisions"] == 0 for r in rows)),
+        ("separation violations", sum(r["violations"] for r in rows), "0", all(r["violations"] == 0 for r in rows)),
+        ("closest approach (m)", min((r["closest_m"] for r in rows if r["closest_m"] is not None), default=None), ">= 0.5", None),
+        ("battery changes, all resumed in order", f"{sum(r['swaps'] for r in rows)}, {all(r['in_order'] for r in rows)}", "every one", all(r["in_order"] for r in rows)),
+        ("places per hour per drone (median)", statistics.median(r["places_per_hour_per_drone"] for r in rows), f"anchor ~{ANCHOR_PLACES_PER_HOUR}", None),
+        ("fleet speed, x real time (median)", statistics.median(r["realtime_x"] for r in rows), ">= 10", statistics.median(r["realtime_x"] for r in rows) >= 10),
+    ]  # fmt: skip
+    for what, value, target, ok in checks:
+        mark = "" if ok is None else ("  met" if ok else "  NOT MET")
+        print(f"  {what:<40} {value!s:<24} target {target}{mark}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,201 @@
+"""Keeping the drones of a fleet apart: corridor reservations and a separation guard.
+
+Two layers, both over the Vehicle API only:
+
+* :class:`Airspace` is every vehicle's ``motion_gate`` (:mod:`drivers.vehicle.gate`): before a
+  take-off, go-to or path starts, the straight corridor from where the drone is to its goal
+  must pass at least ``separation_m`` from every other drone's reserved corridor (its own
+  remaining way, or the point where it waits, hovers or stands on its pad). If it does, the
+  corridor is reserved; if not, the motion waits (the drone holds) and asks again at every
+  control step. A reservation shrinks as its drone flies it (:meth:`Airspace.after_step`).
+* :class:`SeparationGuard` watches the drones' measured positions every step: when two come
+  within ``separation_m + hold_margin_m`` and close in, it pauses the one flying towards the
+  other (the drone stops and holds, its motion kept) and resumes it once they are apart, so
+  they never come closer than the minimum separation. It records the closest approach, the
+  holds and any violation.
+
+With contiguous place blocks per drone (``btrun fleet``) the gate alone keeps them apart;
+the guard is the backstop for what the reservations did not foresee (gusts, tracking error).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+Vec3 = tuple[float, float, float]
+
+
+def segment_distance(a0: Vec3, a1: Vec3, b0: Vec3, b1: Vec3) -> float:
+    """Closest distance between segments a0-a1 and b0-b1 (points when an end repeats)."""
+    d1 = [a1[i] - a0[i] for i in range(3)]
+    d2 = [b1[i] - b0[i] for i in range(3)]
+    r = [a0[i] - b0[i] for i in range(3)]
+    a, e, f = _dot(d1, d1), _dot(d2, d2), _dot(d2, r)
+    eps = 1e-12
+    if a <= eps and e <= eps:
+        return math.dist(a0, b0)
+    if a <= eps:
+        s, t = 0.0, min(max(f / e, 0.0), 1.0)
+    else:
+        c = _dot(d1, r)
+        if e <= eps:
+            s, t = min(max(-c / a, 0.0), 1.0), 0.0
+        else:
+            b = _dot(d1, d2)
+            denom = a * e - b * b
+            s = min(max((b * f - c * e) / denom, 0.0), 1.0) if denom > eps else 0.0
+            t = (b * s + f) / e
+            if t < 0.0:
+                s, t = min(max(-c / a, 0.0), 1.0), 0.0
+            elif t > 1.0:
+                s, t = min(max((b - c) / a, 0.0), 1.0), 1.0
+    p = [a0[i] + d1[i] * s for i in range(3)]
+    q = [b0[i] + d2[i] * t for i in range(3)]
+    return math.dist(p, q)
+
+
+def _dot(u: list[float], v: list[float]) -> float:
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+@dataclass
+class Airspace:
+    """Corridor reservations of the vehicles of one fleet (one process)."""
+
+    separation_m: float = 0.5
+    vehicles: dict[str, Any] = field(default_factory=dict)
+    corridors: dict[str, tuple[Vec3, Vec3]] = field(default_factory=dict)
+    waits: int = 0
+
+    def add(self, vehicle: Any) -> None:
+        """Put ``vehicle`` (named uniquely) under this airspace's gate."""
+        if vehicle.name in self.vehicles:
+            raise ValueError(f"two vehicles named {vehicle.name!r} in one airspace")
+        self.vehicles[vehicle.name] = vehicle
+        p = tuple(vehicle.position)
+        self.corridors[vehicle.name] = (p, p)
+        vehicle.motion_gate = self.gate
+
+    def blocking(self, name: str, start: Vec3, goal: Vec3) -> tuple[str, float] | None:
+        """The first other drone whose corridor comes within the separation of
+        ``start``-``goal`` and the distance, or None."""
+        for other, (a, b) in self.corridors.items():
+            if other == name:
+                continue
+            d = segment_distance(start, goal, a, b)
+            if d < self.separation_m:
+                return other, d
+        return None
+
+    def gate(self, name: str, kind: str, start: Vec3, goal: Vec3) -> str:
+        """The vehicles' motion gate: "" (and the corridor reserved) or why to wait."""
+        self.after_step(0.0)  # the others' corridors as they are now
+        hit = self.blocking(name, tuple(start), tuple(goal))
+        if hit is not None:
+            self.waits += 1
+            other, d = hit
+            return (
+                f"airspace: {other}'s corridor passes {d:.2f} m from this {kind} "
+                f"(minimum {self.separation_m:g} m)"
+            )
+        self.corridors[name] = (tuple(start), tuple(goal))
+        return ""
+
+    def after_step(self, t_s: float) -> None:
+        """Shrink every reservation to what is left of it: from where the drone is to the
+        goal of its running motion, or just where it is (a waiting motion holds none)."""
+        for name, v in self.vehicles.items():
+            p = tuple(v.position)
+            m = v.motion
+            moving = m is not None and m.active and not m.reached and not m.waiting and v.is_flying
+            self.corridors[name] = (p, tuple(m.goal)) if moving else (p, p)
+
+
+@dataclass
+class SeparationGuard:
+    """Pause a drone flying towards another one that is too close; see the module doc."""
+
+    vehicles: dict[str, Any]
+    separation_m: float = 0.5
+    hold_margin_m: float = 0.2
+    min_distance_m: float = math.inf
+    min_pair: tuple[str, str] | None = None
+    violations: int = 0
+    holds: int = 0
+    held: dict[str, str] = field(default_factory=dict)  # paused drone -> the one it yields to
+    events: list[dict] = field(default_factory=list)
+    _last_violation: set = field(default_factory=set)
+
+    def after_step(self, t_s: float) -> None:
+        """Check every pair of drones in the air; pause or resume."""
+        names = list(self.vehicles)
+        hold_at = self.separation_m + self.hold_margin_m
+        for i, a in enumerate(names):
+            for b in names[i + 1 :]:
+                va, vb = self.vehicles[a], self.vehicles[b]
+                if not (va.is_flying or vb.is_flying):
+                    continue
+                pa, pb = va.position, vb.position
+                d = math.dist(pa, pb)
+                if d < self.min_distance_m:
+                    self.min_distance_m, self.min_pair = d, (a, b)
+                pair = (a, b)
+                if d < self.separation_m and pair not in self._last_violation:
+                    self.violations += 1
+                    self._last_violation.add(pair)
+                    self.events.append(
+                        {"t_s": round(t_s, 3), "violation": [a, b], "m": round(d, 3)}
+                    )
+                elif d >= self.separation_m:
+                    self._last_violation.discard(pair)
+                if d < hold_at:
+                    self._hold_closer(t_s, a, b, d)
+        for name, other in list(self.held.items()):
+            v, o = self.vehicles[name], self.vehicles[other]
+            d = math.dist(v.position, o.position)
+            if d > hold_at + 0.1 or not o.is_flying or not self._closing(v, o):
+                del self.held[name]
+                if v.resume():
+                    self.events.append({"t_s": round(t_s, 3), "resumed": name, "m": round(d, 3)})
+
+    @staticmethod
+    def _closing(v: Any, o: Any) -> bool:
+        """True if ``v``'s motion (velocity, else remaining way) brings it nearer ``o``."""
+        p, q = v.position, o.position
+        to_o = [q[k] - p[k] for k in range(3)]
+        m = v.motion
+        if m is not None and m.active and not m.reached:
+            ahead = [m.goal[k] - p[k] for k in range(3)]
+            return _dot(ahead, to_o) > 0.0
+        vel = v.velocity
+        return _dot([vel.vx_mps, vel.vy_mps, vel.vz_mps], to_o) > 0.0
+
+    def _hold_closer(self, t_s: float, a: str, b: str, d: float) -> None:
+        va, vb = self.vehicles[a], self.vehicles[b]
+        for name, v, o, other in ((a, va, vb, b), (b, vb, va, a)):
+            if name in self.held or not v.is_flying or not self._closing(v, o):
+                continue
+            if other in self.held and self.held[other] == name:
+                continue  # the other already yields to this one
+            if v.pause(f"{other} is {d:.2f} m away"):
+                self.held[name] = other
+                self.holds += 1
+                self.events.append(
+                    {"t_s": round(t_s, 3), "held": name, "for": other, "m": round(d, 3)}
+                )
+                return
+
+    def summary(self) -> dict:
+        """Closest approach, holds, violations (summary.json ``separation``)."""
+        return {
+            "minimum_m": self.separation_m,
+            "closest_m": round(self.min_distance_m, 3)
+            if math.isfinite(self.min_distance_m)
+            else None,
+            "closest_pair": list(self.min_pair) if self.min_pair else None,
+            "violations": self.violations,
+            "holds": self.holds,
+            "events": self.events[:200],
+        }

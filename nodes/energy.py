@@ -1,0 +1,187 @@
+"""Energy leaves for long missions: EnoughEnergy (go on or go home?) and ChangeBattery.
+
+A Crazyflie flies about seven minutes on a battery; an inventory of a whole aisle takes
+longer. Before each place the inventory asks ``EnoughEnergy``: will the charge left cover
+flying to the place, the work there and the way back to the pad, with a reserve? The
+consumption is measured on this battery in flight (charge per second, from the Vehicle's
+sag-corrected state of charge), not assumed, and the time a place takes is measured from the
+places done so far. If not, the drone flies home, lands, and ``ChangeBattery`` swaps the
+battery (simulation; on a real drone the run stops and is resumed after a swap by hand) or
+charges it on the pad; then the inventory resumes at the first place not answered.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+
+from bt_engine.node import FAILURE, RUNNING, SUCCESS, ConditionNode, NodeStatus, StatefulActionNode
+from bt_engine.ports import DURATION, FLOAT, STRING, VEC3, input_port
+from bt_engine.registry import register
+from nodes.common import vehicle_of
+
+CATEGORY_ENERGY = "energy"
+#: charge (percent points) a reading must rise by to count as a new battery
+NEW_BATTERY_JUMP = 20.0
+#: airborne seconds on one battery before its measured consumption is trusted
+MEASURE_AFTER_S = 20.0
+
+
+def needed_percent(
+    rate_pct_per_s: float,
+    to_target_m: float,
+    target_to_home_m: float,
+    speed_mps: float,
+    task_s: float,
+    landing_s: float,
+    reserve_pct: float,
+) -> tuple[float, float]:
+    """(charge needed in %, seconds needed) to fly to the target, work there ``task_s``,
+    fly home and land, plus the reserve."""
+    seconds = (to_target_m + target_to_home_m) / max(speed_mps, 1e-3) + task_s + landing_s
+    return rate_pct_per_s * seconds + reserve_pct, seconds
+
+
+@register
+class EnoughEnergy(ConditionNode):
+    """SUCCESS if the battery covers the next task and the way home: flying to ``target``,
+    ``task_time`` there (once two tasks were timed on this battery: their median), flying
+    to ``home`` at ``speed`` and landing, with ``reserve`` percent left. The consumption is
+    measured on the current battery after 20 s airborne (before that: a full battery lasts
+    ``endurance``). FAILURE says how much is left and how much is needed."""
+
+    bt_id = "EnoughEnergy"
+    category = CATEGORY_ENERGY
+    ports = (
+        input_port("target", VEC3, description="where the next task is, x;y;z in m"),
+        input_port("home", VEC3, description="where to land afterwards (the pad), x;y;z"),
+        input_port("speed", FLOAT, 0.5, "transit speed, m/s"),
+        input_port("task_time", DURATION, 45.0, "time a task takes before any was timed, s"),
+        input_port("landing_time", DURATION, 8.0, "time to land, s"),
+        input_port("reserve", FLOAT, 15.0, "charge to keep at touchdown, %"),
+        input_port("endurance", DURATION, 360.0, "flight time of a full battery until measured, s"),
+    )
+
+    def check(self) -> bool:
+        v = vehicle_of(self)
+        now, pct = self.now(), v.battery.percent
+        hist = getattr(self, "_hist", None)
+        if hist is None or pct > hist[-1][1] + NEW_BATTERY_JUMP or not v.is_flying:
+            hist = self._hist = []  # a new battery (or on the ground): measure afresh
+        if v.is_flying:
+            hist.append((now, pct))
+        (t0, p0) = hist[0] if hist else (now, pct)
+        if hist and now - t0 >= MEASURE_AFTER_S and p0 > pct:
+            rate = (p0 - pct) / (now - t0)
+            how = "measured"
+        else:
+            rate = 100.0 / max(self.get_input("endurance"), 1.0)
+            how = "assumed"
+        intervals = [b[0] - a[0] for a, b in zip(hist, hist[1:], strict=False)]
+        task = statistics.median(intervals) if len(intervals) >= 2 else self.get_input("task_time")
+        target, home = self.get_input("target"), self.get_input("home")
+        need, seconds = needed_percent(
+            rate,
+            math.dist(v.position, target),
+            math.dist(target, home),
+            self.get_input("speed"),
+            task,
+            self.get_input("landing_time"),
+            self.get_input("reserve"),
+        )
+        self.failure_reason = (
+            f"{pct:.1f} % left, {need:.1f} % needed: {seconds:.0f} s to the next task, "
+            f"through it and home at {rate * 60:.2f} %/min ({how}), plus the "
+            f"{self.get_input('reserve'):g} % reserve"
+        )
+        return pct >= need
+
+
+@register
+class ChangeBattery(StatefulActionNode):
+    """On the ground (after Land): ``mode=swap`` puts in a fresh battery and waits
+    ``duration`` (the handling time); ``mode=charge`` charges on the pad for at least
+    ``duration`` and until the charge reaches ``target_percent``: every ``check_period`` it
+    stops charging for ``settle`` and reads the rested charge (the voltage reads high while a
+    charging current flows). After a swap it waits ``settle`` for the reading to settle.
+    SUCCESS when done; FAILURE in flight, when the vehicle cannot (a real battery is swapped
+    by hand: the run stops there, resume it afterwards), or after ``timeout``."""
+
+    bt_id = "ChangeBattery"
+    category = CATEGORY_ENERGY
+    ports = (
+        input_port("mode", STRING, "swap", "swap (a fresh battery) or charge (on the pad)"),
+        input_port("duration", DURATION, 60.0, "handling time of a swap / least charging time, s"),
+        input_port("target_percent", FLOAT, 95.0, "charge: stop at this charge, %"),
+        input_port("check_period", DURATION, 60.0, "charge: read the rested charge this often, s"),
+        input_port("settle", DURATION, 3.0, "rest before reading the charge, s"),
+        input_port("timeout", DURATION, 3600.0, "FAILURE if not done within this time, s"),
+    )
+
+    def _fail(self, reason: str) -> NodeStatus:
+        self.ctx.log(f"{self.describe()} failed: {reason}")
+        self.failure_reason = reason
+        return FAILURE
+
+    def on_start(self) -> NodeStatus:
+        self.vehicle = vehicle_of(self)
+        mode = self.get_input("mode").strip().lower()
+        if mode not in ("swap", "charge"):
+            return self._fail(f"mode must be swap or charge, got {mode!r}")
+        self.mode, self.started_s = mode, self.now()
+        self.before = self.vehicle.battery.percent
+        self.resting_since: float | None = None  # resting (not charging) since
+        self.charging_since = self.now()
+        why = self.vehicle.battery_service(mode)
+        if why:
+            return self._fail(why)
+        if mode == "swap":
+            self.ctx.log(f"{self.describe()}: battery swapped at {self.before:.0f} %")
+        return RUNNING
+
+    def on_running(self) -> NodeStatus:
+        now = self.now()
+        if now - self.started_s >= self.get_input("timeout") - 1e-9:
+            if self.mode == "charge":
+                self.vehicle.battery_service("stop_charging")
+            return self._fail(
+                f"time-out after {self.get_input('timeout'):g} s at "
+                f"{self.vehicle.battery.percent:.0f} %"
+            )
+        if now - self.started_s < self.get_input("duration") - 1e-9:
+            return RUNNING
+        settle = self.get_input("settle")
+        if self.mode == "swap":
+            if now - self.started_s < self.get_input("duration") + settle - 1e-9:
+                return RUNNING
+            return self._done(now)
+        if self.resting_since is None:  # charging: time to rest and read?
+            if now - self.charging_since < self.get_input("check_period") - 1e-9 and (
+                now - self.started_s > self.get_input("duration") + 1e-9
+            ):
+                return RUNNING
+            why = self.vehicle.battery_service("stop_charging")
+            if why:
+                return self._fail(why)
+            self.resting_since = now
+            return RUNNING
+        if now - self.resting_since < settle - 1e-9:
+            return RUNNING
+        if self.vehicle.battery.percent >= self.get_input("target_percent"):
+            return self._done(now)
+        why = self.vehicle.battery_service("charge")  # not there yet: charge on
+        if why:
+            return self._fail(why)
+        self.resting_since, self.charging_since = None, now
+        return RUNNING
+
+    def _done(self, now: float) -> NodeStatus:
+        self.ctx.log(
+            f"{self.describe()}: battery {self.mode} done, {self.before:.0f} % -> "
+            f"{self.vehicle.battery.percent:.0f} % after {now - self.started_s:.0f} s"
+        )
+        return SUCCESS
+
+    def on_halted(self) -> None:
+        if getattr(self, "mode", "") == "charge" and getattr(self, "vehicle", None) is not None:
+            self.vehicle.battery_service("stop_charging")

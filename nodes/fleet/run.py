@@ -1,0 +1,355 @@
+"""``btrun fleet FLEET.yaml``: fly every drone of a fleet file in one run.
+
+Each drone gets its own mission instance (own blackboard, resources, tick log, ``run.mcap``,
+summary and report under ``drones/<name>/``) and its own rig section (its pad as start
+position, its URI); in simulation all of them run in this process on one lock-step clock
+(deterministic per seed), in SITL each starts its own emulator, on hardware each connects to
+its own Crazyflie. The places are split between the drones (:mod:`nodes.fleet.plan`); the
+airspace and the separation guard (:mod:`drivers.safety.airspace`) keep them apart. One
+merged inventory (``inventory.csv`` / ``inventory.json``), one ``summary.json`` and one
+``report.html`` with every track are written in the fleet's run folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from typing import Any
+
+from bt_engine.clock import SimClock, WallClock
+from bt_engine.files import atomic_write_text
+from bt_engine.fleet import FleetRunner
+from bt_engine.run_cmd import PreparedRun, finish, make_runner, prepare
+from bt_engine.spec import Loc, MissionError, Problem
+from drivers.safety.airspace import Airspace, SeparationGuard
+from drivers.settings import ConfigError
+from nodes.fleet.plan import split_places
+from nodes.fleet.spec import FleetSpec, load_fleet
+from nodes.inventory import resolve_places
+from nodes.inventory_log import InventoryError, InventoryLog
+
+DRONE_CONTACT_M = 0.12  # two Crazyflie collision spheres (2 x 0.06 m) touch
+
+
+def setup(p: argparse.ArgumentParser) -> None:
+    """The ``btrun fleet`` options."""
+    p.add_argument("fleet", help="fleet file (fleets/*.yaml)")
+    p.add_argument("--seed", type=int, default=None, help="seed (default: the fleet file's)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="for every drone, after the fleet file's set: (blackboard, rig, world)",
+    )
+    p.add_argument("--out", help="run folder (default runs/<fleet>-<time>)")
+    p.add_argument("--rate", type=float, default=50.0, help="tick rate in Hz (default 50)")
+    p.add_argument("--max-time", type=float, default=None, help="mission time limit, s")
+    p.add_argument(
+        "--resume",
+        metavar="RUN",
+        help="continue an interrupted fleet run: its inventory's answered places are kept "
+        "and not flown again",
+    )
+    p.add_argument("--quiet", "-q", action="store_true", help="print only the results")
+    p.add_argument("--no-report", action="store_true", help="skip the reports")
+    p.add_argument("--no-mcap", action="store_true", help="do not record each drone's run.mcap")
+
+
+def _drone_args(spec: FleetSpec, args: Any, sets: list[str], seed: int, out: str) -> Any:
+    return argparse.Namespace(
+        mission=spec.mission,
+        rig=spec.rig,
+        set=sets,
+        seed=seed,
+        rate=args.rate,
+        out=out,
+        max_time=args.max_time or spec.data["max_time_s"],
+        realtime=None,
+        tick_budget=None,
+        quiet=True,
+        no_report=args.no_report,
+        no_mcap=getattr(args, "no_mcap", False),
+        groot=None,
+        groot_address=None,
+        include_path=[],
+        resume=None,
+    )
+
+
+def _previous_seed(resume: str | None) -> int | None:
+    if not resume:
+        return None
+    try:
+        with open(os.path.join(resume, "fleet.json"), encoding="utf-8") as f:
+            return int(json.load(f)["seed"])
+    except (OSError, ValueError, KeyError, TypeError):
+        raise MissionError(
+            [Problem(Loc("--resume", 0, 0), f"{resume} is not a fleet run folder (no fleet.json)")]
+        ) from None
+
+
+def run(args: Any) -> int:
+    """``btrun fleet``: check, fly, merge, report; the exit code (0: every drone SUCCESS)."""
+    spec = load_fleet(args.fleet)
+    seed = args.seed if args.seed is not None else _previous_seed(args.resume)
+    seed = spec.data["seed"] if seed is None else seed
+    out = args.out or os.path.join("runs", f"{spec.data['name']}-{time.strftime('%Y%m%d-%H%M%S')}")
+    common = [f"{k}={_text(v)}" for k, v in spec.data["set"].items()] + list(args.set)
+    rig, world = _rig_and_world(spec, common, seed)
+    try:
+        merged = InventoryLog(out, args.resume, "fleet", _truth(rig, world), None, _layout(world))
+    except InventoryError as exc:
+        raise MissionError([Problem(Loc("--resume", 0, 0), str(exc))]) from None
+    split = _split(spec, world, merged, common)
+    common = [item for item in common if item.partition("=")[0] != "places"]
+    os.makedirs(out, exist_ok=True)
+    atomic_write_text(
+        os.path.join(out, "fleet.json"),
+        json.dumps({"fleet": os.path.abspath(spec.path), "seed": seed, "set": common}, indent=1),
+    )
+    printer = _RowPrinter(merged, args.quiet)
+    clock = WallClock(1.0) if rig.realtime_factor else SimClock()
+    runs: dict[str, PreparedRun] = {}
+    try:
+        for d in spec.drones:
+            if split is not None and not split[d.name]:
+                if not args.quiet:
+                    print(f"btrun fleet: {d.name} has no place left to fly; it stays on its pad")
+                continue
+            sets = common + [f"{k}={_text(v)}" for k, v in d.sets.items()]
+            sets.append(f"sim.start_m=[{d.start_m[0]}, {d.start_m[1]}, {d.start_m[2]}]")
+            if d.uri:
+                sets.append(f"crazyflie.uri={d.uri}")
+            if split is not None:
+                sets.append("places=" + ";".join(split[d.name]))
+            ns = _drone_args(spec, args, sets, seed, os.path.join(out, "drones", d.name))
+            runs[d.name] = prepare(
+                ns,
+                clock=clock,
+                resources={"drone": d.name, "inventory_sink": printer},
+                warn=not runs,
+            )
+    except BaseException:
+        for r in runs.values():
+            if r.platform is not None:
+                r.platform.shutdown("another drone of the fleet could not be prepared")
+        raise
+    return _fly(spec, args, runs, merged, out, seed, printer)
+
+
+def _text(value: Any) -> str:
+    return (
+        json.dumps(value) if isinstance(value, (list, dict, bool)) or value is None else str(value)
+    )
+
+
+def _rig_and_world(spec: FleetSpec, common: list[str], seed: int) -> tuple[Any, Any]:
+    from drivers.rig.loader import load_rig
+
+    over = {}
+    for item in common:
+        key, _, value = item.partition("=")
+        if "." in key:
+            over[key[4:] if key.startswith("rig.") else key] = value
+    try:
+        rig = load_rig(spec.rig, over)
+        return rig, rig.load_world(seed)
+    except ConfigError as exc:
+        raise MissionError(
+            [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
+        ) from None
+
+
+def _truth(rig: Any, world: Any) -> Any:
+    if rig.kind != "sim" or world is None:
+        return None
+    return lambda: (world.places_truth(), set(world.not_enrolled()))
+
+
+def _layout(world: Any) -> dict[str, list]:
+    return {n: [p.rack, p.bay, p.level] for n, p in (getattr(world, "places", None) or {}).items()}
+
+
+def _split(
+    spec: FleetSpec, world: Any, merged: InventoryLog, common: list[str]
+) -> dict[str, list[str]] | None:
+    """Each drone's places (None: neither the fleet file nor --set names places). A
+    ``places=`` among the common settings replaces the fleet file's list."""
+    given = [item.partition("=")[2] for item in common if item.partition("=")[0] == "places"]
+    text = given[-1] if given else spec.data["places"]
+    if text is None:
+        return None
+    base = os.path.dirname(os.path.abspath(spec.path))
+    where = Loc("--set", 0, 0) if given else spec.loc("places")
+    places, problems = resolve_places(text, world, where, base)
+    if problems:
+        raise MissionError(problems)
+    merged.planned = list(places)
+    done = merged.finished()
+    todo = [p for p in places if p not in done]
+    starts = {d.name: d.start_m for d in spec.drones}
+    return split_places(todo, world, starts, spec.data["split"])
+
+
+class _RowPrinter:
+    """The drones' inventory sink: merge each drone's rows, print each new one."""
+
+    def __init__(self, merged: InventoryLog, quiet: bool) -> None:
+        self.merged, self.quiet = merged, quiet
+        self.seen: set[tuple[str, Any]] = set()
+
+    def __call__(self, log: InventoryLog) -> None:
+        self.merged.absorb(log)
+        if self.quiet:
+            return
+        for place, row in log.rows.items():
+            key = (place, row.get("mission_time_s"))
+            if place in log.carried or key in self.seen:
+                continue
+            self.seen.add(key)
+            print(
+                f"[{row.get('mission_time_s') or 0:8.2f} s] {log.drone} {place}: "
+                f"{row.get('answer') or '-'} ({row.get('status')})",
+                flush=True,
+            )
+
+
+def _fly(
+    spec: FleetSpec,
+    args: Any,
+    runs: dict[str, PreparedRun],
+    merged: InventoryLog,
+    out: str,
+    seed: int,
+    printer: _RowPrinter,
+) -> int:
+    sep = spec.data["separation"]
+    airspace = Airspace(sep["minimum_m"])
+    vehicles = {}
+    for name, r in runs.items():
+        v = r.platform.vehicle
+        v.name = name
+        airspace.add(v)
+        vehicles[name] = v
+    guard = SeparationGuard(vehicles, sep["minimum_m"], sep["hold_margin_m"])
+    runners = {name: make_runner(r) for name, r in runs.items()}
+    fleet = FleetRunner(runners, hooks=[airspace, guard])
+    if not args.quiet:
+        mode = (
+            "real time"
+            if not getattr(fleet.clock, "is_simulated", False)
+            else f"lock-step, seed {seed}"
+        )
+        print(f"btrun fleet: {spec.data['name']}: {len(runs)} drones ({mode}); run folder {out}")
+    wall0 = time.perf_counter()
+    try:
+        results = fleet.run(args.max_time or spec.data["max_time_s"])
+    finally:
+        for r in runs.values():
+            r.log.close()
+    wall = time.perf_counter() - wall0
+    codes = {}
+    for name, r in runs.items():
+        codes[name] = finish(r, runners[name], results[name], echo=False)
+    summary = _summary(spec, runs, results, merged, airspace, guard, seed, wall, out)
+    if not args.no_report:
+        from nodes.fleet.report import write_fleet_report
+
+        summary["report"] = os.path.relpath(write_fleet_report(out, summary, runners, runs), out)
+    atomic_write_text(os.path.join(out, "summary.json"), json.dumps(summary, indent=2))
+    _print(summary, out)
+    return 0 if all(c == 0 for c in codes.values()) and runs else 1
+
+
+def _summary(
+    spec: FleetSpec,
+    runs: dict[str, PreparedRun],
+    results: dict[str, Any],
+    merged: InventoryLog,
+    airspace: Airspace,
+    guard: SeparationGuard,
+    seed: int,
+    wall_s: float,
+    out: str,
+) -> dict:
+    drones = {}
+    world_hits = []
+    for name, r in runs.items():
+        res = results[name]
+        s = r.summary or {}
+        truth = s.get("sim") or s.get("vehicle") or {}
+        hits = truth.get("collisions") or []
+        world_hits += [{"drone": name, **h} for h in hits]
+        drones[name] = {
+            "status": res.status,
+            "reason": res.reason,
+            "mission_time_s": round(res.mission_time_s, 3),
+            "ticks": res.ticks,
+            "run_dir": os.path.relpath(r.run_dir, out),
+            "places": len(((s.get("inventory") or {}).get("rows")) or {}),
+            "battery_swaps": (truth.get("battery") or {}).get("swaps"),
+            "landed": truth.get("landed"),
+            "collisions": len(hits),
+            "waits": r.platform.vehicle.waits,
+            "pauses": r.platform.vehicle.pauses,
+        }
+    statuses = [d["status"] for d in drones.values()]
+    mission_time = max((d["mission_time_s"] for d in drones.values()), default=0.0)
+    sep = guard.summary()
+    sep["airspace_waits"] = airspace.waits
+    closest = sep.get("closest_m")
+    return {
+        "fleet": spec.data["name"],
+        "file": os.path.abspath(spec.path),
+        "mission": spec.mission,
+        "seed": seed,
+        "status": "SUCCESS"
+        if statuses and all(s == "SUCCESS" for s in statuses)
+        else ("ABORTED" if "ABORTED" in statuses else "FAILURE"),
+        "mission_time_s": mission_time,
+        "wall_time_s": round(wall_s, 3),
+        "drones": drones,
+        "inventory": merged.run_summary() if merged.planned else None,
+        "separation": sep,
+        "collisions": {
+            "world": world_hits,
+            "drones": 1 if closest is not None and closest < DRONE_CONTACT_M else 0,
+        },
+    }
+
+
+def _print(summary: dict, out: str) -> None:
+    speed = summary["mission_time_s"] / summary["wall_time_s"] if summary["wall_time_s"] else 0.0
+    print(
+        f"fleet {summary['fleet']}: {summary['status']} ({len(summary['drones'])} drones, "
+        f"{summary['mission_time_s']:.1f} s mission time, {summary['wall_time_s']:.1f} s wall, "
+        f"{speed:.0f}x real time)"
+    )
+    for name, d in summary["drones"].items():
+        print(
+            f"  {name}: {d['status']}: {d['reason']} ({d['mission_time_s']:.1f} s, {d['places']} places)"
+        )
+    inv = summary.get("inventory")
+    if inv:
+        parts = [f"{v} {k.replace('_', ' ')}" for k, v in inv["status"].items()]
+        print(f"inventory: {inv['places']} places, " + ", ".join(parts))
+        if "right" in inv:
+            print(
+                f"inventory against the simulator: {inv['right']} of {inv['places']} right, "
+                f"{inv['wrong']} wrong identities accepted"
+            )
+        print(f"inventory: {os.path.join(out, 'inventory.csv')}")
+    s = summary["separation"]
+    closest = "-" if s["closest_m"] is None else f"{s['closest_m']:.2f} m"
+    print(
+        f"separation: closest {closest} (minimum {s['minimum_m']:g} m), {s['violations']} "
+        f"violations, {s['holds']} holds, {s['airspace_waits']} airspace waits"
+    )
+    if summary.get("report"):
+        print(f"report: {os.path.join(out, summary['report'])}")
+    print(f"run folder: {out}")
+    sys.stdout.flush()

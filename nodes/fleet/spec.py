@@ -1,0 +1,251 @@
+"""The fleet file: which mission, on which rig, with which drones, pads and URIs.
+
+Example (``fleets/aisle_2.yaml``)::
+
+    name: aisle_2
+    mission: ../missions/inventory.xml
+    rig: ../rigs/aisle.yaml
+    places: all                 # split between the drones (the mission's places input)
+    drones:
+      - {name: cf1, pad: pad-1}
+      - {name: cf2, pad: pad-2}
+
+Paths are relative to the fleet file. Everything is checked before anything flies and every
+problem is reported at once, located (``file:line:col: message``): 1 to 4 drones with
+distinct names, a pad of the world or a start position for each, no pad shared, start
+positions at least the minimum separation apart, no URI used twice, the rig, the mission and
+the place list.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Any
+
+from bt_engine.spec import Loc, MissionError, Problem
+from drivers.settings import ConfigError, Field, Marks, load_yaml_file, problem_at
+
+F = Field
+
+
+def M(children: dict, doc: str = "") -> Field:  # noqa: N802 - schema shorthand
+    """A mapping of fixed keys."""
+    return Field("map", children=children, doc=doc)
+
+
+MAX_DRONES = 4
+DRONE = M(
+    {
+        "name": F(
+            "str", None, "drone name (its run folder, its rows' drone column)", required=True
+        ),
+        "pad": F(
+            "str",
+            None,
+            "the world pad it takes off from, lands and changes batteries on",
+            nullable=True,
+        ),
+        "start_m": F(
+            "vec", None, "start position x, y, z in m (instead of a pad)", length=3, nullable=True
+        ),
+        "uri": F(
+            "str", None, "its Crazyflie's URI (sets crazyflie.uri; real links only)", nullable=True
+        ),
+        "set": F("dict", {}, "KEY: VALUE for this drone only (as --set)", item=F("any")),
+    }
+)
+FLEET_SCHEMA = M(
+    {
+        "name": F("str", "fleet", "fleet name (the run folder's name)"),
+        "mission": F(
+            "str", None, "mission every drone flies (relative to this file)", required=True
+        ),
+        "rig": F(
+            "str",
+            None,
+            "rig of every drone (relative to this file; default: rigs/sim.yaml)",
+            nullable=True,
+        ),
+        "seed": F("int", 0, "seed of the simulation (the world's stock, noise, gusts)"),
+        "places": F(
+            "str",
+            None,
+            "places to split between the drones (the mission's places input): all, names or "
+            "patterns, or a .csv file; none: the mission's own",
+            nullable=True,
+        ),
+        "split": F(
+            "choice",
+            "bays",
+            "bays: each drone a block of neighbouring bays (the block nearest its pad); "
+            "round_robin: place by place in turn",
+            choices=("bays", "round_robin"),
+        ),
+        "set": F(
+            "dict",
+            {},
+            "KEY: VALUE for every drone (blackboard, rig and world, as --set)",
+            item=F("any"),
+        ),
+        "separation": M(
+            {
+                "minimum_m": F("float", 0.5, "drones never closer than this (m)", min=0.1),
+                "hold_margin_m": F(
+                    "float",
+                    0.2,
+                    "the guard holds a drone closing in within minimum + this (m)",
+                    min=0.0,
+                ),
+            }
+        ),
+        "max_time_s": F("float", 3600.0, "mission time limit of the whole fleet (s)", min=1.0),
+        "drones": F("list", [], f"1 to {MAX_DRONES} drones", item=DRONE),
+    }
+)
+
+
+@dataclass
+class DroneSpec:
+    """One drone of a fleet, with where each of its settings was written."""
+
+    name: str
+    start_m: tuple[float, float, float]
+    pad: str | None
+    uri: str | None
+    sets: dict[str, Any]
+    index: int
+
+
+@dataclass
+class FleetSpec:
+    """A validated fleet file."""
+
+    path: str
+    data: dict
+    marks: Marks
+    drones: list[DroneSpec]
+    mission: str
+    rig: str | None
+
+    def loc(self, key: str) -> Loc:
+        """Where ``key`` (dotted) was written in the fleet file."""
+        file, line, col = self.marks.get(key, (self.path, 1, 1))
+        return Loc(file, line, col)
+
+
+def _relative(base: str, path: str | None) -> str | None:
+    if not path:
+        return None
+    if os.path.isabs(path):
+        return path
+    here = os.path.join(os.path.dirname(os.path.abspath(base)), path)
+    return here if os.path.exists(here) or not os.path.exists(path) else path
+
+
+def _problems(exc: ConfigError) -> list[Problem]:
+    return [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
+
+
+def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
+    """Read and check a fleet file (the world's pads come from its rig); raises
+    :class:`MissionError` with every located problem."""
+    from drivers.rig.loader import load_rig
+
+    marks: Marks = {}
+    try:
+        data = load_yaml_file(path, FLEET_SCHEMA, marks=marks)
+    except ConfigError as exc:
+        raise MissionError(_problems(exc)) from None
+    problems: list[Problem] = []
+
+    def at(key: str, message: str) -> None:
+        p = problem_at(marks, key, path, message)
+        problems.append(Problem(Loc(p.file, p.line, p.col), p.message))
+
+    mission = _relative(path, data["mission"]) or ""
+    if not os.path.isfile(mission):
+        at("mission", f"mission file {data['mission']!r} not found (relative to {path})")
+    rig_path = _relative(path, data["rig"])
+    common = {str(k): v for k, v in data["set"].items() if "." in str(k)}
+    world = None
+    try:
+        rig = load_rig(
+            rig_path, {k[4:] if k.startswith("rig.") else k: v for k, v in common.items()}
+        )
+        world = rig.load_world(data["seed"])
+    except ConfigError as exc:
+        problems += _problems(exc)
+        rig = None
+    n = len(data["drones"])
+    if not 1 <= n <= MAX_DRONES:
+        at("drones", f"a fleet flies 1 to {MAX_DRONES} drones, got {n}")
+    pads = {p["name"]: p["position_m"] for p in ((world.data.get("pads") if world else None) or [])}
+    drones: list[DroneSpec] = []
+    seen: dict[str, str] = {}
+    for i, d in enumerate(data["drones"]):
+        key = f"drones[{i}]"
+        if d["name"] in seen:
+            at(f"{key}.name", f"two drones named {d['name']!r}")
+        seen.setdefault(d["name"], key)
+        start = None
+        if d["pad"] is not None:
+            if d["pad"] not in pads:
+                known = ", ".join(pads) or "none: the world has no pads"
+                at(f"{key}.pad", f"pad {d['pad']!r} is not a pad of the world ({known})")
+            else:
+                x, y = pads[d["pad"]]
+                start = (float(x), float(y), 0.0)
+        if d["start_m"] is not None:
+            start = tuple(float(v) for v in d["start_m"])
+        if start is None and not (d["pad"] and d["pad"] not in pads):
+            at(key, f"drone {d['name']!r} needs a pad (one of the world's pads) or start_m")
+        drones.append(
+            DroneSpec(d["name"], start or (0.0, 0.0, 0.0), d["pad"], d["uri"], dict(d["set"]), i)
+        )
+    _check_shared(data, drones, at)
+    _check_uris(data, drones, rig, at)
+    if problems:
+        raise MissionError(problems)
+    return FleetSpec(path, data, marks, drones, mission, rig_path)
+
+
+def _check_shared(data: dict, drones: list[DroneSpec], at: Any) -> None:
+    """Pads used twice, start positions closer than the minimum separation."""
+    minimum = data["separation"]["minimum_m"]
+    by_pad: dict[str, str] = {}
+    for d in drones:
+        if d.pad is not None and data["drones"][d.index]["start_m"] is None:
+            if d.pad in by_pad:
+                at(
+                    f"drones[{d.index}].pad",
+                    f"pad {d.pad!r} is {by_pad[d.pad]}'s already: one drone per pad",
+                )
+                continue
+            by_pad[d.pad] = d.name
+    for i, a in enumerate(drones):
+        for b in drones[i + 1 :]:
+            gap = math.dist(a.start_m, b.start_m)
+            shared = a.pad is not None and a.pad == b.pad
+            if gap < minimum and not shared:
+                key = "start_m" if data["drones"][b.index]["start_m"] is not None else "pad"
+                at(
+                    f"drones[{b.index}].{key}",
+                    f"{b.name} starts {gap:.2f} m from {a.name} (at least the minimum separation "
+                    f"{minimum:g} m)",
+                )
+
+
+def _check_uris(data: dict, drones: list[DroneSpec], rig: Any, at: Any) -> None:
+    """No two drones on one radio address (a real link; SITL picks free ports itself)."""
+    if rig is None or rig.kind != "crazyflie" or rig.data["crazyflie"]["sitl"]:
+        return
+    default = rig.data["crazyflie"]["uri"]
+    by_uri: dict[str, str] = {}
+    for d in drones:
+        uri = d.uri or str(d.sets.get("crazyflie.uri") or default)
+        key = f"drones[{d.index}].uri" if d.uri else f"drones[{d.index}]"
+        if uri in by_uri:
+            at(key, f"{d.name} and {by_uri[uri]} both use {uri}: give each drone its own uri")
+        by_uri.setdefault(uri, d.name)

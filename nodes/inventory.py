@@ -1,0 +1,293 @@
+"""Inventory leaves: InventoryPlan, LookUpPlace, RecordPlace.
+
+An inventory mission (``missions/inventory.xml``) answers, for a list of named pallet places
+(``A-03-2``: rack A, bay 3, level 2), which pallet stands there::
+
+    InventoryPlan places=all queue={todo}            the places left to do (resume-aware)
+    LoopString queue={todo} value={place_name}       one place per pass (BehaviorTree.CPP)
+      LookUpPlace place={place_name}                 where it is (row point, facing)
+      ... LocatePallet / AlignToPallet / scan / IdentifyPallet ...
+      RecordPlace place={place_name} ...             one row, written to disk at once
+
+The place map is the rig's world file (``racks:`` in ``worlds/aisle.yaml``), in simulation
+and on a real drone alike. Rows go to ``inventory.csv`` / ``inventory.json`` in the run folder
+(:mod:`nodes.inventory_log`).
+"""
+
+from __future__ import annotations
+
+import csv
+import fnmatch
+import math
+import os
+import re
+from typing import Any
+
+from bt_engine.node import FAILURE, SUCCESS, NodeStatus, SyncActionNode
+from bt_engine.ports import ANY, FLOAT, INT, STRING, input_port, output_port
+from bt_engine.registry import register
+from bt_engine.spec import Loc, Problem
+from drivers.settings import ConfigError, did_you_mean
+from nodes.inventory_log import (
+    EMPTY,
+    IDENTIFIED,
+    NOT_IDENTIFIED,
+    NOT_SCANNED,
+    UNKNOWN,
+    InventoryError,
+    InventoryLog,
+)
+
+CATEGORY_INVENTORY = "inventory"
+MAX_PLACES = 10_000
+
+
+def world_of(ctx: Any) -> Any:
+    """The rig's world (the place map), loaded once per run; None without a rig."""
+    world = ctx.resources.get("world")
+    if world is None:
+        rig = ctx.resources.get("rig")
+        if rig is None:
+            return None
+        world = rig.load_world(ctx.resources.get("seed") or 0)
+        ctx.resources["world"] = world
+    return world
+
+
+def all_places_order(world: Any) -> list[str]:
+    """Every place, bay by bay, going up one bay and down the next (the short way)."""
+    out: list[str] = []
+    by_bay: dict[tuple[str, int], list[Any]] = {}
+    for p in world.places.values():
+        by_bay.setdefault((p.rack, p.bay), []).append(p)
+    for k, (_, places) in enumerate(sorted(by_bay.items())):
+        levels = sorted(places, key=lambda p: p.level, reverse=bool(k % 2))
+        out += [p.name for p in levels]
+    return out
+
+
+def _match(token: str, names: list[str]) -> list[str]:
+    if any(c in token for c in "*?["):
+        return [n for n in names if fnmatch.fnmatchcase(n, token)]
+    return [token] if token in names else []
+
+
+def resolve_places(
+    spec: str, world: Any, where: Loc, base_dir: str = "."
+) -> tuple[list[str], list[Problem]]:
+    """The place names ``spec`` asks for, in order, without repeats, and what is wrong.
+
+    ``spec`` is ``all`` (every place of the world, bay by bay), names or glob patterns
+    separated by ``;`` or ``,`` (``A-01-1;A-02-*``), or a ``.csv`` file whose ``place``
+    column (or first column) lists them; problems are located at ``where`` or in the CSV.
+    """
+    names = list(world.places) if world is not None else []
+    if not names:
+        return [], [
+            Problem(
+                where,
+                "the rig's world has no pallet places (racks:); fly inventories in a "
+                "world with racks, e.g. --rig rigs/aisle.yaml",
+            )
+        ]
+    text = str(spec or "").strip()
+    if text.lower() in ("", "all"):
+        return all_places_order(world), []
+    tokens: list[tuple[str, Loc]] = []
+    problems: list[Problem] = []
+    if text.lower().endswith(".csv"):
+        path = text if os.path.isabs(text) or os.path.exists(text) else os.path.join(base_dir, text)
+        tokens, problems = _csv_tokens(path, where)
+    else:
+        tokens = [(t.strip(), where) for t in re.split(r"[;,]", text) if t.strip()]
+    out: list[str] = []
+    for token, loc in tokens[:MAX_PLACES]:
+        found = _match(token, names)
+        if not found:
+            hint = did_you_mean(token, names) or f" (places: {names[0]} .. {names[-1]})"
+            problems.append(Problem(loc, f"unknown place '{token}'{hint}"))
+        out += [n for n in found if n not in out]
+    if len(tokens) > MAX_PLACES:
+        problems.append(Problem(where, f"more than {MAX_PLACES} places listed"))
+    return out, problems
+
+
+def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Problem]]:
+    """Place names of a CSV file with their line and column (``place`` column or the first)."""
+    try:
+        with open(path, encoding="utf-8", newline="") as f:
+            rows = list(csv.reader(f))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        return [], [Problem(where, f"cannot read the place list {path}: {exc}")]
+    if not rows:
+        return [], [Problem(Loc(path, 1, 1), "the place list is empty")]
+    header = [c.strip().lower() for c in rows[0]]
+    col, start = (header.index("place"), 1) if "place" in header else (0, 0)
+    out = []
+    for i, row in enumerate(rows[start:], start=start + 1):
+        if col < len(row) and row[col].strip():
+            column = sum(len(c) + 1 for c in row[:col]) + 1
+            out.append((row[col].strip(), Loc(path, i, column)))
+    return out, []
+
+
+@register
+class InventoryPlan(SyncActionNode):
+    """Turn ``places`` into the queue of places still to answer: ``all`` (every place of the
+    world, bay by bay, up one bay and down the next), names or patterns (``A-01-1;A-0?-2``),
+    or a CSV file with a ``place`` column. With ``--resume`` the places the interrupted run
+    answered are left out. Unknown places are refused before anything flies (located).
+    SUCCESS with ``queue`` (for LoopString); FAILURE if the list cannot be used."""
+
+    bt_id = "InventoryPlan"
+    category = CATEGORY_INVENTORY
+    ports = (
+        input_port("places", STRING, "all", "all, names/patterns (A-01-1;A-02-*) or a .csv file"),
+        output_port("queue", ANY, "the places left to answer, in order (LoopString's queue)"),
+        output_port("total", INT, "places planned (including those already answered)"),
+        output_port("remaining", INT, "places left to answer"),
+    )
+
+    def _resolve(self) -> tuple[list[str], list[Problem]]:
+        base = os.path.dirname(self.loc.file) if self.loc is not None else "."
+        where = self.loc or Loc("<mission>")
+        return resolve_places(self.get_input("places"), world_of(self.ctx), where, base)
+
+    def preflight(self) -> list[Any]:
+        """Unknown places, a missing world or an unreadable list or resumed inventory,
+        before anything flies."""
+        try:
+            _, problems = self._resolve()
+            InventoryLog.of(self.ctx)
+        except ConfigError as exc:
+            return [("places", f"the rig's world cannot be loaded: {exc}")]
+        except InventoryError as exc:
+            return [Problem(Loc("--resume", 0, 0), str(exc))]
+        out: list[Any] = []
+        for p in problems:
+            if p.loc == self.loc:  # the list itself (literal, --set or mission input)
+                out.append(("places", p.message))
+            else:
+                out.append(p)  # a line of the CSV file
+        return out
+
+    def tick_impl(self) -> NodeStatus:
+        try:
+            places, problems = self._resolve()
+            log = InventoryLog.of(self.ctx)
+        except (ConfigError, InventoryError) as exc:
+            self.failure_reason = str(exc)
+            return FAILURE
+        if problems:
+            self.failure_reason = "; ".join(str(p) for p in problems[:3])
+            return FAILURE
+        todo = log.plan(places)
+        done = len(places) - len(todo)
+        self.ctx.log(
+            f"inventory: {len(places)} places planned"
+            + (f", {done} already answered (resumed)" if done else "")
+        )
+        log.write()
+        self.set_output("queue", todo)
+        self.set_output("total", len(places))
+        self.set_output("remaining", len(todo))
+        return SUCCESS
+
+
+@register
+class LookUpPlace(SyncActionNode):
+    """Where a named place is in the world's map: ``row`` is the centre of its block row
+    (x;y;z, for LocatePallet's ``place``) and ``facing_deg`` the drone yaw that faces it.
+    FAILURE for a name the map does not have."""
+
+    bt_id = "LookUpPlace"
+    category = CATEGORY_INVENTORY
+    ports = (
+        input_port("place", STRING, description="place name, e.g. A-03-2"),
+        output_port("row", ANY, "centre of the place's block row, x;y;z in m"),
+        output_port("facing_deg", FLOAT, "drone yaw that faces the pallet, degrees"),
+        output_port("level", INT, "rack level (1 = lowest)"),
+    )
+
+    def tick_impl(self) -> NodeStatus:
+        world = world_of(self.ctx)
+        name = self.get_input("place").strip()
+        place = (world.places if world is not None else {}).get(name)
+        if place is None:
+            self.failure_reason = f"unknown place '{name}'"
+            return FAILURE
+        self.set_output("row", tuple(round(v, 4) for v in place.row_m))
+        self.set_output("facing_deg", place.look_deg)
+        self.set_output("level", place.level)
+        return SUCCESS
+
+
+@register
+class RecordPlace(SyncActionNode):
+    """Write the answer for ``place`` as one inventory row (at once, atomically, in the run
+    folder's ``inventory.csv`` / ``inventory.json``). With ``pallet_id`` (IdentifyPallet's
+    answer) the row is that identity or ``unknown``. Without it the row says what the scan
+    found: ``empty`` when LocatePallet looked and saw no block (``blocks_seen`` 0),
+    ``unknown`` (not identified) when a pallet was seen but not three blocks, ``not_scanned``
+    when the place could not be looked at (``blocks_seen`` -1). Always SUCCESS."""
+
+    bt_id = "RecordPlace"
+    category = CATEGORY_INVENTORY
+    ports = (
+        input_port("place", STRING, description="place name"),
+        input_port("pallet_id", STRING, "", "IdentifyPallet's answer (empty: no answer)"),
+        input_port("best_id", STRING, "", "closest gallery entry"),
+        input_port("distance", FLOAT, None, "match distance"),
+        input_port("margin", FLOAT, None, "match margin"),
+        input_port("blocks_seen", INT, -1, "LocatePallet's blocks_seen (without an answer)"),
+        input_port("reason", STRING, "", "why there is no answer (for the row)"),
+        output_port("recorded", INT, "rows recorded so far in this run"),
+    )
+
+    def _optional(self, name: str) -> Any:
+        return self.get_input(name) if self.has_input(name) else None
+
+    def tick_impl(self) -> NodeStatus:
+        pallet = (self.get_input("pallet_id") or "").strip()
+        seen = self.get_input("blocks_seen")
+        reason = self.get_input("reason") or ""
+        if pallet:
+            answer = pallet
+            status = UNKNOWN if pallet == UNKNOWN else IDENTIFIED
+        elif seen == 0:
+            answer, status = EMPTY, EMPTY
+            reason = reason or "no support block seen at the place"
+        elif seen is not None and seen > 0:
+            answer, status = UNKNOWN, NOT_IDENTIFIED
+            reason = (
+                reason or f"a pallet is there ({seen} blocks seen) but three were never committed"
+            )
+        else:
+            answer, status = "", NOT_SCANNED
+            reason = reason or "the place could not be looked at"
+        log = InventoryLog.of(self.ctx)
+        row = log.record(
+            {
+                "place": self.get_input("place").strip(),
+                "answer": answer,
+                "status": status,
+                "best_id": self.get_input("best_id") or None,
+                "distance": _round(self._optional("distance")) if pallet else None,
+                "margin": _round(self._optional("margin")) if pallet else None,
+                "blocks_seen": seen,
+                "mission_time_s": round(self.now(), 2),
+                "reason": reason or None,
+            }
+        )
+        self.ctx.log(f"inventory {row['place']}: {answer or '-'} ({status})")
+        self.set_output("recorded", len(log.rows) - len(log.carried))
+        return SUCCESS
+
+
+def _round(value: Any) -> Any:
+    """A finite number rounded for the row, else None (JSON has no inf)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return None
+    return round(v, 4) if math.isfinite(v) else None

@@ -1,0 +1,119 @@
+"""Keeping drones apart: the corridor gate, the separation guard, pausing a motion.
+
+Two simulated drones on one lock-step clock, driven through the Vehicle API as a fleet's
+missions would drive them."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import pytest
+from helpers import REPO
+
+from bt_engine.clock import SimClock
+from drivers.rig.factory import make_platform
+from drivers.rig.loader import load_rig
+from drivers.safety.airspace import Airspace, SeparationGuard, segment_distance
+
+RIG = os.path.join(REPO, "rigs", "aisle.yaml")
+
+
+def test_segment_distance():
+    assert segment_distance((0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0)) == pytest.approx(1.0)
+    assert segment_distance((0, 0, 0), (2, 0, 0), (1, -1, 0), (1, 1, 0)) == pytest.approx(0.0)
+    assert segment_distance((0, 0, 0), (0, 0, 0), (3, 4, 0), (3, 4, 0)) == pytest.approx(5.0)
+    assert segment_distance((0, 0, 0), (1, 0, 0), (2, 1, 0), (3, 1, 0)) == pytest.approx(
+        math.sqrt(2)
+    )
+
+
+def _drones(starts: dict[str, tuple[float, float]]):
+    clock = SimClock()
+    platforms = {}
+    for i, (name, (x, y)) in enumerate(starts.items()):
+        rig = load_rig(RIG, {"sim.start_m": [x, y, 0.0]})
+        p = make_platform(rig, clock, seed=i)
+        p.vehicle.name = name
+        platforms[name] = p
+    return clock, platforms
+
+
+def _step(clock, platforms, hooks, seconds: float, until=None) -> None:
+    for _ in range(int(seconds / 0.02)):
+        clock.advance(0.02)
+        for p in platforms.values():
+            p.before_tick(clock.now())
+        for h in hooks:
+            h.after_step(clock.now())
+        if until is not None and until():
+            return
+
+
+def test_a_motion_through_a_taken_corridor_waits_until_it_is_free():
+    clock, pf = _drones({"a": (0.0, -1.5), "b": (1.5, 0.0)})
+    a, b = pf["a"].vehicle, pf["b"].vehicle
+    air = Airspace(0.5)
+    air.add(a)
+    air.add(b)
+    guard = SeparationGuard({"a": a, "b": b}, 0.5, 0.2)
+    hooks = [air, guard]
+    _step(clock, pf, hooks, 0.1)  # the first telemetry: where each drone stands
+    ta, tb = a.takeoff(1.0, 0.5), b.takeoff(1.0, 0.5)
+    _step(clock, pf, hooks, 6.0, until=lambda: ta.reached and tb.reached)
+    assert ta.reached and tb.reached
+    ga = a.go_to(0.0, 1.5, 1.0, speed_mps=0.5)  # a crosses the origin first ...
+    gb = b.go_to(-1.5, 0.0, 1.0, speed_mps=0.5)  # ... b's crossing line must wait
+    assert ga.waiting == "" and gb.waiting.startswith("airspace: a's corridor")
+    closest, b_waited_while_a_crossed = math.inf, False
+    for _ in range(1500):
+        _step(clock, pf, hooks, 0.02)
+        closest = min(closest, math.dist(a.position, b.position))
+        if gb.waiting and abs(a.position[1]) < 0.3:
+            b_waited_while_a_crossed = True
+        if ga.reached and gb.reached:
+            break
+    assert ga.reached and gb.reached
+    assert b_waited_while_a_crossed
+    assert closest >= 0.5 and guard.violations == 0
+    assert b.waits == 1 and air.waits >= 1
+    assert math.dist(b.position, (-1.5, 0.0, 1.0)) < 0.05
+
+
+def test_the_guard_pauses_the_drone_closing_in_and_resumes_it():
+    clock, pf = _drones({"a": (0.0, 0.0), "b": (2.0, 0.0)})
+    a, b = pf["a"].vehicle, pf["b"].vehicle  # no airspace: only the guard keeps them apart
+    guard = SeparationGuard({"a": a, "b": b}, 0.5, 0.2)
+    _step(clock, pf, [guard], 0.1)
+    ta, tb = a.takeoff(1.0, 0.5), b.takeoff(1.0, 0.5)
+    _step(clock, pf, [guard], 6.0, until=lambda: ta.reached and tb.reached)
+    g = a.go_to(2.0, 0.0, 1.0, speed_mps=0.4)  # straight at b, which hovers there
+    _step(clock, pf, [guard], 12.0)
+    assert guard.holds == 1 and a.paused and g.active and not g.reached
+    assert g.waiting.startswith("paused: b is")
+    assert guard.min_distance_m >= 0.5 and guard.violations == 0
+    b.go_to(2.0, 3.0, 1.0, speed_mps=0.5)  # b leaves: a is sent on and arrives
+    _step(clock, pf, [guard], 20.0, until=lambda: g.reached)
+    assert g.reached and not a.paused
+    assert math.dist(a.position, (2.0, 0.0, 1.0)) < 0.05
+    assert any("resumed" in e for e in guard.events)
+
+
+def test_pause_holds_the_motion_and_resume_finishes_it():
+    clock, pf = _drones({"a": (0.0, 0.0)})
+    a = pf["a"].vehicle
+    _step(clock, pf, [], 0.1)
+    t = a.takeoff(1.0, 0.5)
+    _step(clock, pf, [], 6.0, until=lambda: t.reached)
+    g = a.go_to(0.0, -3.0, 1.0, speed_mps=0.5)  # along the aisle
+    _step(clock, pf, [], 2.0)
+    assert a.pause("test") and not a.pause("again")
+    y_paused = a.position[1]
+    _step(clock, pf, [], 4.0)
+    assert abs(a.position[1] - y_paused) < 0.25 and not g.reached and g.active
+    held = a.position[1]
+    _step(clock, pf, [], 2.0)
+    assert abs(a.position[1] - held) < 0.03  # holding still
+    assert a.resume() and not a.resume()
+    _step(clock, pf, [], 15.0, until=lambda: g.reached)
+    assert g.reached and g.waiting == ""

@@ -1,0 +1,135 @@
+"""The rack aisle: named places, racks that the drone can hit, stock drawn per seed, and the
+place lists an inventory takes (names, patterns, CSV), refused with located errors."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from helpers import REPO
+
+from bt_engine.cli import main
+from bt_engine.spec import Loc
+from drivers.settings import ConfigError
+from drivers.sim.world import load_world
+from nodes.inventory import all_places_order, resolve_places
+
+AISLE = os.path.join(REPO, "worlds", "aisle.yaml")
+RIG = os.path.join(REPO, "rigs", "aisle.yaml")
+
+
+def test_aisle_has_sixteen_named_places_on_two_levels():
+    w = load_world(AISLE)
+    assert len(w.places) == 16
+    assert list(w.places)[:3] == ["A-01-1", "A-01-2", "A-02-1"]
+    low, high = w.places["A-03-1"], w.places["A-03-2"]
+    assert (low.bay, low.level, high.level) == (3, 1, 2)
+    assert high.row_m[2] - low.row_m[2] == pytest.approx(0.8)  # beams at 0.2 and 1.0 m
+    assert low.row_m[0] == pytest.approx(3.05)  # 0.05 m behind the front line x = 3.0
+    assert w.places["A-01-1"].row_m[1] > w.places["A-08-1"].row_m[1]  # bays run to -y
+    assert low.look_deg == pytest.approx(0.0)  # the drone looks along +x at the rack
+
+
+def test_stock_is_drawn_per_seed_with_the_asked_empty_and_unknown_places():
+    a, b, a2 = load_world(AISLE, seed=1), load_world(AISLE, seed=2), load_world(AISLE, seed=1)
+    assert a.stock == a2.stock and a.stock != b.stock
+    for w in (a, b):
+        values = list(w.stock.values())
+        assert values.count(None) == 2
+        not_enrolled = {i for i in values if i and i[:-1] in ("115", "116")}
+        assert len(not_enrolled) == 2
+        pallets = [i[:-1] for i in values if i]
+        assert len(pallets) == len(set(pallets)) == 14  # each pallet stands in one place
+        racked = {p.slot_name: p.identity for p in w.pallets}
+        assert racked == {k: v for k, v in w.stock.items() if v}
+    assert set(a.not_enrolled()) == {"115A", "115B", "116A", "116B"}
+    assert len(a.enrolled_identities()) == 28
+
+
+def test_fixed_places_and_overrides():
+    w = load_world(AISLE, {"stock.fixed.A-01-1": "101B", "stock.fixed.A-02-2": "none"}, seed=3)
+    assert w.stock["A-01-1"] == "101B" and w.stock["A-02-2"] is None
+    assert list(w.stock.values()).count("101B") == 1
+    truth = {g["slot"]: g["identity"] for g in w.ground_truth()}
+    assert truth["A-01-1"] == "101B" and "A-02-2" not in truth
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        ({"stock.fixed.Z-01-1": "101A"}, "'Z-01-1' is not a place of this world"),
+        ({"stock.fixed.A-01-1": "999A"}, "'999A' is not a pallet side of this world"),
+        ({"stock.empty_places": "0", "pallet_pool.count": "10"}, "pool has only"),
+        ({"stock.not_enrolled_places": "5"}, "not-enrolled pallet asked"),
+    ],
+)
+def test_a_stock_the_world_cannot_fill_is_refused(overrides, message):
+    with pytest.raises(ConfigError) as exc:
+        load_world(AISLE, overrides)
+    assert any(message in p for p in exc.value.problems), exc.value.problems
+
+
+def test_a_bad_rack_in_a_file_is_located(tmp_path):
+    text = open(AISLE).read().replace("levels_m: [0.20, 1.00]", "levels_m: [1.00, 0.20]")
+    bad = tmp_path / "aisle.yaml"
+    bad.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_world(str(bad))
+    (problem,) = exc.value.problems
+    assert problem.line == text[: text.index("levels_m: [1.00")].count("\n") + 1
+    assert "levels must go up from the floor" in problem.message
+
+
+def test_the_rack_is_solid():
+    w = load_world(AISLE)
+    place = w.places["A-04-1"]
+    x, y, _ = place.row_m
+    assert w.collision(x - 0.4, y, 0.26, 0.06) is None  # the scan line, 0.4 m in front
+    assert w.collision(3.0, 5.6 - 3 * 1.4, 0.5, 0.06).startswith("rack A upright 3")
+    assert w.collision(3.02, y, 0.95, 0.06).startswith("rack A beam 04-2")
+    inside = w.collision(x + 0.3, y, place.row_m[2], 0.06)
+    assert inside == f"pallet {w.stock['A-04-1'][:-1]}" if w.stock["A-04-1"] else inside is None
+
+
+def test_place_lists():
+    w = load_world(AISLE)
+    where = Loc("m.xml", 3, 5)
+    order = all_places_order(w)
+    assert order[:4] == ["A-01-1", "A-01-2", "A-02-2", "A-02-1"]  # up one bay, down the next
+    assert resolve_places("all", w, where)[0] == order
+    names, problems = resolve_places("A-02-*; A-01-1, A-02-1", w, where)
+    assert names == ["A-02-1", "A-02-2", "A-01-1"] and problems == []
+    _, problems = resolve_places("A-01-1;A-1-1", w, where)
+    assert [str(p) for p in problems] == [
+        "m.xml:3:5: unknown place 'A-1-1' (did you mean 'A-01-1'?)"
+    ]
+
+
+def test_a_csv_place_list_reports_bad_lines_where_they_are(tmp_path):
+    w = load_world(AISLE)
+    csv = tmp_path / "places.csv"
+    csv.write_text("aisle,place\nA,A-03-2\nA,B-03-2\n")
+    names, problems = resolve_places(str(csv), w, Loc("m.xml", 1, 1))
+    assert names == ["A-03-2"]
+    assert [str(p) for p in problems] == [
+        f"{csv}:3:3: unknown place 'B-03-2' (did you mean 'A-03-2'?)"
+    ]
+
+
+def test_btrun_refuses_unknown_places_before_anything_flies(tmp_path, capsys):
+    out = tmp_path / "run"
+    code = main(
+        ["missions/inventory.xml", "--rig", RIG, "--set", "places=A-01-1;A-99-1", "--out", str(out)]
+    )
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "--set places: unknown place 'A-99-1'" in err
+    assert "nothing was run" in err
+    assert not out.exists()  # no run folder: nothing flew
+
+
+def test_btrun_refuses_an_inventory_in_a_world_without_places(tmp_path, capsys):
+    code = main(["missions/inventory.xml", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "missions/inventory.xml:" in err and "has no pallet places" in err
