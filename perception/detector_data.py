@@ -74,11 +74,13 @@ def render_set(
     variety: bool = False,
     distance_m: tuple[float, float] = (0.25, 0.8),
     yaw_deg: float = 15.0,
+    rack_fraction: float = 0.0,
     log: Log | None = None,
 ) -> FrameSet:
     """``n`` white-balanced renders, consecutive frames per identity (scene cache hits),
     deterministic in ``seed`` and ``names``. ``variety``: random looks, ageings and view
-    conditions (see the module doc)."""
+    conditions (see the module doc); ``rack_fraction``: the share of frames with the pallet
+    on a rack beam among rack steel and neighbour pallets."""
     rng = np.random.default_rng(seed)
     factors = _wb_factors(SensorModel())
     h, w = config.input_hw
@@ -104,6 +106,7 @@ def render_set(
             distance_m=distance_m,
             yaw_deg=yaw_deg,
             conditions=cond,
+            rack_probability=rack_fraction,
         )
         bgr = develop(raw, factors, cond or ViewConditions())
         images[i] = cv2.resize(bgr, (w, h), interpolation=cv2.INTER_AREA)

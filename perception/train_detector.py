@@ -65,6 +65,7 @@ class TrainConfig:
     distance_m: tuple[float, float] = (0.22, 1.3)
     yaw_deg: float = 32.0
     colour_augment: float = 0.8  # share of samples given colour_augment
+    rack_fraction: float = 0.3  # frames with the pallet on a rack beam (rack_context)
     steps: int = 6000
     batch: int = 32
     lr: float = 3e-3
@@ -135,6 +136,7 @@ def train(
         variety=cfg.variety,
         distance_m=cfg.distance_m,
         yaw_deg=cfg.yaw_deg,
+        rack_fraction=cfg.rack_fraction,
         log=log,
     )
     render_s = time.perf_counter() - t0
@@ -264,13 +266,17 @@ def evaluate(
     log: Log,
     min_score: float = 0.5,
     variety: bool = False,
+    racks: bool = False,
 ) -> dict:
     """Precision / recall at ``min_score``, AP@0.5, AP@0.5:0.95 and IoU figures on ``n``
     held-out renders (identities ``e0001A``.., five frames each). ``variety``: the varied
-    looks, ageings and conditions of training (other identities), 0.25..1.2 m, yaw 30 deg."""
+    looks, ageings and conditions of training (other identities), 0.25..1.2 m, yaw 30 deg.
+    ``racks``: every pallet on a rack beam among rack steel and neighbour pallets."""
     names = identity_names(max(1, math.ceil(n / 5)), "e")
     t0 = time.perf_counter()
-    extra = {"variety": True, "distance_m": (0.25, 1.2), "yaw_deg": 30.0} if variety else {}
+    extra: dict = {"variety": True, "distance_m": (0.25, 1.2), "yaw_deg": 30.0} if variety else {}
+    if racks:
+        extra["rack_fraction"] = 1.0
     data = render_set(names, n, seed, detector.config, keep_full=True, **extra)
     log(
         f"rendered {n} held-out frames of {len(names)} identities in {time.perf_counter() - t0:.0f} s"
@@ -291,6 +297,7 @@ def evaluate(
     )
     out: dict = {"frames": n, "seed": seed, "blocks": n_gt, "min_score": min_score}
     out["variety"] = variety
+    out["racks"] = racks
     aps = []
     for thr in np.arange(0.5, 0.951, 0.05):
         all_s, all_tp, all_iou = [], [], []
@@ -359,6 +366,9 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
         varied = evaluate(detector, cfg.eval_frames, 12346, log, variety=True)
         blob["trained"]["metrics_varied"] = varied
         log(format_metrics(varied))
+        racked = evaluate(detector, cfg.eval_frames, 12347, log, variety=True, racks=True)
+        blob["trained"]["metrics_racks"] = racked
+        log(format_metrics(racked))
     blob["trained"]["wall_seconds"] = round(time.perf_counter() - t0, 1)
     torch.save(blob, args.out)
     log(f"wrote {args.out} ({blob['trained']['wall_seconds']:.0f} s)")
@@ -368,7 +378,7 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
 def cmd_evaluate(args: argparse.Namespace, log: Log) -> int:
     """Print the held-out figures of a checkpoint."""
     detector = BlockDetector.load(args.weights)
-    metrics = evaluate(detector, args.n, args.seed, log, args.min_score, args.variety)
+    metrics = evaluate(detector, args.n, args.seed, log, args.min_score, args.variety, args.racks)
     print(f"{detector.model_version} ({detector.path})")
     print(format_metrics(metrics))
     return 0
@@ -394,6 +404,7 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--seed", type=int, default=12345)
     ev.add_argument("--min-score", type=float, default=0.5)
     ev.add_argument("--variety", action="store_true", help="varied looks and conditions")
+    ev.add_argument("--racks", action="store_true", help="every pallet on a rack beam")
     for p in (tr, ev):
         p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
         p.add_argument("--quiet", action="store_true")

@@ -63,6 +63,39 @@ def _scene(pallet_id: str, side: str, style: SideStyle | None, base_z: float) ->
     )
 
 
+#: rack layouts the training scenes draw from (a finite set, so racked scenes are cached too)
+RACK_VARIANTS = 24
+
+
+@lru_cache(maxsize=48)
+def _rack_scene(
+    pallet_id: str, side: str, style: SideStyle | None, base_z: float, variant: int
+) -> Scene:
+    """The pallet on a rack beam at ``base_z``: rack steel around it, neighbour pallets in
+    wide bays and on the levels above and below (:mod:`perception.synth.rack_context`),
+    each neighbour with a look of its own."""
+    from perception.synth.looks import random_look
+    from perception.synth.rack_context import neighbour_slots, rack_boxes, rack_variant
+
+    light = SceneLight(0.6, (((-1.5, 0.0, 4.0), 1.0), ((0.5, 1.0, 4.0), 0.7)), NOMINAL_K)
+    v = rack_variant(np.random.default_rng([variant, 31]))
+    pallets = [
+        PalletSpec(
+            pallet_id, side, 0.0, 0.0, base_z, math.pi, EPAL, (((side, style),) if style else ())
+        )
+    ]
+    for k, (x, y, z, facing) in enumerate(neighbour_slots(v, base_z)):
+        name = f"{pallet_id}n{variant}-{k}"
+        look = SideStyle(**random_look(np.random.default_rng([variant, k, *name.encode()])))
+        pallets.append(PalletSpec(name, "AB"[k % 2], x, y, z, facing, EPAL, (("AB"[k % 2], look),)))
+    return Scene.build(
+        pallets,
+        boxes=rack_boxes(v, base_z),
+        floor=((-6.0, -6.0), (12.0, 12.0), 0.0),
+        light=light,
+    )
+
+
 def _random_light(rng: np.random.Generator) -> tuple[float, Lighting]:
     kelvin = float(rng.uniform(3000.0, 6000.0))
     lighting = Lighting(
@@ -87,6 +120,7 @@ def render_detection_sample(
     height_m: float = 0.05,
     blur_probability: float = 0.3,
     conditions: ViewConditions | None = None,
+    rack_probability: float = 0.0,
 ) -> tuple[np.ndarray, list[BlockBox]]:
     """A raw Bayer frame and its ground-truth block boxes, everything randomised.
 
@@ -96,6 +130,8 @@ def render_detection_sample(
     ``conditions``: take the frame under these instead (light, optics, sensor noise,
     Bayer JPEG; see :mod:`perception.synth.views`; develop it with
     :func:`perception.synth.views.develop` for the lower resolution).
+    ``rack_probability``: the share of frames with the pallet on a rack beam, among rack
+    steel and neighbour pallets (:func:`_rack_scene`); 0 draws nothing more from ``rng``.
     """
     camera = camera or CameraModel()
     identities = identities or identity_names(100)
@@ -103,7 +139,12 @@ def render_detection_sample(
     pallet_id, side = split_identity(identity)
     base_z = _stand_height(rng)
     kelvin, lighting = _random_light(rng)
-    scene = _scene(pallet_id, side, (styles or {}).get(identity), base_z)
+    style = (styles or {}).get(identity)
+    if rack_probability > 0.0 and rng.random() < rack_probability:
+        base_z = 0.05 * int(rng.integers(3, 33))  # beams at 0.15 .. 1.6 m
+        scene = _rack_scene(pallet_id, side, style, base_z, int(rng.integers(RACK_VARIANTS)))
+    else:
+        scene = _scene(pallet_id, side, style, base_z)
     d = rng.uniform(*distance_m)
     pose = CameraPose.from_yaw(
         -d,
