@@ -36,7 +36,19 @@ from drivers.sim.racks import (
 from drivers.sim.shapes import Box
 from drivers.sim.world_schema import LOOK, PAINTS, SIDE, SLOT, WOODS, WORLD_SCHEMA
 
-__all__ = ["LOOK", "PAINTS", "SIDE", "SLOT", "WOODS", "WORLD_SCHEMA", "Box", "Place", "PlacedPallet", "World", "load_world"]
+__all__ = [
+    "LOOK",
+    "PAINTS",
+    "SIDE",
+    "SLOT",
+    "WOODS",
+    "WORLD_SCHEMA",
+    "Box",
+    "Place",
+    "PlacedPallet",
+    "World",
+    "load_world",
+]
 
 
 @dataclass
