@@ -29,12 +29,12 @@ import json
 import os
 import statistics
 import sys
-import tempfile
 import time
 from multiprocessing import get_context
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, REPO)
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 SIDES = [f"{n}{s}" for n in "12345" for s in "AB"]
 MISSIONS = {"fixed": "missions/pallet_scan_fixed.xml", "reactive": "missions/pallet_scan.xml"}
 RANDOM_RANGES = {"lateral_m": 0.25, "depth_m": 0.15, "yaw_deg": 15.0, "height_m": 0.08}
@@ -59,25 +59,17 @@ def cells() -> list[tuple[str, dict[str, float]]]:
 def fly(job: tuple[str, str, int, dict[str, str], float]) -> dict:
     """One ``btrun run`` in this process; the figures of its summary.json."""
     mission, cell, seed, sets, gust = job
-    from bt_engine.cli import main
+    from flight_run import run_summary
 
-    with tempfile.TemporaryDirectory() as out:
-        side = SIDES[seed % len(SIDES)]
-        argv = ["run", os.path.join(REPO, MISSIONS[mission]), "--seed", str(seed)]
-        argv += ["--quiet", "--no-report", "--out", out]
-        items = {"world.scan_pallet": side, "wind.gust_std_mps": str(gust), **sets}
-        for k, v in items.items():
-            argv += ["--set", f"{k}={v}"]
-        t0 = time.perf_counter()
-        with open(os.devnull, "w") as devnull:
-            stdout, sys.stdout = sys.stdout, devnull
-            try:
-                main(argv)
-            finally:
-                sys.stdout = stdout
-        wall = time.perf_counter() - t0
-        with open(os.path.join(out, "summary.json")) as f:
-            s = json.load(f)
+    side = SIDES[seed % len(SIDES)]
+    argv = ["run", os.path.join(REPO, MISSIONS[mission]), "--seed", str(seed)]
+    argv += ["--quiet", "--no-report"]
+    items = {"world.scan_pallet": side, "wind.gust_std_mps": str(gust), **sets}
+    for k, v in items.items():
+        argv += ["--set", f"{k}={v}"]
+    t0 = time.perf_counter()
+    s = run_summary(argv)
+    wall = time.perf_counter() - t0
     bb = s.get("blackboard") or {}
     sim = s.get("sim") or {}
     blocks = (s.get("perception") or {}).get("blocks") or [0]

@@ -13,6 +13,7 @@ message in the run log; they never raise, so the tree (or the safety supervisor)
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 from bt_engine.node import (
@@ -247,11 +248,20 @@ class IdentifyPallet(SyncActionNode):
         ),
         input_port("min_margin", FLOAT, None, "unknown below this margin (default: gallery)"),
         input_port("top_k", INT, 5, "length of the ranking"),
+        input_port(
+            "update_gallery",
+            BOOL,
+            False,
+            "after a confident answer (distance and margin well inside the thresholds) add "
+            "this scan as a view of the side (bounded, in the gallery's history, can be "
+            "rolled back); never from an unconfident one",
+        ),
         output_port("pallet_id", STRING, "identity (e.g. 3A) or unknown"),
         output_port("best_id", STRING, "closest identity, even when the answer is unknown"),
         output_port("distance", FLOAT, "mean block distance to the closest identity"),
         output_port("margin", FLOAT, "runner-up distance minus the best distance"),
         output_port("ranking", ANY, "top_k [identity, mean distance] pairs, best first"),
+        output_port("gallery_updated", BOOL, "true if this scan was added to the gallery"),
     )
 
     def tick_impl(self) -> NodeStatus:
@@ -268,8 +278,12 @@ class IdentifyPallet(SyncActionNode):
             th = Thresholds(
                 th.max_distance if md is None else md, th.min_margin if mm is None else mm
             )
-            emb = embedder.embed(crops)
-            match = g.match(emb, top_k=self.get_input("top_k"), thresholds=th)
+            desc = embedder.describe(crops)
+            vis = desc.visibility if embedder.occlusion_aware else None
+            match = g.match(
+                desc.vectors, top_k=self.get_input("top_k"), thresholds=th, visibility=vis
+            )
+            update = self._update(session, g, match, desc.vectors, vis, th)
         except (PerceptionError, GalleryError, ModelError) as exc:
             session.identifications.append(
                 {"t_s": self.now(), "key": key, "node": self.describe(), "failed": str(exc)}
@@ -289,9 +303,11 @@ class IdentifyPallet(SyncActionNode):
                 "reason": match.reason,
                 "thresholds": [th.max_distance, th.min_margin],
                 "ranking": [[i, d, list(b)] for i, d, b in match.ranking],
+                "gallery_update": update,
                 "crops": crops,
             }
         )
+        self.set_output("gallery_updated", bool(update and update.startswith("added")))
         self.set_output("pallet_id", match.pallet_id)
         self.set_output("best_id", match.best_id)
         self.set_output("distance", match.distance)
@@ -301,7 +317,22 @@ class IdentifyPallet(SyncActionNode):
         self.ctx.log(
             f"pallet {match.pallet_id}: distance {match.distance:.3f}, margin {match.margin:.3f}{note}"
         )
+        if update:
+            self.ctx.log(f"gallery update: {update}")
         return SUCCESS
+
+    def _update(self, session, g, match, vectors, vis, th) -> str:
+        """Add the scan to the gallery if asked and confident; what happened ("" if not asked)."""
+        if not self.get_input("update_gallery"):
+            return ""
+        if self.get_input("gallery") == DEMO:
+            return "not updated: the demo gallery is generated (use your own gallery file)"
+        run = os.path.basename(str(self.ctx.resources.get("run_dir") or "")) or "mission"
+        run = f"{run} t={self.now():.1f} s"
+        decision = g.update(match, vectors, vis, run=run, thresholds=th)
+        if decision.update:
+            return f"added a view to {match.pallet_id} ({decision.reason})"
+        return f"not updated: {decision.reason}"
 
 
 @register
@@ -335,12 +366,15 @@ class EnrollPallet(SyncActionNode):
             crops = _scan_crops(self, self.get_input("scan"))
             embedder = session.embedder(self.get_input("embedder"))
             g = session.gallery(self.get_input("gallery"), embedder, create=True)
+            desc = embedder.describe(crops)
             g.enrol(
                 name,
-                embedder.embed(crops),
+                desc.vectors,
                 [png_bytes(c) for c in crops],
                 source=f"mission at t={self.now():.1f} s",
                 replace=self.get_input("replace"),
+                visibility=desc.visibility if embedder.occlusion_aware else None,
+                run=os.path.basename(str(self.ctx.resources.get("run_dir") or "")),
             )
         except (PerceptionError, GalleryError, ModelError) as exc:
             return _fail(self, str(exc))

@@ -208,7 +208,12 @@ class PerceptionSession:
                         "give gallery=<file.sqlite> instead"
                     )
                 path = ensure_demo_gallery(
-                    world, detector or self.detector(), embedder, self.camera, log=self.log
+                    world,
+                    detector or self.detector(),
+                    embedder,
+                    self.camera,
+                    log=self.log,
+                    overrides=getattr(self.rig, "world_overrides", None),
                 )
                 g = Gallery.open(path, embedder.model_version)
             elif os.path.exists(spec):

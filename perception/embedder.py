@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import asdict, fields
+from dataclasses import asdict, dataclass, fields
 
 import cv2
 import numpy as np
@@ -67,18 +67,42 @@ def resize_crop(crop: np.ndarray, input_hw: tuple[int, int]) -> np.ndarray:
     return cv2.resize(crop, (w, h), interpolation=interp)
 
 
-def to_tensor(images: list[np.ndarray]) -> torch.Tensor:
+#: how a crop is standardised (``PCBConfig.normalisation``)
+NORMALISATIONS = ("mean_std", "robust")
+
+
+def to_tensor(images: list[np.ndarray], normalisation: str = "mean_std") -> torch.Tensor:
     """Stack equally-sized BGR uint8 images into a float tensor (N, 3, H, W), each image
-    standardised on its own (per-channel mean removed, divided by its standard deviation)."""
+    standardised on its own: ``mean_std`` removes the per-channel mean and divides by the
+    standard deviation; ``robust`` removes the per-channel median and divides by the spread
+    between the 10th and 90th percentiles / 2.56 (about one standard deviation), so a strap,
+    film or stain over part of the block barely shifts the rest of the crop."""
     x = np.stack(images).astype(np.float32)
-    x -= x.mean(axis=(1, 2), keepdims=True)
-    x /= x.std(axis=(1, 2, 3), keepdims=True) + np.float32(STD_FLOOR)
+    if normalisation == "robust":  # statistics of every second row and column (fast)
+        n = len(x)
+        sub = x[:, ::2, ::2].reshape(n, -1, 3)
+        x -= np.median(sub, axis=1)[:, None, None, :]
+        lo, hi = np.percentile(x[:, ::2, ::2].reshape(n, -1), (10.0, 90.0), axis=1)
+        x /= ((hi - lo) / 2.56)[:, None, None, None].astype(np.float32) + np.float32(STD_FLOOR)
+    else:
+        x -= x.mean(axis=(1, 2), keepdims=True)
+        x /= x.std(axis=(1, 2, 3), keepdims=True) + np.float32(STD_FLOOR)
     return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2)))
 
 
 def gallery_features(raw: torch.Tensor, parts: int) -> torch.Tensor:
     """PCB's eval output (per-part L2-normalised, concatenated) -> unit-norm rows."""
     return raw / math.sqrt(parts)
+
+
+@dataclass(frozen=True)
+class BlockDescriptors:
+    """What the embedder says about n crops: unit-norm embeddings (n, dim) and how visible
+    each of their ``parts`` stripes is (n, parts), 0 hidden .. 1 visible (all 1 for a
+    model without a visibility head)."""
+
+    vectors: np.ndarray
+    visibility: np.ndarray
 
 
 class BlockEmbedder:
@@ -159,20 +183,40 @@ class BlockEmbedder:
     def preprocess(self, crops: list[np.ndarray]) -> torch.Tensor:
         """Validate and resize crops to the model input; a normalised (N, 3, H, W) tensor."""
         hw = tuple(self.config.input_hw)
-        return to_tensor([resize_crop(check_crop(c, i), hw) for i, c in enumerate(crops)])
+        images = [resize_crop(check_crop(c, i), hw) for i, c in enumerate(crops)]
+        return to_tensor(images, self.config.normalisation)
 
     def embed(self, crops: list[np.ndarray]) -> np.ndarray:
         """BGR uint8 crops (any size) -> float32 (n, dim) unit-norm rows.
 
         Raises :class:`ModelError` for an empty crop, a wrong shape or a wrong dtype.
         """
+        return self.describe(crops).vectors
+
+    def describe(self, crops: list[np.ndarray]) -> BlockDescriptors:
+        """Embeddings and stripe visibilities of BGR uint8 crops (any size); the gallery
+        weighs each stripe by its visibility (``Gallery.match(..., visibility=)``).
+
+        Raises :class:`ModelError` for an empty crop, a wrong shape or a wrong dtype.
+        """
         crops = list(crops)
+        parts = self.config.parts
         if not crops:
-            return np.zeros((0, self.dim), np.float32)
+            return BlockDescriptors(
+                np.zeros((0, self.dim), np.float32), np.zeros((0, parts), np.float32)
+            )
         x = self.preprocess(crops)
         with torch.inference_mode():
-            f = gallery_features(self.model(x), self.config.parts)
-        return f.numpy().astype(np.float32, copy=False)
+            raw, vis = self.model.describe(x)
+            f = gallery_features(raw, parts)
+        return BlockDescriptors(
+            f.numpy().astype(np.float32, copy=False), vis.numpy().astype(np.float32, copy=False)
+        )
+
+    @property
+    def occlusion_aware(self) -> bool:
+        """True if the model predicts stripe visibilities (else they are all 1)."""
+        return bool(self.config.visibility)
 
     def __repr__(self) -> str:
         return f"BlockEmbedder({self.model_version}, dim={self.dim}, {self.thresholds})"

@@ -1,11 +1,19 @@
 """The gallery of enrolled pallets: an SQLite file of block embeddings, and matching.
 
 One entry per enrolled pallet side (``"3A"``): the three block embeddings (left to right),
-the model version that computed them, the time, and the source crops (PNG). Matching follows
-the reference mission: for each entry, the mean of the three block-to-block distances; the
-smallest mean wins. On top of that the gallery reports the runner-up and the margin between
-them, and answers ``"unknown"`` when the best distance is too large or the margin too small
-(thresholds calibrated on a validation set: see ``docs/perception.md``).
+optionally their stripe visibilities, the model version that computed them, the time, and
+the source crops (PNG). Matching follows the reference mission: for each entry, the mean of
+the three block-to-block distances; the smallest mean wins. On top of that the gallery
+reports the runner-up and the margin between them, and answers ``"unknown"`` when the best
+distance is too large or the margin too small (thresholds calibrated on a validation set:
+see ``docs/perception.md``). Stripes hidden in either crop count less
+(:mod:`perception.gallery_math`).
+
+A gallery that keeps up: after a confident identification, :meth:`Gallery.update` may add
+the scan as another view of the side (:mod:`perception.gallery_update` decides; a bounded
+number of views, the oldest evicted); matching then takes, block by block, the closest
+view. Every enrolment, added view, eviction, rollback and removal is written to the file's
+``history`` (:meth:`Gallery.history`); :meth:`Gallery.rollback` undoes an added view.
 
 Safety of the file:
 
@@ -13,7 +21,9 @@ Safety of the file:
   previous gallery intact (SQLite's journal rolls the half-written transaction back);
 * the file records the model version; opening it with another model is refused, because
   embeddings of two models are not comparable;
-* a damaged file is detected (``PRAGMA quick_check``) and reported, never silently used.
+* a damaged file is detected (``PRAGMA quick_check``) and reported, never silently used;
+* a schema-1 file (before views and history) is upgraded in place when opened
+  (:mod:`perception.gallery_schema`).
 """
 
 from __future__ import annotations
@@ -23,48 +33,25 @@ import os
 import sqlite3
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 
 import numpy as np
 
-SCHEMA_VERSION = 1
-BLOCKS = 3
+from perception.errors import GalleryError
+from perception.gallery_match import Match, MatchingMixin, Thresholds, _Rows
+from perception.gallery_math import BLOCKS, block_distances
+from perception.gallery_schema import (
+    READABLE_SCHEMAS,
+    SCHEMA_VERSION,
+    TABLES,
+    check_contents,
+    upgrade_v1,
+    write_schema,
+)
+from perception.gallery_update import UpdateDecision, UpdateRule
+from perception.gallery_views import ViewsMixin
 
 
-class GalleryError(Exception):
-    """A gallery that cannot be used (missing, damaged, other model, wrong shapes)."""
-
-
-@dataclass(frozen=True)
-class Match:
-    """The answer of :meth:`Gallery.match`.
-
-    ``pallet_id`` is the best entry's identity, or ``"unknown"`` when a threshold failed;
-    ``best_id`` is always the closest entry. ``ranking`` lists ``(identity, mean distance,
-    per-block distances)`` best first.
-    """
-
-    pallet_id: str
-    best_id: str
-    distance: float
-    runner_up_id: str | None
-    runner_up_distance: float | None
-    margin: float
-    known: bool
-    reason: str
-    ranking: list[tuple[str, float, tuple[float, ...]]] = field(default_factory=list)
-
-
-@dataclass(frozen=True)
-class Thresholds:
-    """When to answer "unknown": best mean distance above ``max_distance`` or a margin to the
-    runner-up below ``min_margin``."""
-
-    max_distance: float = float("inf")
-    min_margin: float = 0.0
-
-
-class Gallery:
+class Gallery(MatchingMixin, ViewsMixin):
     """An SQLite gallery file bound to one embedding model version.
 
     >>> g = Gallery.create(":memory:", model_version="pcb-small-v1", dim=4)
@@ -78,7 +65,7 @@ class Gallery:
         self.model_version, self.dim = model_version, dim
         self.thresholds = self._load_thresholds()
         self._cache: tuple[list[str], np.ndarray] | None = None
-        self._fast: tuple[np.ndarray, list[np.ndarray], np.ndarray] | None = None
+        self._rows: dict[int, _Rows] = {}
 
     # -- opening -------------------------------------------------------------------------
     @classmethod
@@ -90,7 +77,7 @@ class Gallery:
             return cls.open(path, model_version)
         if path == ":memory:":
             conn = _connect(path)
-            _write_schema(conn, model_version, dim)
+            write_schema(conn, model_version, dim)
             return cls(conn, path, model_version, dim)
         # Built under a temporary name, then renamed: a process killed while creating leaves
         # no half-made gallery behind (the next create or open sees no file at all).
@@ -100,7 +87,7 @@ class Gallery:
             if os.path.exists(tmp):
                 os.remove(tmp)
             conn = _connect(tmp)
-            _write_schema(conn, model_version, dim)
+            write_schema(conn, model_version, dim)
             conn.close()
             os.replace(tmp, path)
         except (OSError, sqlite3.Error) as exc:
@@ -114,7 +101,8 @@ class Gallery:
 
     @classmethod
     def open(cls, path: str, model_version: str | None = None) -> Gallery:
-        """Open an existing gallery; refuse a damaged file or one of another model version."""
+        """Open an existing gallery; refuse a damaged file or one of another model version;
+        upgrade a schema-1 file in place."""
         if not os.path.exists(path):
             raise GalleryError(
                 f"{path}: no gallery file (enrol pallets first: btrun gallery enrol)"
@@ -125,7 +113,7 @@ class Gallery:
             if ok != "ok":
                 raise GalleryError(f"{path}: the gallery file is damaged ({ok}); restore a backup")
             tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master")}
-            missing = sorted({"meta", "entries", "crops"} - tables)
+            missing = sorted(TABLES[1] - tables)
             if missing:
                 raise GalleryError(
                     f"{path}: not a complete btrun gallery (table {', '.join(missing)} "
@@ -140,13 +128,21 @@ class Gallery:
             dim = int(meta["dim"])
         except (KeyError, ValueError):
             raise GalleryError(f"{path}: not a btrun gallery (metadata missing)") from None
-        if schema != SCHEMA_VERSION:
+        if schema not in READABLE_SCHEMAS:
             raise GalleryError(
-                f"{path}: gallery schema {schema}, this btrun reads {SCHEMA_VERSION}"
+                f"{path}: gallery schema {schema}, this btrun reads {SCHEMA_VERSION} "
+                f"(and upgrades 1); use the btrun that wrote it"
             )
         if dim <= 0 or dim > 65536:
             raise GalleryError(f"{path}: embedding size {dim} in its metadata is not valid")
-        _check_contents(conn, path, dim)
+        if schema == 1:
+            _upgrade(conn, path)
+        elif TABLES[2] - tables:
+            missing = ", ".join(sorted(TABLES[2] - tables))
+            raise GalleryError(f"{path}: not a complete btrun gallery (table {missing} missing)")
+        problem = check_contents(conn, dim)
+        if problem:
+            raise GalleryError(f"{path}: {problem}")
         _parse_thresholds(meta, path)
         if model_version is not None and stored_version != model_version:
             raise GalleryError(
@@ -174,15 +170,14 @@ class Gallery:
         crops_png: list[bytes] | None = None,
         source: str = "",
         replace: bool = True,
+        visibility: np.ndarray | None = None,
+        run: str = "",
     ) -> None:
-        """Add (or replace) ``identity`` with its three block embeddings, in one transaction."""
-        emb = np.asarray(embeddings, dtype=np.float32)
-        if emb.shape != (BLOCKS, self.dim):
-            raise GalleryError(
-                f"enrol {identity}: expected embeddings of shape {(BLOCKS, self.dim)}, got {emb.shape}"
-            )
-        if not np.all(np.isfinite(emb)):
-            raise GalleryError(f"enrol {identity}: embeddings contain NaN or infinity")
+        """Add (or replace) ``identity`` with its three block embeddings (and, optionally,
+        their stripe visibilities (3, parts)), in one transaction. Replacing drops the
+        side's added views (a fresh start, recorded in the history)."""
+        emb = self._check_vectors(f"enrol {identity}", embeddings)
+        vis = self._check_visibility(f"enrol {identity}", visibility)
         if not identity or len(identity) > 64:
             raise GalleryError(f"enrol: identity must be 1-64 characters, got {identity!r}")
         with self._writing(f"enrol {identity}"), self.conn:  # one transaction: all or none
@@ -192,19 +187,24 @@ class Gallery:
             if exists and not replace:
                 raise GalleryError(f"enrol: {identity} is already enrolled")
             self.conn.execute("DELETE FROM entries WHERE identity = ?", (identity,))
+            now = time.time()
             self.conn.execute(
-                "INSERT INTO entries VALUES (?, ?, ?, ?)",
-                (identity, emb.tobytes(), time.time(), source),
+                "INSERT INTO entries VALUES (?, ?, ?, ?)", (identity, emb.tobytes(), now, source)
             )
+            if vis is not None:
+                self.conn.execute("INSERT INTO visibility VALUES (?, ?)", (identity, vis.tobytes()))
             for i, png in enumerate(crops_png or []):
                 self.conn.execute("INSERT INTO crops VALUES (?, ?, ?)", (identity, i, png))
-        self._cache = None
+            self._event(identity, now, "re-enrol" if exists else "enrol", run, note=source)
+        self._invalidate()
 
     def remove(self, identity: str) -> bool:
-        """Remove ``identity``; return False if it was not enrolled."""
+        """Remove ``identity`` (and its views); return False if it was not enrolled."""
         with self._writing(f"remove {identity}"), self.conn:
             n = self.conn.execute("DELETE FROM entries WHERE identity = ?", (identity,)).rowcount
-        self._cache = None
+            if n:
+                self._event(identity, time.time(), "remove")
+        self._invalidate()
         return n > 0
 
     def set_thresholds(self, thresholds: Thresholds) -> None:
@@ -223,6 +223,28 @@ class Gallery:
         meta = dict(self.conn.execute("SELECT key, value FROM meta").fetchall())
         return _parse_thresholds(meta, self.path)
 
+    def _check_vectors(self, what: str, embeddings: np.ndarray) -> np.ndarray:
+        emb = np.asarray(embeddings, dtype=np.float32)
+        if emb.shape != (BLOCKS, self.dim):
+            raise GalleryError(
+                f"{what}: expected embeddings of shape {(BLOCKS, self.dim)}, got {emb.shape}"
+            )
+        if not np.all(np.isfinite(emb)):
+            raise GalleryError(f"{what}: embeddings contain NaN or infinity")
+        return emb
+
+    def _check_visibility(self, what: str, visibility: np.ndarray | None) -> np.ndarray | None:
+        if visibility is None:
+            return None
+        vis = np.asarray(visibility, dtype=np.float32)
+        ok = vis.ndim == 2 and vis.shape[0] == BLOCKS and vis.shape[1] >= 1
+        if not ok or self.dim % vis.shape[1] or not np.all((vis >= 0) & (vis <= 1)):
+            raise GalleryError(
+                f"{what}: visibility must be (3, parts) values in 0..1 with parts dividing "
+                f"{self.dim}, got {vis.shape}"
+            )
+        return vis
+
     @contextlib.contextmanager
     def _writing(self, what: str) -> Iterator[None]:
         """Turn SQLite's write errors into one clear :class:`GalleryError` (nothing written:
@@ -237,18 +259,45 @@ class Gallery:
             )
             raise GalleryError(f"{self.path}: cannot {what} ({exc}); {hint}") from None
 
+    def _event(
+        self,
+        identity: str,
+        when: float,
+        action: str,
+        run: str = "",
+        distance: float | None = None,
+        margin: float | None = None,
+        view_id: int | None = None,
+        note: str = "",
+    ) -> int:
+        cur = self.conn.execute(
+            "INSERT INTO history (identity, time, action, run, distance, margin, view_id, note) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (identity, when, action, run, distance, margin, view_id, note),
+        )
+        return int(cur.lastrowid or 0)
+
+    def _invalidate(self) -> None:
+        self._cache = None
+        self._rows.clear()
+
     # -- reading ---------------------------------------------------------------------------
     def identities(self) -> list[str]:
         """Enrolled identities, sorted."""
         return [r[0] for r in self.conn.execute("SELECT identity FROM entries ORDER BY identity")]
 
     def entries(self) -> list[dict]:
-        """Identity, creation time, source and crop count of every entry."""
+        """Identity, creation time, source, crop count and active added views of every entry."""
         rows = self.conn.execute(
-            "SELECT e.identity, e.created, e.source, COUNT(c.block) FROM entries e "
-            "LEFT JOIN crops c ON c.identity = e.identity GROUP BY e.identity ORDER BY e.identity"
+            "SELECT e.identity, e.created, e.source, "
+            "(SELECT COUNT(*) FROM crops c WHERE c.identity = e.identity), "
+            "(SELECT COUNT(*) FROM views v WHERE v.identity = e.identity AND v.active) "
+            "FROM entries e ORDER BY e.identity"
         )
-        return [{"identity": i, "created": t, "source": s, "crops": n} for i, t, s, n in rows]
+        return [
+            {"identity": i, "created": t, "source": s, "crops": n, "views": v}
+            for i, t, s, n, v in rows
+        ]
 
     def crops(self, identity: str) -> list[bytes]:
         """The PNG crops stored with ``identity`` (block order)."""
@@ -258,7 +307,8 @@ class Gallery:
         return [r[0] for r in rows]
 
     def matrix(self) -> tuple[list[str], np.ndarray]:
-        """All embeddings as ``(identities, array of shape (n, 3, dim))`` (cached)."""
+        """The enrolment embeddings as ``(identities, array of shape (n, 3, dim))`` (cached;
+        added views are not included: :meth:`views` lists them)."""
         if self._cache is None:
             rows = self.conn.execute(
                 "SELECT identity, embeddings FROM entries ORDER BY identity"
@@ -271,76 +321,16 @@ class Gallery:
     def __len__(self) -> int:
         return self.conn.execute("SELECT COUNT(*) FROM entries").fetchone()[0]
 
-    def match(
-        self, query: np.ndarray, top_k: int = 5, thresholds: Thresholds | None = None
-    ) -> Match:
-        """Match three block embeddings (left to right) against every entry.
 
-        Distance between two blocks: Euclidean distance of the embeddings; per entry: the mean
-        of the three block-to-block distances (the reference rule).
-        """
-        q = np.asarray(query, dtype=np.float32)
-        if q.shape != (BLOCKS, self.dim):
-            raise GalleryError(
-                f"match: expected a query of shape {(BLOCKS, self.dim)}, got {q.shape}"
-            )
-        ids, g = self.matrix()
-        if not ids:
-            raise GalleryError(f"{self.path}: the gallery is empty: enrol pallets first")
-        # Screen every entry with one matrix-vector product per block (|g|^2 + |q|^2 - 2 g.q),
-        # then recompute the best candidates exactly, so reported distances are exact.
-        screen = self._screen(q, g)
-        k = min(len(ids), max(top_k, 2) + 16)
-        cand = np.argpartition(screen, k - 1)[:k] if k < len(ids) else np.arange(len(ids))
-        cand = np.sort(cand)
-        exact = block_distances(q, g[cand])
-        means = exact.mean(axis=1)
-        local = np.argsort(means, kind="stable")
-        order, per_block = cand[local], exact[local]
-        means = means[local]
-        th = thresholds or self.thresholds
-        best = int(order[0])
-        second = int(order[1]) if len(order) > 1 else None
-        d1 = float(means[0])
-        d2 = float(means[1]) if second is not None else None
-        margin = (d2 - d1) if d2 is not None else float("inf")
-        reason = ""
-        if d1 > th.max_distance:
-            reason = f"best distance {d1:.3f} above the threshold {th.max_distance:.3f}"
-        elif margin < th.min_margin:
-            reason = f"margin {margin:.3f} to {ids[second]} below the threshold {th.min_margin:.3f}"
-        ranking = [
-            (ids[i], float(means[j]), tuple(float(x) for x in per_block[j]))
-            for j, i in enumerate(order[:top_k])
-        ]
-        return Match(
-            pallet_id=ids[best] if not reason else "unknown",
-            best_id=ids[best],
-            distance=d1,
-            runner_up_id=ids[second] if second is not None else None,
-            runner_up_distance=d2,
-            margin=margin,
-            known=not reason,
-            reason=reason,
-            ranking=ranking,
-        )
-
-    def _screen(self, q: np.ndarray, g: np.ndarray) -> np.ndarray:
-        """Approximate mean block distances to every entry (float32 dot products)."""
-        if self._fast is None or self._fast[0] is not g:
-            blocks = [np.ascontiguousarray(g[:, b]) for b in range(BLOCKS)]
-            sq = np.stack([np.einsum("nd,nd->n", x, x) for x in blocks], axis=1)
-            self._fast = (g, blocks, sq)
-        _, blocks, sq = self._fast
-        dots = np.stack([blocks[b] @ q[b] for b in range(BLOCKS)], axis=1)
-        d2 = sq + np.einsum("bd,bd->b", q, q)[None, :] - 2.0 * dots
-        return np.sqrt(np.maximum(d2, 0.0)).mean(axis=1)
-
-
-def block_distances(query: np.ndarray, gallery: np.ndarray) -> np.ndarray:
-    """Euclidean distances of each query block to the same block of every entry: (n, 3)."""
-    diff = gallery - query[None, :, :]
-    return np.sqrt(np.einsum("nbd,nbd->nb", diff, diff))
+def _upgrade(conn: sqlite3.Connection, path: str) -> None:
+    try:
+        upgrade_v1(conn)
+    except sqlite3.Error as exc:
+        raise GalleryError(
+            f"{path}: gallery schema 1 must be upgraded to schema {SCHEMA_VERSION} (views and "
+            f"history) but the file cannot be written ({exc}); copy it somewhere writable and "
+            "open it again, or re-enrol"
+        ) from None
 
 
 def _connect(path: str) -> sqlite3.Connection:
@@ -349,56 +339,6 @@ def _connect(path: str) -> sqlite3.Connection:
     # FULL sync: a committed enrolment survives a power cut, not only a killed process.
     conn.execute("PRAGMA synchronous = FULL")
     return conn
-
-
-def _write_schema(conn: sqlite3.Connection, model_version: str, dim: int) -> None:
-    """Create the tables and the metadata of an empty gallery (one transaction)."""
-    with conn:
-        conn.executescript(
-            """
-            CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-            CREATE TABLE entries (
-                identity TEXT PRIMARY KEY,
-                embeddings BLOB NOT NULL,
-                created REAL NOT NULL,
-                source TEXT NOT NULL DEFAULT ''
-            );
-            CREATE TABLE crops (
-                identity TEXT NOT NULL REFERENCES entries(identity) ON DELETE CASCADE,
-                block INTEGER NOT NULL,
-                png BLOB NOT NULL,
-                PRIMARY KEY (identity, block)
-            );
-            """
-        )
-        conn.executemany(
-            "INSERT INTO meta VALUES (?, ?)",
-            [
-                ("schema_version", str(SCHEMA_VERSION)),
-                ("model_version", model_version),
-                ("dim", str(dim)),
-                ("created", repr(time.time())),
-            ],
-        )
-
-
-def _check_contents(conn: sqlite3.Connection, path: str, dim: int) -> None:
-    """Every entry holds exactly three embeddings of ``dim`` float32 numbers."""
-    want = BLOCKS * dim * 4
-    try:
-        bad = conn.execute(
-            "SELECT identity, length(embeddings) FROM entries WHERE length(embeddings) != ? "
-            "OR typeof(embeddings) != 'blob' LIMIT 1",
-            (want,),
-        ).fetchone()
-    except sqlite3.DatabaseError as exc:
-        raise GalleryError(f"{path}: the entries table cannot be read ({exc})") from None
-    if bad is not None:
-        raise GalleryError(
-            f"{path}: entry {bad[0]!r} holds {bad[1]} bytes of embeddings, expected {want} "
-            f"(3 blocks x {dim} numbers): the file is damaged or from another model; "
-            "remove the entry (btrun gallery remove) or re-enrol"
-        )
 
 
 def _parse_thresholds(meta: dict[str, str], path: str) -> Thresholds:
@@ -417,3 +357,15 @@ def _parse_thresholds(meta: dict[str, str], path: str) -> Thresholds:
             )
         values.append(v)
     return Thresholds(values[0], values[1])
+
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "Gallery",
+    "GalleryError",
+    "Match",
+    "Thresholds",
+    "UpdateDecision",
+    "UpdateRule",
+    "block_distances",
+]

@@ -12,6 +12,15 @@ a mismatch is reported with the missing and unexpected keys. torchvision is not 
 
 Backbones: ``small`` (default: BasicBlocks, widths 32-256, one block per stage: fast on a
 CPU), ``resnet18`` and ``resnet50`` (the reference work's choice).
+
+Occlusion awareness (``PCBConfig.visibility``, btrun's own addition; off for foreign
+checkpoints): a 1x1 convolution on the last feature map predicts, per cell, whether the
+block is visible there (not hidden by a strap, film, a load, a stain). Each stripe is then
+pooled over its visible cells only, and the stripe's visibility (the mean over its cells)
+says how much the stripe counts when two blocks are compared
+(:func:`perception.gallery.block_distances`). Trained on crops with known hidden parts
+(:mod:`perception.synth.ageing`), in the spirit of the visibility-aware part model
+(Sun et al., 2019).
 """
 
 from __future__ import annotations
@@ -96,6 +105,8 @@ class PCBConfig:
     reduced_dim: int = 256
     num_classes: int = 1
     input_hw: tuple[int, int] = (96, 160)
+    visibility: bool = False
+    normalisation: str = "mean_std"  # how a crop is standardised (perception.embedder)
 
 
 BACKBONES = {
@@ -133,7 +144,11 @@ class PCB(nn.Module):
         self.classifier = nn.ModuleList(
             [nn.Linear(config.reduced_dim, config.num_classes) for _ in range(config.parts)]
         )
+        self.visibility = nn.Conv2d(self.feature_dim, 1, 1) if config.visibility else None
         self._init_params()
+        if self.visibility is not None:  # start "everything visible"
+            nn.init.zeros_(self.visibility.weight)
+            nn.init.constant_(self.visibility.bias, 3.0)
 
     @property
     def embedding_dim(self) -> int:
@@ -170,11 +185,39 @@ class PCB(nn.Module):
         x = self.maxpool(self.relu(self.bn1(self.conv1(x))))
         return self.layer4(self.layer3(self.layer2(self.layer1(x))))
 
+    def visibility_map(self, fmap: torch.Tensor) -> torch.Tensor | None:
+        """Per-cell visibility logits (N, 1, h, w) of a feature map (None without the head)."""
+        return None if self.visibility is None else self.visibility(fmap)
+
+    def pool_parts(
+        self, fmap: torch.Tensor, vis_logits: torch.Tensor | None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Stripe vectors (N, C, parts, 1) and stripe visibilities (N, parts) in 0..1.
+
+        Without a visibility head: plain average pooling, every stripe fully visible. With
+        it: each stripe averaged over its cells weighted by their (detached) visibility.
+        """
+        n = fmap.size(0)
+        if vis_logits is None:
+            return self.parts_avgpool(fmap), fmap.new_ones((n, self.config.parts))
+        v = torch.sigmoid(vis_logits).detach()
+        num = self.parts_avgpool(fmap * v)
+        den = self.parts_avgpool(v)
+        return num / (den + 1e-3), den.view(n, self.config.parts)
+
+    def describe(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Evaluation output: L2-normalised stripe vectors concatenated (N, parts * C) and
+        the stripes' visibilities (N, parts)."""
+        fmap = self.featuremaps(x)
+        v_g, vis = self.pool_parts(fmap, self.visibility_map(fmap))
+        v_g = F.normalize(v_g, p=2, dim=1)
+        return v_g.view(v_g.size(0), -1), vis
+
     def forward(self, x: torch.Tensor) -> torch.Tensor | list[torch.Tensor]:
-        v_g = self.parts_avgpool(self.featuremaps(x))
         if not self.training:
-            v_g = F.normalize(v_g, p=2, dim=1)
-            return v_g.view(v_g.size(0), -1)
+            return self.describe(x)[0]
+        fmap = self.featuremaps(x)
+        v_g, _ = self.pool_parts(fmap, self.visibility_map(fmap))
         v_h = self.conv5(self.dropout(v_g))
         return [self.classifier[i](v_h[:, :, i, :].flatten(1)) for i in range(self.config.parts)]
 

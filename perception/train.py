@@ -9,7 +9,7 @@
 
 Everything after the model name goes to :mod:`perception.train_detector` or
 :mod:`perception.train_embedder` unchanged (``--help`` there lists the options). Both train
-from scratch on synthetic renders with a fixed seed, on the CPU, in under 30 minutes each;
+from scratch on synthetic renders with a fixed seed, on the CPU, in under about an hour each;
 ``--smoke`` runs a few steps in seconds.
 """
 

@@ -25,7 +25,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -42,25 +41,32 @@ from perception.detector import (
     nms,
     to_input,
 )
-from perception.synth.dataset import _wb_factors, identity_names, render_detection_sample
-from perception.synth.render import SensorModel
-from perception.white_balance import preprocess
+from perception.detector_data import (
+    MIN_VISIBLE,
+    MIN_WIDTH_PX,
+    augment,
+    build_targets,
+    colour_augment,
+    render_set,
+)
+from perception.synth.dataset import identity_names
 
 Log = Callable[[str], None]
-#: ground-truth blocks less visible than this are "don't care"
-MIN_VISIBLE = 0.5
-#: ground-truth blocks narrower than this (frame pixels) are "don't care"
-MIN_WIDTH_PX = 4.0
 
 
 @dataclass(frozen=True)
 class TrainConfig:
     """Everything that determines a training run (with the seed)."""
 
-    frames: int = 6000
-    identities: int = 300
+    frames: int = 10000
+    identities: int = 1000
     wide_fraction: float = 0.1  # frames with a larger lateral offset: few or no blocks
-    steps: int = 3000
+    variety: bool = True  # random looks, ageings and view conditions (detector_data)
+    distance_m: tuple[float, float] = (0.22, 1.3)
+    yaw_deg: float = 32.0
+    colour_augment: float = 0.8  # share of samples given colour_augment
+    rack_fraction: float = 0.3  # frames with the pallet on a rack beam (rack_context)
+    steps: int = 6000
     batch: int = 32
     lr: float = 3e-3
     weight_decay: float = 5e-4
@@ -70,134 +76,6 @@ class TrainConfig:
 
 
 SMOKE = TrainConfig(frames=16, identities=4, steps=3, batch=4, warmup=1, eval_frames=6)
-
-
-# ----------------------------------------------------------------------------- data
-@dataclass
-class FrameSet:
-    """Frames at the network input size and their boxes in frame pixels.
-
-    ``images``: uint8 (N, h, w, 3); ``full``: the frames at full size (evaluation only, else
-    None); ``boxes[i]``: float32 (k, 5) rows x1, y1, x2, y2, visible.
-    """
-
-    images: np.ndarray
-    boxes: list[np.ndarray]
-    full: list[np.ndarray] | None = None
-
-
-def render_set(
-    names: list[str],
-    n: int,
-    seed: int,
-    config: DetectorConfig,
-    *,
-    wide_fraction: float = 0.0,
-    keep_full: bool = False,
-    log: Log | None = None,
-) -> FrameSet:
-    """``n`` white-balanced renders, consecutive frames per identity (scene cache hits),
-    deterministic in ``seed`` and ``names``."""
-    rng = np.random.default_rng(seed)
-    factors = _wb_factors(SensorModel())
-    h, w = config.input_hw
-    images = np.empty((n, h, w, 3), np.uint8)
-    boxes: list[np.ndarray] = []
-    full: list[np.ndarray] = []
-    per_id = max(1, math.ceil(n / len(names)))
-    t0 = time.perf_counter()
-    for i in range(n):
-        name = names[(i // per_id) % len(names)]
-        lateral = 1.4 if rng.random() < wide_fraction else 0.7
-        raw, bb = render_detection_sample(rng, [name], lateral_m=lateral)
-        bgr = preprocess(raw, factors)
-        images[i] = cv2.resize(bgr, (w, h), interpolation=cv2.INTER_AREA)
-        if keep_full:
-            full.append(bgr)
-        rows = [(b.x1, b.y1, b.x2, b.y2, b.visible) for b in bb]
-        boxes.append(np.asarray(rows, np.float32).reshape(-1, 5))
-        if log and ((i + 1) % 1000 == 0 or i + 1 == n):
-            log(f"  rendered {i + 1}/{n} frames ({time.perf_counter() - t0:.0f} s)")
-    return FrameSet(images, boxes, full if keep_full else None)
-
-
-def augment(
-    img: np.ndarray, boxes: np.ndarray, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
-    """Random horizontal flip, scale (0.85..1.15) and shift (+-8 %) of an input-size image;
-    boxes (input pixels, with visible) follow, clipped, their visible fraction reduced."""
-    h, w = img.shape[:2]
-    b = boxes.copy()
-    if rng.random() < 0.5:
-        img = img[:, ::-1]
-        b[:, [0, 2]] = w - b[:, [2, 0]]
-    s = rng.uniform(0.85, 1.15)
-    tx = rng.uniform(-0.08, 0.08) * w + (1 - s) * w / 2
-    ty = rng.uniform(-0.08, 0.08) * h + (1 - s) * h / 2
-    m = np.array([[s, 0, tx], [0, s, ty]], np.float32)
-    fill = tuple(float(v) for v in img.reshape(-1, 3).mean(0))
-    img = cv2.warpAffine(
-        np.ascontiguousarray(img), m, (w, h), flags=cv2.INTER_LINEAR, borderValue=fill
-    )
-    if len(b):
-        b[:, [0, 2]] = b[:, [0, 2]] * s + tx
-        b[:, [1, 3]] = b[:, [1, 3]] * s + ty
-        area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-        b[:, 0:4:2] = b[:, 0:4:2].clip(0, w)
-        b[:, 1:4:2] = b[:, 1:4:2].clip(0, h)
-        clipped = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-        b[:, 4] *= np.where(area > 0, clipped / np.maximum(area, 1e-6), 0.0)
-    return img, b
-
-
-def build_targets(
-    boxes: list[np.ndarray], config: DetectorConfig
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-cell training targets for a batch; boxes in input pixels (x1, y1, x2, y2, vis).
-
-    A cared-for block makes positive the cells whose centres lie within ``r`` cells of its
-    centre on each axis (``r`` 0.5..1.25 cells, growing with its size; the closest block
-    wins a shared cell). The same region around a "don't care" block is ignored.
-
-    Returns:
-        obj (N, cells) float 0/1, weight (N, cells) float 0 (ignored) / 1, and target boxes
-        (N, cells, 4) x1, y1, x2, y2 in input pixels (valid where obj is 1).
-    """
-    gh, gw = config.grid_hw
-    st = config.stride
-    n = len(boxes)
-    obj = np.zeros((n, gh, gw), np.float32)
-    weight = np.ones((n, gh, gw), np.float32)
-    tbox = np.zeros((n, gh, gw, 4), np.float32)
-    dist = np.full((n, gh, gw), np.inf, np.float32)
-    ccx = (np.arange(gw, dtype=np.float32) + 0.5) * st
-    ccy = (np.arange(gh, dtype=np.float32) + 0.5) * st
-    scale = config.input_hw[1] / config.frame_hw[1]
-    for i, bb in enumerate(boxes):
-        for x1, y1, x2, y2, vis in bb:
-            bw, bh = x2 - x1, y2 - y1
-            if bw <= 0 or bh <= 0:
-                continue
-            cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
-            rx = float(np.clip(0.25 * bw / st, 0.5, 1.25))
-            ry = float(np.clip(0.25 * bh / st, 0.5, 1.25))
-            dx = np.abs(ccx - cx) / st
-            dy = np.abs(ccy - cy) / st
-            region = (dy[:, None] < ry) & (dx[None, :] < rx)
-            if not region.any():  # centre cell always
-                gy, gx = min(int(cy // st), gh - 1), min(int(cx // st), gw - 1)
-                region[gy, gx] = True
-            care = vis >= MIN_VISIBLE and bw >= MIN_WIDTH_PX * scale
-            if not care:
-                weight[i][region & (obj[i] == 0)] = 0.0
-                continue
-            d = dy[:, None] ** 2 + dx[None, :] ** 2
-            take = region & (d < dist[i])
-            dist[i][take] = d[take]
-            obj[i][take] = 1.0
-            weight[i][take] = 1.0
-            tbox[i][take] = (x1, y1, x2, y2)
-    return obj.reshape(n, -1), weight.reshape(n, -1), tbox.reshape(n, -1, 4)
 
 
 def giou(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -249,7 +127,18 @@ def train(
     rng = np.random.default_rng(seed + 1)
     t0 = time.perf_counter()
     names = identity_names(cfg.identities, "t")
-    data = render_set(names, cfg.frames, seed, det_config, wide_fraction=cfg.wide_fraction, log=log)
+    data = render_set(
+        names,
+        cfg.frames,
+        seed,
+        det_config,
+        wide_fraction=cfg.wide_fraction,
+        variety=cfg.variety,
+        distance_m=cfg.distance_m,
+        yaw_deg=cfg.yaw_deg,
+        rack_fraction=cfg.rack_fraction,
+        log=log,
+    )
     render_s = time.perf_counter() - t0
     log(f"rendered {cfg.frames} training frames of {len(names)} identities in {render_s:.0f} s")
     sx = det_config.input_hw[1] / det_config.frame_hw[1]
@@ -275,6 +164,8 @@ def train(
         imgs, bxs = [], []
         for j in idx:
             im, b = augment(data.images[j], data.boxes[j] * in_scale, rng)
+            if rng.random() < cfg.colour_augment:
+                im = colour_augment(im, rng)
             imgs.append(im)
             bxs.append(b)
         obj, weight, tbox = build_targets(bxs, det_config)
@@ -316,6 +207,10 @@ def train(
         "frames": cfg.frames,
         "identities": f"{names[0]}..{names[-1]}",
         "batch": cfg.batch,
+        "variety": cfg.variety,
+        "distance_m": list(cfg.distance_m),
+        "yaw_deg": cfg.yaw_deg,
+        "colour_augment": cfg.colour_augment,
     }
     return ema, info
 
@@ -364,12 +259,25 @@ def match_frame(
     return tp, ign, ious
 
 
-def evaluate(detector: BlockDetector, n: int, seed: int, log: Log, min_score: float = 0.5) -> dict:
+def evaluate(
+    detector: BlockDetector,
+    n: int,
+    seed: int,
+    log: Log,
+    min_score: float = 0.5,
+    variety: bool = False,
+    racks: bool = False,
+) -> dict:
     """Precision / recall at ``min_score``, AP@0.5, AP@0.5:0.95 and IoU figures on ``n``
-    held-out renders (identities ``e0001A``.., five frames each)."""
+    held-out renders (identities ``e0001A``.., five frames each). ``variety``: the varied
+    looks, ageings and conditions of training (other identities), 0.25..1.2 m, yaw 30 deg.
+    ``racks``: every pallet on a rack beam among rack steel and neighbour pallets."""
     names = identity_names(max(1, math.ceil(n / 5)), "e")
     t0 = time.perf_counter()
-    data = render_set(names, n, seed, detector.config, keep_full=True)
+    extra: dict = {"variety": True, "distance_m": (0.25, 1.2), "yaw_deg": 30.0} if variety else {}
+    if racks:
+        extra["rack_fraction"] = 1.0
+    data = render_set(names, n, seed, detector.config, keep_full=True, **extra)
     log(
         f"rendered {n} held-out frames of {len(names)} identities in {time.perf_counter() - t0:.0f} s"
     )
@@ -388,6 +296,8 @@ def evaluate(detector: BlockDetector, n: int, seed: int, log: Log, min_score: fl
         for g in data.boxes
     )
     out: dict = {"frames": n, "seed": seed, "blocks": n_gt, "min_score": min_score}
+    out["variety"] = variety
+    out["racks"] = racks
     aps = []
     for thr in np.arange(0.5, 0.951, 0.05):
         all_s, all_tp, all_iou = [], [], []
@@ -418,7 +328,8 @@ def evaluate(detector: BlockDetector, n: int, seed: int, log: Log, min_score: fl
 def format_metrics(m: dict) -> str:
     """One readable line per figure group."""
     return (
-        f"held-out: {m['frames']} frames, {m['blocks']} blocks (seed {m['seed']})\n"
+        f"held-out{' (varied)' if m.get('variety') else ''}: {m['frames']} frames, "
+        f"{m['blocks']} blocks (seed {m['seed']})\n"
         f"  precision {m['precision']:.3f}  recall {m['recall']:.3f}  "
         f"false positives {m['false_positives']}  (min_score {m['min_score']}, IoU >= 0.5)\n"
         f"  AP@0.5 {m['ap50']:.3f}  AP@0.75 {m['ap75']:.3f}  AP@0.5:0.95 {m['ap50_95']:.3f}\n"
@@ -452,6 +363,12 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
         metrics = evaluate(detector, cfg.eval_frames, 12345, log)
         blob["trained"]["metrics"] = metrics
         log(format_metrics(metrics))
+        varied = evaluate(detector, cfg.eval_frames, 12346, log, variety=True)
+        blob["trained"]["metrics_varied"] = varied
+        log(format_metrics(varied))
+        racked = evaluate(detector, cfg.eval_frames, 12347, log, variety=True, racks=True)
+        blob["trained"]["metrics_racks"] = racked
+        log(format_metrics(racked))
     blob["trained"]["wall_seconds"] = round(time.perf_counter() - t0, 1)
     torch.save(blob, args.out)
     log(f"wrote {args.out} ({blob['trained']['wall_seconds']:.0f} s)")
@@ -461,7 +378,7 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
 def cmd_evaluate(args: argparse.Namespace, log: Log) -> int:
     """Print the held-out figures of a checkpoint."""
     detector = BlockDetector.load(args.weights)
-    metrics = evaluate(detector, args.n, args.seed, log, args.min_score)
+    metrics = evaluate(detector, args.n, args.seed, log, args.min_score, args.variety, args.racks)
     print(f"{detector.model_version} ({detector.path})")
     print(format_metrics(metrics))
     return 0
@@ -486,6 +403,8 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--n", type=int, default=300)
     ev.add_argument("--seed", type=int, default=12345)
     ev.add_argument("--min-score", type=float, default=0.5)
+    ev.add_argument("--variety", action="store_true", help="varied looks and conditions")
+    ev.add_argument("--racks", action="store_true", help="every pallet on a rack beam")
     for p in (tr, ev):
         p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
         p.add_argument("--quiet", action="store_true")

@@ -1,17 +1,18 @@
-"""Train, calibrate and evaluate the PCB block embedder on synthetic pallets; baselines.
+"""Train, calibrate and evaluate the PCB block embedder on synthetic pallets.
 
 Commands (see ``docs/perception.md`` for the figures they produce)::
 
     python -m perception.train_embedder train --out perception/weights/pcb_small.pt --seed 0
+    python -m perception.train_embedder calibrate --weights perception/weights/pcb_small.pt
     python -m perception.train_embedder eval --weights perception/weights/pcb_small.pt
     python -m perception.train_embedder train --smoke --out /tmp/smoke.pt   # CI: seconds
 
 Identity splits never overlap (each prefix gives other texture seeds): training ``tr*``
-(each (pallet side, block) is one class), validation ``va*`` (threshold calibration: enrolled
-and non-enrolled pallets), test ``te*`` (gallery of 500 pallets x 2 sides) and ``tu*``
-(non-enrolled test pallets, the "unknown" queries). Gallery entries and queries are
-independent renders (:func:`perception.synth.dataset.block_crops`), one crop per block, as
-the mission enrols from one scan.
+(each (pallet side, block) is one class), validation ``va*`` (threshold calibration) and
+``vu*`` (never enrolled), test ``te*`` and ``tu*`` (never enrolled). Training crops come
+from varied looks and conditions (:mod:`perception.embedder_data`); each view is aged and
+taken through the sensor again at random, and the visibility head learns which part of it
+is hidden. Evaluation and calibration: :mod:`perception.embedder_eval`.
 """
 
 from __future__ import annotations
@@ -19,11 +20,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing as mp
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -35,53 +35,24 @@ from perception.embedder import (
     FORMAT_VERSION,
     BlockEmbedder,
     config_to_dict,
-    resize_crop,
     to_tensor,
+)
+from perception.embedder_data import (
+    BLOCKS,
+    augment,
+    render_crops,
+    split_names,
+    stripe_visibility,
+)
+from perception.embedder_eval import (
+    evaluate,
+    validate,
 )
 from perception.gallery import Thresholds
 from perception.pcb import PCB, PCBConfig
-from perception.synth.dataset import block_crops, identity_names
 
-BLOCKS = 3
 INPUT_HW = (64, 112)
 Log = Callable[[str], None]
-
-
-# ------------------------------------------------------------------------------ crops
-def _render_identity(job: tuple[str, int, int]) -> list[list[np.ndarray]]:
-    name, n, seed = job
-    rng = np.random.default_rng([seed, *name.encode()])
-    return [block_crops(name, None, b, rng, n) for b in range(BLOCKS)]
-
-
-def render_crops(
-    names: list[str], per_block: int, seed: int, jobs: int = 1, log: Log | None = None
-) -> list[list[list[np.ndarray]]]:
-    """Crops ``[identity][block][k]`` (``per_block`` each), deterministic in ``seed`` and
-    each name whatever ``jobs`` (worker processes) is."""
-    work = [(n, per_block, seed) for n in names]
-    out: list[list[list[np.ndarray]]] = []
-    t0 = time.perf_counter()
-    pool = mp.get_context("fork").Pool(jobs) if jobs > 1 else None
-    try:
-        it = pool.imap(_render_identity, work, chunksize=4) if pool else map(_render_identity, work)
-        for i, crops in enumerate(it, 1):
-            out.append(crops)
-            if log and (i % 100 == 0 or i == len(work)):
-                log(
-                    f"  rendered {i}/{len(work)} identities "
-                    f"({i * BLOCKS * per_block} crops, {time.perf_counter() - t0:.0f} s)"
-                )
-    finally:
-        if pool:
-            pool.close()
-            pool.join()
-    return out
-
-
-def split_names(kind: str, pallets: int) -> list[str]:
-    """Both sides of ``pallets`` synthetic pallets of split ``kind`` (tr, va, vu, te, tu)."""
-    return identity_names(2 * pallets, prefix=kind)
 
 
 # ------------------------------------------------------------------------------ training
@@ -89,9 +60,9 @@ def split_names(kind: str, pallets: int) -> list[str]:
 class TrainConfig:
     """Hyper-parameters of one training run."""
 
-    pallets: int = 300
-    crops_per_block: int = 12
-    steps: int = 3000
+    pallets: int = 400
+    crops_per_block: int = 10
+    steps: int = 4000
     classes_per_batch: int = 16
     crops_per_class: int = 4
     lr: float = 1e-3
@@ -100,8 +71,16 @@ class TrainConfig:
     cos_margin: float = 0.2
     triplet_margin: float = 0.3
     triplet_weight: float = 1.0
+    visibility: bool = True  # the stripe visibility head (occlusion-aware matching)
+    visibility_weight: float = 0.5
+    normalisation: str = "robust"  # crop standardisation (perception.embedder.to_tensor)
+    ageing: float = 0.5  # share of views aged (stains, dust, occluders, ...)
+    ageing_strength: float = 0.8  # x the largest random ageing (25 % stains, 45 % hidden)
+    sensor: float = 0.4  # share of views taken through the sensor again (noise, Bayer JPEG)
+    mode: str = "varied"  # how crops are rendered (perception.embedder_data.MODES)
+    init: str = ""  # start from these btrun-pcb weights (empty: from scratch)
     val_pallets: int = 150
-    val_unknown_pallets: int = 50
+    val_unknown_pallets: int = 200
 
 
 SMOKE = TrainConfig(
@@ -115,66 +94,106 @@ SMOKE = TrainConfig(
 )
 
 
-def augment(crop: np.ndarray, rng: np.random.Generator, hw: tuple[int, int]) -> np.ndarray:
-    """One training view: jittered scale/offset/rotation into ``hw``, colour and gain jitter,
-    sometimes lower resolution or blur, sometimes an erased patch. BGR uint8."""
-    h, w = hw
-    ch, cw = crop.shape[:2]
-    sx, sy = w / cw * rng.uniform(0.9, 1.1), h / ch * rng.uniform(0.9, 1.1)
-    ang = math.radians(rng.normal(0.0, 2.0))
-    c, s = math.cos(ang), math.sin(ang)
-    m = np.array([[sx * c, -sy * s, 0.0], [sx * s, sy * c, 0.0]], np.float32)
-    centre = m[:, :2] @ np.array([cw / 2, ch / 2], np.float32)
-    m[:, 2] = np.array([w / 2, h / 2]) - centre + rng.normal(0.0, 0.04, 2) * (w, h)
-    out = cv2.warpAffine(crop, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-    f = out.astype(np.float32)
-    gain = rng.uniform(0.75, 1.3) * rng.normal(1.0, 0.05, 3)
-    f = (f - 128.0) * rng.uniform(0.8, 1.2) + 128.0
-    f = f * gain.astype(np.float32)
-    if rng.random() < 0.3:
-        k = rng.uniform(0.35, 0.8)
-        small = cv2.resize(
-            f, (max(4, int(w * k)), max(4, int(h * k))), interpolation=cv2.INTER_AREA
-        )
-        f = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
-    if rng.random() < 0.3:
-        eh, ew = int(h * rng.uniform(0.1, 0.4)), int(w * rng.uniform(0.1, 0.4))
-        y, x = int(rng.integers(0, h - eh + 1)), int(rng.integers(0, w - ew + 1))
-        f[y : y + eh, x : x + ew] = rng.uniform(0, 255, 3)
-    f += rng.normal(0.0, rng.uniform(0.0, 4.0), f.shape).astype(np.float32)
-    return np.clip(f, 0, 255).astype(np.uint8)
-
-
 def _forward_train(
-    model: PCB, x: torch.Tensor, y: torch.Tensor, scale: float, margin: float
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Softmax loss of the part classifiers and the gallery feature (unit norm) of a batch.
+    model: PCB,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    vis_map: torch.Tensor,
+    stripe_vis: torch.Tensor,
+    scale: float,
+    margin: float,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Softmax loss of the part classifiers, the stripe vectors (N, parts, C) and the
+    visibility loss of a batch.
 
     The classifiers are cosine classifiers with an additive margin (CosFace): logits
     ``scale * (cos - margin [target only])`` between the L2-normalised reduced part feature
     and the L2-normalised class weights. With thousands of classes and a dozen crops each, a
     plain linear softmax stays at chance for many epochs on this CPU budget; the normalised
-    form learns from the first steps and trains the same distance the gallery uses.
+    form learns from the first steps and trains the same distance the gallery uses. Each
+    stripe's loss counts with the stripe's visible fraction (``stripe_vis`` (N, parts)): a
+    stripe behind a strap cannot tell classes apart. The visibility head learns the visible
+    fraction of every cell (``vis_map`` (N, 1, h, w)).
     """
-    v_g = model.parts_avgpool(model.featuremaps(x))
-    feat = F.normalize(v_g, p=2, dim=1).flatten(1) / math.sqrt(model.config.parts)
+    fmap = model.featuremaps(x)
+    logits_v = model.visibility_map(fmap)
+    v_g, _ = model.pool_parts(fmap, logits_v)
+    stripes = F.normalize(v_g, p=2, dim=1).squeeze(-1).transpose(1, 2)
     v_h = model.conv5(model.dropout(v_g))
     target = F.one_hot(y, model.config.num_classes).to(v_h.dtype) * margin
+    w = stripe_vis.clamp(min=0.02)
     ce = x.new_zeros(())
     for i in range(model.config.parts):
         f = F.normalize(v_h[:, :, i, :].flatten(1), dim=1)
-        w = F.normalize(model.classifier[i].weight, dim=1)
-        ce = ce + F.cross_entropy(scale * (f @ w.T - target), y)
-    return ce / model.config.parts, feat
+        cw = F.normalize(model.classifier[i].weight, dim=1)
+        per = F.cross_entropy(scale * (f @ cw.T - target), y, reduction="none")
+        ce = ce + (per * w[:, i]).sum() / w[:, i].sum()
+    l_vis = (
+        F.binary_cross_entropy_with_logits(logits_v, vis_map)
+        if logits_v is not None
+        else x.new_zeros(())
+    )
+    return ce / model.config.parts, stripes, l_vis
 
 
-def batch_hard_triplet(feat: torch.Tensor, labels: torch.Tensor, margin: float) -> torch.Tensor:
-    """Batch-hard triplet loss (hardest positive, hardest negative per anchor)."""
-    d = torch.cdist(feat, feat)
+def weighted_distances(stripes: torch.Tensor, vis: torch.Tensor) -> torch.Tensor:
+    """(N, N) block distances of stripe vectors (N, parts, C) weighted by the product of the
+    stripes' visibilities (N, parts), as the gallery compares blocks."""
+    cos = torch.einsum("ipc,jpc->ijp", stripes, stripes)
+    w = (vis[:, None, :] * vis[None, :, :]).clamp(min=0.02)
+    return ((w * (2.0 - 2.0 * cos)).sum(-1) / w.sum(-1)).clamp(min=1e-12).sqrt()
+
+
+def batch_hard_triplet(dist: torch.Tensor, labels: torch.Tensor, margin: float) -> torch.Tensor:
+    """Batch-hard triplet loss on a distance matrix (hardest positive, hardest negative)."""
     same = labels[:, None] == labels[None, :]
-    pos = (d * same).max(dim=1).values
-    neg = (d + same * 10.0).min(dim=1).values
+    pos = (dist * same).max(dim=1).values
+    neg = (dist + same * 10.0).min(dim=1).values
     return F.relu(pos - neg + margin).mean()
+
+
+def _batch(
+    crops: list,
+    classes: np.ndarray,
+    counts: np.ndarray,
+    cfg: TrainConfig,
+    rng: np.random.Generator,
+    input_hw: tuple[int, int],
+    fmap_hw: tuple[int, int],
+    parts: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Images, labels, cell visibility maps and stripe visibilities of one batch."""
+    imgs, labels, maps, stripes = [], [], [], []
+    for c in classes:
+        for k in rng.choice(
+            counts[c], cfg.crops_per_class, replace=counts[c] < cfg.crops_per_class
+        ):
+            img, hidden = augment(
+                crops[c][k], rng, input_hw, cfg.ageing, cfg.sensor, strength=cfg.ageing_strength
+            )
+            imgs.append(img)
+            labels.append(int(c))
+            cells = cv2.resize(hidden, (fmap_hw[1], fmap_hw[0]), interpolation=cv2.INTER_AREA)
+            maps.append(1.0 - cells)
+            stripes.append(stripe_visibility(hidden, parts))
+    return (
+        to_tensor(imgs, cfg.normalisation),
+        torch.tensor(labels),
+        torch.from_numpy(np.stack(maps)[:, None].astype(np.float32)),
+        torch.from_numpy(np.stack(stripes)),
+    )
+
+
+def _init_from(model: PCB, path: str, log: Log) -> None:
+    """Start from a btrun-pcb checkpoint's backbone and reduction (the classifiers and a
+    visibility head it lacks start fresh)."""
+    blob = torch.load(path, map_location="cpu", weights_only=True)
+    state = {k: v for k, v in blob["state_dict"].items() if not k.startswith("classifier.")}
+    missing, unexpected = model.load_state_dict(state, strict=False)
+    fresh = [k for k in missing if not k.startswith(("classifier.", "visibility."))]
+    if fresh or unexpected:
+        raise ValueError(f"{path} does not fit: missing {fresh}, unexpected {unexpected}")
+    log(f"initialised from {path} (fresh: {', '.join(sorted({k.split('.')[0] for k in missing}))})")
 
 
 def train(
@@ -185,13 +204,25 @@ def train(
     torch.manual_seed(seed)
     names = split_names("tr", cfg.pallets)
     log(f"rendering {len(names)} training identities x {BLOCKS} blocks x {cfg.crops_per_block}")
-    data = render_crops(names, cfg.crops_per_block, seed, jobs, log)
+    data = render_crops(names, cfg.crops_per_block, seed, jobs, log, mode=cfg.mode)
     crops = [ks for ident in data for ks in ident]  # class c = identity * 3 + block
     counts = np.array([len(k) for k in crops])
     n_classes = len(crops)
     render_s = time.perf_counter() - t0
     log(f"{int(counts.sum())} crops of {n_classes} classes rendered in {render_s:.0f} s")
-    model = PCB(PCBConfig(num_classes=n_classes, input_hw=input_hw)).train()
+    model = PCB(
+        PCBConfig(
+            num_classes=n_classes,
+            input_hw=input_hw,
+            visibility=cfg.visibility,
+            normalisation=cfg.normalisation,
+        )
+    ).train()
+    if cfg.init:
+        _init_from(model, cfg.init, log)
+    with torch.no_grad():
+        fmap_hw = tuple(model.featuremaps(torch.zeros(1, 3, *input_hw)).shape[2:])
+    parts = model.config.parts
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     warm = max(1, cfg.steps // 20)
     sched = torch.optim.lr_scheduler.LambdaLR(
@@ -207,28 +238,21 @@ def train(
     t1, run_loss = time.perf_counter(), []
     for step in range(1, cfg.steps + 1):
         cls = rng.choice(usable, cfg.classes_per_batch, replace=False)
-        imgs, labels = [], []
-        for c in cls:
-            for k in rng.choice(
-                counts[c], cfg.crops_per_class, replace=counts[c] < cfg.crops_per_class
-            ):
-                imgs.append(augment(crops[c][k], rng, input_hw))
-                labels.append(int(c))
-        x, y = to_tensor(imgs), torch.tensor(labels)
-        ce, feat = _forward_train(model, x, y, cfg.cos_scale, cfg.cos_margin)
-        tri = batch_hard_triplet(feat, y, cfg.triplet_margin)
-        loss = ce + cfg.triplet_weight * tri
+        x, y, vmap, svis = _batch(crops, cls, counts, cfg, rng, input_hw, fmap_hw, parts)
+        ce, stripes, l_vis = _forward_train(model, x, y, vmap, svis, cfg.cos_scale, cfg.cos_margin)
+        tri = batch_hard_triplet(weighted_distances(stripes, svis), y, cfg.triplet_margin)
+        loss = ce + cfg.triplet_weight * tri + cfg.visibility_weight * l_vis
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         sched.step()
-        run_loss.append((ce.item(), tri.item()))
+        run_loss.append((ce.item(), tri.item(), l_vis.item()))
         if step % 100 == 0 or step == cfg.steps:
-            ce_m, tri_m = np.mean(run_loss[-100:], axis=0)
-            epoch = step * len(imgs) / counts.sum()
+            ce_m, tri_m, vis_m = np.mean(run_loss[-100:], axis=0)
+            epoch = step * len(y) / counts.sum()
             log(
                 f"step {step}/{cfg.steps} epoch {epoch:.2f} softmax {ce_m:.3f} "
-                f"triplet {tri_m:.3f} lr {sched.get_last_lr()[0]:.2e} "
+                f"triplet {tri_m:.3f} visibility {vis_m:.3f} lr {sched.get_last_lr()[0]:.2e} "
                 f"elapsed {time.perf_counter() - t0:.0f} s"
             )
     model.eval()
@@ -240,149 +264,6 @@ def train(
         "train_s": round(time.perf_counter() - t1, 1),
     }
     return model, stats
-
-
-# ------------------------------------------------------------------------------ evaluation
-def embed_with(emb: BlockEmbedder, data: list[list[list[np.ndarray]]], k: int) -> np.ndarray:
-    """Embeddings (identities, 3, dim) of crop ``k`` of every block, batched."""
-    flat = [ident[b][min(k, len(ident[b]) - 1)] for ident in data for b in range(BLOCKS)]
-    out = np.concatenate([emb.embed(flat[i : i + 192]) for i in range(0, len(flat), 192)])
-    return out.reshape(len(data), BLOCKS, -1)
-
-
-def mean_block_distances(q: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """(Q, G) mean over the three blocks of the Euclidean block-to-block distances."""
-    total = np.zeros((len(q), len(g)), np.float64)
-    for b in range(BLOCKS):
-        qb, gb = q[:, b].astype(np.float64), g[:, b].astype(np.float64)
-        d2 = (qb**2).sum(1)[:, None] + (gb**2).sum(1)[None, :] - 2.0 * qb @ gb.T
-        total += np.sqrt(np.maximum(d2, 0.0))
-    return total / BLOCKS
-
-
-def rank_metrics(dist: np.ndarray, truth: np.ndarray) -> dict:
-    """Rank-1, rank-5 and mAP (one relevant entry per query) from a (Q, G) distance matrix."""
-    true_d = dist[np.arange(len(dist)), truth]
-    rank = (dist < true_d[:, None]).sum(1)  # 0 = first
-    return {
-        "rank1": float(np.mean(rank == 0)),
-        "rank5": float(np.mean(rank < 5)),
-        "mAP": float(np.mean(1.0 / (rank + 1))),
-        "queries": int(len(dist)),
-        "gallery": int(dist.shape[1]),
-    }
-
-
-def best_and_margin(dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Index of the best entry, its distance and the margin to the runner-up, per query."""
-    order = np.argsort(dist, axis=1)[:, :2]
-    rows = np.arange(len(dist))
-    d1, d2 = dist[rows, order[:, 0]], dist[rows, order[:, 1]]
-    return order[:, 0], d1, d2 - d1
-
-
-def calibrate(known: np.ndarray, truth: np.ndarray, unknown: np.ndarray) -> tuple[Thresholds, dict]:
-    """Thresholds from validation distances (known queries vs. the gallery, their true
-    entries, and non-enrolled queries vs. the gallery).
-
-    Rule: ``max_distance`` = 99.5th percentile of the best distance of correctly identified
-    known queries. ``min_margin`` = just above the largest margin of every validation answer
-    that passes ``max_distance`` and is wrong: a known query matched to another entry, or a
-    non-enrolled query (its best and runner-up are both impostors, so its lead is small);
-    capped at the 1st percentile of the correct answers' margins, so that the margin turns
-    at most about 1 % of the right answers into "unknown".
-    """
-    best, d1, margin = best_and_margin(known)
-    ok = best == truth
-    max_d = float(np.percentile(d1[ok], 99.5)) if ok.any() else float("inf")
-    wrong = margin[(~ok) & (d1 <= max_d)]
-    if len(unknown):
-        _, u1, um = best_and_margin(unknown)
-        wrong = np.concatenate([wrong, um[u1 <= max_d]])
-    min_m = float(wrong.max() + 1e-4) if len(wrong) else 0.0
-    if ok.sum() >= 20:
-        min_m = min(min_m, float(np.percentile(margin[ok], 1.0)))
-    th = Thresholds(round(max_d, 4), round(min_m, 4))
-    return th, decision_report(th, known, truth, unknown)
-
-
-def decision_report(
-    th: Thresholds, known: np.ndarray, truth: np.ndarray, unknown: np.ndarray
-) -> dict:
-    """Accept/unknown outcome of the thresholds on known and non-enrolled queries."""
-    best, d1, margin = best_and_margin(known)
-    accept = (d1 <= th.max_distance) & (margin >= th.min_margin)
-    ok = best == truth
-    _, u1, um = best_and_margin(unknown) if len(unknown) else (None, np.zeros(0), np.zeros(0))
-    u_accept = (u1 <= th.max_distance) & (um >= th.min_margin)
-    return {
-        "known_queries": int(len(known)),
-        "known_correct_accepted": int((accept & ok).sum()),
-        "known_wrong_accepted": int((accept & ~ok).sum()),
-        "known_unknown_rate": float(np.mean(~accept)),
-        "unknown_queries": int(len(unknown)),
-        "unknown_accepted": int(u_accept.sum()),
-        "unknown_unknown_rate": float(np.mean(~u_accept)) if len(unknown) else float("nan"),
-        "genuine_distance_p50": float(np.median(d1[ok])) if ok.any() else float("nan"),
-        "impostor_distance_p50": float(np.median(u1)) if len(u1) else float("nan"),
-    }
-
-
-def pixel_features(crops: list[np.ndarray], size_wh: tuple[int, int] = (28, 16)) -> np.ndarray:
-    """Raw-pixel baseline: colour crop resized to 28 x 16, zero-mean, unit-norm."""
-    f = np.stack([resize_crop(c, size_wh[::-1]).astype(np.float32).ravel() for c in crops])
-    f -= f.mean(1, keepdims=True)
-    return f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-6)
-
-
-def histogram_features(crops: list[np.ndarray]) -> np.ndarray:
-    """Colour-histogram baseline: HSV 8 x 6 x 6 histogram, square-rooted (Hellinger), unit-norm."""
-    out = []
-    for c in crops:
-        hsv = cv2.cvtColor(c, cv2.COLOR_BGR2HSV)
-        h = cv2.calcHist([hsv], [0, 1, 2], None, [8, 6, 6], [0, 180, 0, 256, 0, 256]).ravel()
-        h = np.sqrt(h / max(h.sum(), 1.0))
-        out.append(h / max(np.linalg.norm(h), 1e-6))
-    return np.stack(out).astype(np.float32)
-
-
-def baselines(gallery: list, queries: list, k_gallery: int = 0, k_query: int = 1) -> dict:
-    """Rank-1/5/mAP of the raw-pixel and colour-histogram nearest neighbours (same rule:
-    mean of the three block distances) on crops ``[identity][block][k]``."""
-    out = {}
-    truth = np.arange(len(queries))
-    for name, fn in (("raw_pixels", pixel_features), ("hsv_histogram", histogram_features)):
-
-        def feats(data: list, k: int, fn: Callable = fn) -> np.ndarray:
-            flat = [ident[b][min(k, len(ident[b]) - 1)] for ident in data for b in range(BLOCKS)]
-            return fn(flat).reshape(len(data), BLOCKS, -1)
-
-        dist = mean_block_distances(feats(queries, k_query), feats(gallery, k_gallery))
-        out[name] = rank_metrics(dist, truth)
-    return out
-
-
-def evaluate(emb: BlockEmbedder, args: argparse.Namespace, log: Log) -> dict:
-    """Test-split figures: rank-1/5/mAP, baselines, the thresholds' unknown rates."""
-    names = split_names("te", args.test_pallets)
-    unk = split_names("tu", args.unknown_pallets)
-    log(f"rendering {len(names)} test identities (gallery + query) and {len(unk)} unknown ones")
-    data = render_crops(names, 2, args.seed + 1000, args.jobs, log)
-    udata = render_crops(unk, 1, args.seed + 2000, args.jobs, log)
-    t0 = time.perf_counter()
-    g, q, u = embed_with(emb, data, 0), embed_with(emb, data, 1), embed_with(emb, udata, 0)
-    embed_s = time.perf_counter() - t0
-    dist = mean_block_distances(q, g)
-    truth = np.arange(len(names))
-    report = {"model_version": emb.model_version, "embedder": rank_metrics(dist, truth)}
-    report["embed_ms_per_crop"] = round(embed_s * 1000 / (3 * (2 * len(data) + len(udata))), 2)
-    report["baselines"] = baselines(data, data, 0, 1)
-    report["thresholds"] = {
-        "max_distance": emb.thresholds.max_distance,
-        "min_margin": emb.thresholds.min_margin,
-    }
-    report["decisions"] = decision_report(emb.thresholds, dist, truth, mean_block_distances(u, g))
-    return report
 
 
 # ------------------------------------------------------------------------------ CLI
@@ -408,28 +289,11 @@ def save_checkpoint(
     )
 
 
-def validate(
-    emb: BlockEmbedder, pallets: int, unknown_pallets: int, seed: int, jobs: int, log: Log
-) -> tuple[Thresholds, dict]:
-    """Calibrate the "unknown" thresholds on the validation split (``va``: enrolled,
-    ``vu``: not enrolled; never trained on, never tested on); thresholds and figures."""
-    vnames = split_names("va", pallets)
-    vunk = split_names("vu", unknown_pallets)
-    log(f"calibrating on {len(vnames)} validation identities + {len(vunk)} non-enrolled")
-    vdata = render_crops(vnames, 2, seed + 500, jobs, log)
-    udata = render_crops(vunk, 1, seed + 600, jobs, log)
-    g, q = embed_with(emb, vdata, 0), embed_with(emb, vdata, 1)
-    u = embed_with(emb, udata, 0)
-    dist = mean_block_distances(q, g)
-    truth = np.arange(len(vnames))
-    th, dec = calibrate(dist, truth, mean_block_distances(u, g))
-    return th, {"validation": rank_metrics(dist, truth), "validation_decisions": dec}
-
-
 def cmd_train(args: argparse.Namespace, log: Log) -> int:
     """Train, calibrate the thresholds on the validation split, save the checkpoint."""
     t0 = time.perf_counter()
     cfg = SMOKE if args.smoke else TrainConfig(pallets=args.pallets, steps=args.steps)
+    cfg = replace(cfg, init=args.init or "", lr=args.lr or cfg.lr)
     model, stats = train(cfg, args.seed, args.jobs, log)
     tmp_emb = BlockEmbedder(model, "calibrating", Thresholds())
     th, figures = validate(
@@ -505,6 +369,8 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--pallets", type=int, default=TrainConfig.pallets)
     tr.add_argument("--steps", type=int, default=TrainConfig.steps)
     tr.add_argument("--smoke", action="store_true", help="tiny run for tests (seconds)")
+    tr.add_argument("--init", default="", help="start from these btrun-pcb weights")
+    tr.add_argument("--lr", type=float, default=None, help="peak learning rate")
     ca = sub.add_parser("calibrate", help="recalibrate a checkpoint's unknown thresholds")
     ca.add_argument("--weights", required=True)
     ca.add_argument("--out", default="", help="write here (default: over --weights)")

@@ -8,17 +8,11 @@ import pytest
 import torch
 
 from perception.embedder import DEFAULT_WEIGHTS, BlockEmbedder
+from perception.embedder_data import render_crops, split_names
+from perception.embedder_eval import baselines, embed_with, mean_block_distances, rank_metrics
 from perception.errors import ModelError
 from perception.pcb import PCB, PCBConfig
-from perception.train_embedder import (
-    baselines,
-    embed_with,
-    main,
-    mean_block_distances,
-    rank_metrics,
-    render_crops,
-    split_names,
-)
+from perception.train_embedder import main
 
 
 @pytest.fixture(scope="module")

@@ -95,3 +95,38 @@ def test_a_pallet_side_not_in_the_gallery_is_unknown(tmp_path, capsys):
     with open(os.path.join(out, "summary.json")) as f:
         bb = json.load(f)["blackboard"]
     assert bb["pallet_id"] == "unknown" and bb["match_ranking"][0][0] in ("1A", "3B")
+
+
+def test_history_and_rollback(tmp_path, capsys):
+    """A gallery of the shipped embedder with one side and a view added after a confident
+    scan: history lists both with the run and figures, rollback undoes the view, a second
+    rollback is a one-line error."""
+    from perception.embedder import BlockEmbedder
+    from perception.gallery import Gallery
+
+    emb = BlockEmbedder.load(threads=1)
+    path = str(tmp_path / "h.sqlite")
+    rng = np.random.default_rng(0)
+    sides = {}
+    with Gallery.create(path, emb.model_version, emb.dim) as g:
+        g.set_thresholds(emb.thresholds)
+        for ident in ("7A", "7B", "8A"):
+            v = rng.normal(size=(3, emb.dim)).astype(np.float32)
+            sides[ident] = v / np.linalg.norm(v, axis=1, keepdims=True)
+            g.enrol(ident, sides[ident], source="test")
+        scan = sides["7A"] + 0.01 * rng.normal(size=(3, emb.dim)).astype(np.float32)
+        scan /= np.linalg.norm(scan, axis=1, keepdims=True)
+        assert g.update(g.match(scan), scan, run="scan-1 t=40.0 s").update
+    assert main(["gallery", "history", path, "7A"]) == 0
+    out = capsys.readouterr().out
+    assert "enrol" in out and "add view 1" in out and "run scan-1 t=40.0 s" in out
+    assert "distance 0.3" in out and "margin 1.0" in out and "active added views of 7A: 1" in out
+    assert main(["gallery", "list", path]) == 0
+    assert "+1 views" in capsys.readouterr().out
+    assert main(["gallery", "rollback", path, "7A"]) == 0
+    assert "rolled back view 1 of 7A" in capsys.readouterr().out
+    assert main(["gallery", "rollback", path, "7A"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "7A has no added view to roll back" in err
+    assert main(["gallery", "history", path]) == 0
+    assert "rollback view 1" in capsys.readouterr().out

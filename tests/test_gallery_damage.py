@@ -92,7 +92,7 @@ def test_creating_a_gallery_is_atomic(tmp_path, monkeypatch) -> None:
     def killed(*_a, **_k):  # the process dies while the schema is being written
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(gallery_mod, "_write_schema", killed)
+    monkeypatch.setattr(gallery_mod, "write_schema", killed)
     with pytest.raises(KeyboardInterrupt):
         Gallery.create(path, model_version="test-v1", dim=DIM)
     monkeypatch.undo()

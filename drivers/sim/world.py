@@ -34,9 +34,21 @@ from drivers.sim.racks import (
     stock_problems,
 )
 from drivers.sim.shapes import Box
-from drivers.sim.world_schema import SIDE, SLOT, WORLD_SCHEMA
+from drivers.sim.world_schema import LOOK, PAINTS, SIDE, SLOT, WOODS, WORLD_SCHEMA
 
-__all__ = ["SIDE", "SLOT", "WORLD_SCHEMA", "Box", "Place", "PlacedPallet", "World", "load_world"]
+__all__ = [
+    "LOOK",
+    "PAINTS",
+    "SIDE",
+    "SLOT",
+    "WOODS",
+    "WORLD_SCHEMA",
+    "Box",
+    "Place",
+    "PlacedPallet",
+    "World",
+    "load_world",
+]
 
 
 @dataclass

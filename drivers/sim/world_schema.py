@@ -19,12 +19,43 @@ SLOT = M(
         "facing_deg": F("float", 180.0, "direction the shown face looks to (deg, 180 = -x)"),
     }
 )
+# Pallet looks (perception.synth.looks names them; tests/test_rig_world.py checks the lists
+# agree): the wood's tone, a paint, and ageing since enrolment.
+WOODS = ("auto", "fresh", "pale", "yellowed", "orange", "brown", "grey", "silver", "dark", "wet")
+PAINTS = ("auto", "none", "blue", "red", "green", "yellow", "black", "white", "grey", "brown")
 SIDE = M(
     {
         "stamp": F("str", "EPAL", "brand stamp text on the blocks"),
         "wear": F("float", 0.3, "dirt and wear, 0 (new) .. 1 (very used)", min=0.0, max=1.0),
         "texture_seed": F("int", 0, "seed of the procedural wood texture"),
+        "wood": F("choice", "auto", "wood tone (auto: pallet_look.wood)", choices=WOODS),
+        "paint": F("choice", "auto", "paint (auto: pallet_look.paint)", choices=PAINTS),
+        "age": F(
+            "float",
+            None,
+            "ageing since enrolment 0..1 (default: pallet_look.age)",
+            min=0.0,
+            max=1.0,
+            nullable=True,
+        ),
     }
+)
+LOOK = M(
+    {
+        "wood": F(
+            "choice", "auto", "wood tone of every side (auto: fresh, per pallet)", choices=WOODS
+        ),
+        "paint": F("choice", "none", "paint of every side", choices=PAINTS[1:]),
+        "age": F(
+            "float",
+            0.0,
+            "stains, dust, scratches, faded stamps since enrolment, 0..1 "
+            "(the demo gallery enrols every side at 0)",
+            min=0.0,
+            max=1.0,
+        ),
+    },
+    doc="the look of every pallet side unless the side sets its own (wood, paint, age)",
 )
 WORLD_SCHEMA = M(
     {
@@ -82,6 +113,7 @@ WORLD_SCHEMA = M(
                 }
             ),
         ),
+        "pallet_look": LOOK,
         "scan_pallet": F(
             "str", "3A", "identity (pallet id + side) at the scan slot, or none (empty slot)"
         ),

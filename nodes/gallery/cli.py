@@ -9,6 +9,8 @@
     btrun gallery remove pallets.sqlite 7A
     btrun gallery export pallets.sqlite out/      # entries.json, embeddings.npy, crops as PNG
     btrun gallery evaluate pallets.sqlite         # how far apart the enrolled sides are
+    btrun gallery history pallets.sqlite 7A       # enrolment, added views, rollbacks of 7A
+    btrun gallery rollback pallets.sqlite 7A      # undo the latest view added to 7A
     btrun gallery demo                            # build (if needed) and show the demo gallery
 
 ``demo`` stands for the demo gallery wherever a gallery is named. Errors are one line each,
@@ -52,8 +54,15 @@ def setup(p: argparse.ArgumentParser) -> None:
     ex.add_argument("out_dir")
     ev = sub.add_parser("evaluate", help="distances between the enrolled sides vs the thresholds")
     ev.add_argument("gallery")
+    hi = sub.add_parser("history", help="the audit trail of a side (or of every side)")
+    hi.add_argument("gallery")
+    hi.add_argument("name", nargs="?", default=None, help="identity (default: all)")
+    rb = sub.add_parser("rollback", help="undo a view added after an identification")
+    rb.add_argument("gallery")
+    rb.add_argument("name")
+    rb.add_argument("--view", type=int, default=None, help="view id (default: the latest)")
     sub.add_parser("demo", help="build (if needed) the demo gallery and print its path")
-    for sp in (ls, en, rm, ex, ev, sub.choices["demo"]):
+    for sp in (ls, en, rm, ex, ev, hi, rb, sub.choices["demo"]):
         sp.add_argument("--rig", default=None, help="rig (for the camera and world; default sim)")
         sp.add_argument("--embedder", default="", help="embedder weights (default: shipped)")
         sp.add_argument("--detector", default="", help="detector weights (default: shipped)")
@@ -104,7 +113,46 @@ def _list(args: argparse.Namespace) -> int:
 
     for e in g.entries():
         when = time.strftime("%Y-%m-%d %H:%M", time.localtime(e["created"]))
-        print(f"  {e['identity']:<12} {when}  {e['crops']} crops  {e['source']}")
+        views = f"  +{e['views']} views" if e["views"] else ""
+        print(f"  {e['identity']:<12} {when}  {e['crops']} crops{views}  {e['source']}")
+    return 0
+
+
+def _history(args: argparse.Namespace) -> int:
+    import time
+
+    if args.gallery == "demo":
+        raise GalleryCommandError("the demo gallery is generated: it has no history")
+    _, g = _open(args)
+    if args.name is not None and args.name not in g.identities() and not g.history(args.name):
+        raise GalleryCommandError(f"{args.name} was never enrolled in {g.path}")
+    events = g.history(args.name)
+    print(f"{g.path}: {len(events)} events" + (f" of {args.name}" if args.name else ""))
+    for e in events:
+        when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(e["time"]))
+        figures = ""
+        if e["distance"] is not None:
+            figures = f"  distance {e['distance']:.3f} margin {e['margin']:.3f}"
+        view = ""
+        if e["view"] is not None:
+            view = f"{'' if 'view' in e['action'] else ' view'} {e['view']}"
+        extra = "  " + "  ".join(x for x in (e["run"] and f"run {e['run']}", e["note"]) if x)
+        print(
+            f"  #{e['event']:<4} {when}  {e['identity']:<10} {e['action']}{view}{figures}{extra.rstrip()}"
+        )
+    if args.name and args.name in g.identities():
+        active = [v["view_id"] for v in g.views(args.name)]
+        print(f"active added views of {args.name}: {', '.join(map(str, active)) or 'none'}")
+    return 0
+
+
+def _rollback(args: argparse.Namespace) -> int:
+    if args.gallery == "demo":
+        raise GalleryCommandError("the demo gallery is generated: nothing to roll back")
+    _, g = _open(args)
+    view = g.rollback(args.name, args.view, run="btrun gallery rollback")
+    left = len(g.views(args.name))
+    print(f"rolled back view {view} of {args.name} in {g.path} ({left} added views active)")
     return 0
 
 
@@ -141,14 +189,18 @@ def _enrol(args: argparse.Namespace) -> int:
         world = s.world_path()
         if world is None:
             raise GalleryCommandError("--world-side needs a rig with a world")
-        frames = scan_frames(world, args.world_side, s.camera)
+        frames = scan_frames(world, args.world_side, s.camera, 0, s.rig.world_overrides)
         crops = scan_blocks(frames, s.detector(args.detector), s.factors)
         source = f"rendered scan of {args.world_side}"
         if len(crops) < 3:
             raise GalleryCommandError(
                 f"the scan of {args.world_side} found {len(crops)} of 3 blocks"
             )
-    g.enrol(args.name, emb.embed(crops), [png_bytes(c) for c in crops], source, not args.no_replace)
+    desc = emb.describe(crops)
+    vis = desc.visibility if emb.occlusion_aware else None
+    g.enrol(
+        args.name, desc.vectors, [png_bytes(c) for c in crops], source, not args.no_replace, vis
+    )
     print(f"enrolled {args.name} in {g.path} ({len(g)} pallet sides)")
     return 0
 
@@ -223,5 +275,7 @@ _COMMANDS = {
     "remove": _remove,
     "export": _export,
     "evaluate": _evaluate,
+    "history": _history,
+    "rollback": _rollback,
     "demo": _demo,
 }

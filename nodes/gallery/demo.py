@@ -30,7 +30,7 @@ import numpy as np
 
 ENROL_SPEED_MPS = 0.1  # camera speed along the scan line while enrolling
 ENROL_RATE_HZ = 15.0
-ENROL_VERSION = 2  # bump when the enrolment procedure changes (invalidates cached galleries)
+ENROL_VERSION = 3  # bump when the enrolment procedure changes (invalidates cached galleries)
 
 
 def cache_dir() -> str:
@@ -54,7 +54,7 @@ CANONICAL_LINE = {"x_m": 8.90, "y_from_m": -0.75, "y_to_m": 0.65, "yaw_deg": 0.0
 def canonical_world_data(data: dict, identity: str) -> dict:
     """The world of an enrolment scan: ``identity`` alone in the canonical slot (the
     world's pallets, geometry, lighting and floor; no other pallet, no obstacle, no placement
-    error)."""
+    error), as it looked when enrolled (no ageing)."""
     import copy
 
     g = data["pallet_geometry"]
@@ -67,23 +67,49 @@ def canonical_world_data(data: dict, identity: str) -> dict:
     for key in ("placement_error", "placement_offset"):
         out[key] = {k: 0.0 for k in out.get(key, {})}
     out["scan_line"] = dict(CANONICAL_LINE, z_m=CANONICAL_ROW_Z_M)
+    return unaged(out)
+
+
+def unaged(data: dict) -> dict:
+    """The world's pallets as they were enrolled: every ``age`` (since enrolment) at 0."""
+    import copy
+
+    out = copy.deepcopy(data)
+    out["pallet_look"] = dict(out.get("pallet_look") or {}, age=0.0)
+    for p in out.get("pallets") or []:
+        for s in (p.get("sides") or {}).values():
+            if isinstance(s, dict):
+                s["age"] = 0.0
     return out
 
 
 def appearance_key(data: dict) -> bytes:
-    """What a demo gallery depends on in a world: the pallets, their geometry, the light and
-    the floor; not where the world places them."""
+    """What a demo gallery depends on in a world: the pallets and their look, their
+    geometry, the light and the floor; not where the world places them, nor how they aged
+    since enrolment."""
     import json
 
+    data = unaged(data)  # ageing since enrolment does not change what was enrolled
     keep = {
-        k: data.get(k) for k in ("pallets", "pallet_pool", "pallet_geometry", "lighting", "floor")
+        k: data.get(k)
+        for k in ("pallets", "pallet_pool", "pallet_look", "pallet_geometry", "lighting", "floor")
     }
     keep["not_enrolled"] = sorted((data.get("stock") or {}).get("not_enrolled") or [])
     return json.dumps(keep, sort_keys=True).encode()
 
 
+def look_overrides(overrides: dict[str, str] | None) -> dict[str, str]:
+    """The ``--set world.KEY`` items that change how the pallets look (``pallet_look.*``):
+    the demo gallery enrols the pallets as the flight will see them (ageing aside)."""
+    return {k: v for k, v in (overrides or {}).items() if k.startswith("pallet_look.")}
+
+
 def scan_frames(
-    world_path: str, identity: str, camera: dict | None, seed: int = 0
+    world_path: str,
+    identity: str,
+    camera: dict | None,
+    seed: int = 0,
+    overrides: dict[str, str] | None = None,
 ) -> Iterator[tuple[np.ndarray, float]]:
     """Raw frames (and their times) of a camera moving along the canonical scan line in front
     of ``identity`` standing alone in the canonical slot; motion blur from the scan speed."""
@@ -91,7 +117,7 @@ def scan_frames(
     from drivers.sim.world import World, load_world
     from drivers.vehicle.types import Pose
 
-    data = canonical_world_data(load_world(world_path).data, identity)
+    data = canonical_world_data(load_world(world_path, look_overrides(overrides)).data, identity)
     world = World(data, world_path)
     line = data["scan_line"]
     renderer = PalletRenderer(world, camera, np.random.default_rng(seed))
@@ -133,12 +159,18 @@ def png_bytes(crop: np.ndarray) -> bytes:
     return buf.tobytes() if ok else b""
 
 
-def demo_gallery_path(world_path: str, detector: Any, embedder: Any, camera: dict | None) -> str:
+def demo_gallery_path(
+    world_path: str,
+    detector: Any,
+    embedder: Any,
+    camera: dict | None,
+    overrides: dict[str, str] | None = None,
+) -> str:
     """The cache file of the demo gallery for this world, camera and pair of models."""
     from drivers.sim.world import load_world
 
     h = hashlib.sha256()
-    h.update(appearance_key(load_world(world_path).data))
+    h.update(appearance_key(load_world(world_path, look_overrides(overrides)).data))
     h.update(repr(sorted((camera or {}).items())).encode())
     h.update(f"{detector.model_version}|{embedder.model_version}|{ENROL_VERSION}".encode())
     return os.path.join(cache_dir(), "galleries", f"demo-{h.hexdigest()[:16]}.sqlite")
@@ -152,6 +184,7 @@ def build_gallery(
     embedder: Any,
     camera: dict | None,
     log: Callable[[str], None] = print,
+    overrides: dict[str, str] | None = None,
 ) -> None:
     """Enrol ``identities`` of the world from rendered scans into a new gallery at ``path``
     (written to a temporary file first, then renamed over ``path``)."""
@@ -167,17 +200,21 @@ def build_gallery(
             g.set_thresholds(embedder.thresholds)
             for i, identity in enumerate(identities):
                 crops = scan_blocks(
-                    scan_frames(world_path, identity, camera, seed=1000 + i), detector, factors
+                    scan_frames(world_path, identity, camera, 1000 + i, overrides),
+                    detector,
+                    factors,
                 )
                 if len(crops) < 3:
                     raise GalleryError(
                         f"enrolment scan of {identity} found {len(crops)} of 3 blocks"
                     )
+                desc = embedder.describe(crops)
                 g.enrol(
                     identity,
-                    embedder.embed(crops),
+                    desc.vectors,
                     [png_bytes(c) for c in crops],
                     source=f"rendered scan of {os.path.basename(world_path)}",
+                    visibility=desc.visibility if embedder.occlusion_aware else None,
                 )
                 log(f"  enrolled {identity} ({i + 1}/{len(identities)})")
         os.replace(tmp, path)
@@ -192,11 +229,13 @@ def ensure_demo_gallery(
     embedder: Any,
     camera: dict | None,
     log: Callable[[str], None] = print,
+    overrides: dict[str, str] | None = None,
 ) -> str:
-    """The demo gallery's path, building it first if it does not exist yet."""
+    """The demo gallery's path, building it first if it does not exist yet; ``overrides``:
+    the rig's ``--set world.KEY`` items (only the look ones count)."""
     from drivers.sim.world import load_world
 
-    path = demo_gallery_path(world_path, detector, embedder, camera)
+    path = demo_gallery_path(world_path, detector, embedder, camera, overrides)
     if os.path.exists(path):
         return path
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
@@ -214,5 +253,5 @@ def ensure_demo_gallery(
                 f"building the demo gallery ({len(identities)} pallet sides of "
                 f"{os.path.basename(world_path)}) in {path}"
             )
-            build_gallery(path, world_path, identities, detector, embedder, camera, log)
+            build_gallery(path, world_path, identities, detector, embedder, camera, log, overrides)
     return path

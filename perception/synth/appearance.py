@@ -18,21 +18,37 @@ at the left *as seen from in front of the face*.
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import cv2
 import numpy as np
 
-from perception.synth import marks
-from perception.synth.woodgen import (
-    chipboard,
-    colourise,
-    concrete,
-    end_grain,
-    smooth_noise,
-    wood_grain,
-)
+from perception.synth import looks, marks
+from perception.synth.ageing import Ageing, age_image
+from perception.synth.altgen import face_luminance
+from perception.synth.surroundings import floor_texture, pyramid, stand_texture, wall_texture
+from perception.synth.woodgen import chipboard, colourise, end_grain, wood_grain
+
+__all__ = [
+    "EPAL",
+    "PX_PER_MM",
+    "PalletGeometry",
+    "SideStyle",
+    "block_rect_px",
+    "block_texture",
+    "face_texture",
+    "floor_texture",
+    "part_seed",
+    "pyramid",
+    "short_face_texture",
+    "split_identity",
+    "stand_texture",
+    "styles_from_world",
+    "world_side_style",
+    "top_texture",
+    "wall_texture",
+]
 
 PX_PER_MM = 2.0
 """Texture resolution of pallet parts (the camera never resolves better than ~1.5 mm)."""
@@ -79,11 +95,51 @@ class SideStyle:
 
     ``stamp``: brand on the corner blocks ("EPAL" or "EUR"); ``wear``: 0 new .. 1 very used;
     ``texture_seed``: mixed into every seed of the side (0 = the identity alone decides).
+
+    The look over the range of real pallets (:mod:`perception.synth.looks`): ``wood``, a
+    tone name (``fresh``, ``grey``, ``wet``...), or ``wood_hsv``, an explicit (hue deg,
+    saturation, value) base colour (default: the identity's fresh wood);
+    ``saturation``: multiplies the wood colour's saturation; ``paint``: a paint name or a
+    BGR triple, over ``paint_parts`` (``all`` or ``blocks``); ``marking``: ``burnt``,
+    ``ink``, ``stencil``, ``label`` or ``none`` (default: the identity's burnt or ink brand);
+    ``generator``: the block-face family (:data:`perception.synth.looks.FACE_GENERATORS`);
+    ``ageing``: changes since enrolment (:class:`perception.synth.ageing.Ageing`).
     """
 
     stamp: str | None = None
     wear: float | None = None
     texture_seed: int = 0
+    wood: str | None = None
+    wood_hsv: tuple[float, float, float] | None = None
+    saturation: float = 1.0
+    paint: str | tuple[float, float, float] | None = None
+    paint_parts: str = "all"
+    marking: str | None = None
+    generator: str = "wood"
+    ageing: Ageing | None = None
+
+    def __post_init__(self) -> None:
+        if self.wood is not None:
+            looks.wood_colour(self.wood)  # raises for an unknown tone
+        if self.paint is not None:
+            looks.paint_colour(self.paint)
+        if self.paint_parts not in looks.PAINT_PARTS:
+            raise ValueError(f"paint_parts must be one of {looks.PAINT_PARTS}")
+        if self.marking is not None and self.marking not in looks.MARKINGS:
+            raise ValueError(
+                f"unknown marking {self.marking!r} (known: {', '.join(looks.MARKINGS)})"
+            )
+        if self.generator not in looks.FACE_GENERATORS:
+            raise ValueError(
+                f"unknown face generator {self.generator!r} "
+                f"(known: {', '.join(looks.FACE_GENERATORS)})"
+            )
+        if not 0.0 <= self.saturation <= 3.0:
+            raise ValueError(f"saturation must be within 0..3, got {self.saturation}")
+
+    def unaged(self) -> SideStyle:
+        """The same side before any :attr:`ageing` (what was enrolled)."""
+        return replace(self, ageing=None)
 
 
 def split_identity(identity: str, side: str | None = None) -> tuple[str, str]:
@@ -105,29 +161,59 @@ def _rng(pallet_id: str, side: str, part: str | int, texture_seed: int = 0) -> n
     return np.random.default_rng(part_seed(pallet_id, side, part, texture_seed))
 
 
-def styles_from_world(world_data: dict) -> dict[str, SideStyle]:
-    """Identity -> :class:`SideStyle` from a world file's data (its ``pallets`` list).
+def world_side_style(side: dict | None, look: dict | None = None, seed: int = 0) -> SideStyle:
+    """The :class:`SideStyle` of one side of a world file (``stamp``, ``wear``,
+    ``texture_seed``, ``wood``, ``paint``, ``age``), its ``auto``/missing look keys taken
+    from the world's ``pallet_look`` (``look``); ``age`` > 0 becomes a gradual
+    :class:`~perception.synth.ageing.Ageing` seeded by ``seed``.
 
-    Pass these to the dataset helpers to reproduce exactly what the simulator shows.
+    Raises:
+        ValueError: an unknown wood tone or paint (world validation catches these first).
+    """
+    s, look = side or {}, look or {}
+    wood = s.get("wood") or "auto"
+    wood = look.get("wood", "auto") if wood == "auto" else wood
+    paint = s.get("paint") or "auto"
+    paint = look.get("paint", "none") if paint == "auto" else paint
+    age = s.get("age")
+    age = float(look.get("age") or 0.0) if age is None else float(age)
+    return SideStyle(
+        s.get("stamp"),
+        s.get("wear"),
+        int(s.get("texture_seed") or 0),
+        wood=None if wood in (None, "auto") else wood,
+        paint=None if paint in (None, "none", "auto") else paint,
+        ageing=Ageing.gradual(age, seed) if age > 0 else None,
+    )
+
+
+def styles_from_world(world_data: dict) -> dict[str, SideStyle]:
+    """Identity -> :class:`SideStyle` from a world file's data (its ``pallets`` list and
+    ``pallet_look``). Pass these to the dataset helpers to reproduce exactly what the
+    simulator shows.
     """
     out = {}
+    look = world_data.get("pallet_look") or {}
     for p in world_data.get("pallets") or []:
         for side, s in (p.get("sides") or {}).items():
-            s = s or {}
-            out[f"{p['id']}{side}"] = SideStyle(
-                s.get("stamp"), s.get("wear"), int(s.get("texture_seed") or 0)
+            out[f"{p['id']}{side}"] = world_side_style(
+                s, look, part_seed(str(p["id"]), side, "age")
             )
     return out
 
 
 @dataclass(frozen=True)
 class _Look:
-    """Resolved look of a pallet side: colour, material, stamp, wear."""
+    """Resolved look of a pallet side: colour, material, stamp, wear, paint, marking."""
 
     base: tuple[float, float, float]
     chip: bool
     stamp: str
     wear: float
+    paint: tuple[float, float, float] | None = None
+    paint_blocks_only: bool = False
+    marking: str | None = None
+    generator: str = "wood"
 
 
 @lru_cache(maxsize=4096)
@@ -138,35 +224,50 @@ def _look(pallet_id: str, side: str, style: SideStyle | None) -> _Look:
     warmth = prng.normal(0.0, 0.02)
     base = _WOOD_BGR * tone * np.array([1.0 - warmth, 1.0, 1.0 + warmth * 0.5], np.float32)
     chip = bool(prng.random() < 0.3)
+    if style.wood_hsv is not None or style.wood is not None:
+        hsv = style.wood_hsv or looks.WOOD_TONES[str(style.wood)]
+        base = np.asarray(looks.hsv_to_bgr(*hsv), np.float32) * np.float32(tone)
+    if style.saturation != 1.0:
+        h, s_, v = looks.bgr_to_hsv(tuple(float(x) for x in base))
+        base = np.asarray(looks.hsv_to_bgr(h, s_ * style.saturation, v), np.float32)
     srng = _rng(pallet_id, side, "style", style.texture_seed)
     stamp = style.stamp or ("EUR" if srng.random() < 0.2 else "EPAL")
     wear = float(style.wear) if style.wear is not None else float(srng.beta(2.0, 3.0))
-    return _Look(tuple(float(v) for v in base), chip, stamp, wear)
+    paint = looks.paint_colour(style.paint) if style.paint is not None else None
+    return _Look(
+        tuple(float(v) for v in base),
+        chip,
+        stamp,
+        wear,
+        paint,
+        style.paint_parts == "blocks",
+        style.marking,
+        style.generator,
+    )
+
+
+def _dark(base: np.ndarray) -> np.ndarray:
+    """Late-wood colour of a base colour (as dark as the fresh wood's, in its hue)."""
+    return _DARK_BGR * base / _WOOD_BGR
 
 
 def _mm(v_m: float) -> int:
     return int(round(v_m * 1000.0 * PX_PER_MM))
 
 
-@lru_cache(maxsize=768)
-def block_texture(
-    pallet_id: str,
-    side: str,
-    block: int,
-    style: SideStyle | None = None,
-    size_m: tuple[float, float] = (0.145, 0.078),
+def _block_face(
+    pallet_id: str, side: str, block: int, style: SideStyle, h: int, w: int, stamped: bool
 ) -> np.ndarray:
-    """Front face of support block ``block`` (0, 1, 2 left to right) of a pallet side.
-
-    ``size_m`` is (width, height) of the face. Returns BGR uint8 (read-only, cached).
-    """
+    """Float BGR face of one block before ageing (``stamped`` False: without its brand;
+    every other draw stays the same, the brand having its own random stream)."""
     look = _look(pallet_id, side, style)
-    rng = _rng(pallet_id, side, f"block{block}", (style or SideStyle()).texture_seed)
-    h, w = _mm(size_m[1]), _mm(size_m[0])
+    rng = _rng(pallet_id, side, f"block{block}", style.texture_seed)
+    stamp_rng = _rng(pallet_id, side, f"block{block}/stamp", style.texture_seed)
     base = np.asarray(look.base, np.float32) * np.float32(rng.normal(1.0, 0.03))
-    if look.chip:
+    if look.generator != "wood":
+        lum = face_luminance(look.generator, rng, h, w)
+    elif look.chip:
         lum = chipboard(rng, h, w)
-        n_knots = 0
     else:
         n_knots = int(rng.poisson(0.9))
         knots = [
@@ -187,17 +288,64 @@ def block_texture(
             warp_px=rng.uniform(3.0, 10.0),
             knots=knots,
         )
-    img = colourise(lum, base, _DARK_BGR * base / _WOOD_BGR).astype(np.float32)
-    if not look.chip:
+    img = colourise(lum, base, _dark(base)).astype(np.float32)
+    if not look.chip and look.generator == "wood":
         marks.cracks(img, rng, int(rng.poisson(0.4 + 1.2 * look.wear)))
-    if rng.random() < 0.92:
-        marks.stamp_block(img, rng, block % 3, look.stamp, look.wear)
+    if look.paint is not None:
+        marks.paint_over(img, rng, look.paint, look.wear)
+    stamped_here = stamp_rng.random() < 0.92
+    if stamped and stamped_here:
+        _mark(img, stamp_rng, block, look)
     if block % 3 == 1 and look.stamp == "EPAL":
         marks.control_clip(img, rng)
     marks.nails(img, rng, int(rng.integers(0, 3)), look.wear)
     if rng.random() < 0.25 + 0.2 * look.wear:
         marks.scribble(img, rng)
     marks.dirt_and_wear(img, rng, look.wear)
+    return img
+
+
+def _mark(img: np.ndarray, rng: np.random.Generator, block: int, look: _Look) -> None:
+    """The side's marking on one block face (brand, ink stamp, stencil or label)."""
+    if look.marking is None:  # the identity's own brand, as the original generator drew it
+        marks.stamp_block(img, rng, block % 3, look.stamp, look.wear)
+    elif look.marking == "burnt":
+        marks.stamp_block(img, rng, block % 3, look.stamp, look.wear, varied=True)
+    elif look.marking == "ink":
+        ink = ((30, 30, 34), (110, 45, 20), (30, 30, 150), (40, 90, 30))[int(rng.integers(4))]
+        marks.stamp_block(img, rng, block % 3, look.stamp, look.wear, ink=ink, varied=True)
+    elif look.marking == "stencil":
+        light = float(np.mean(look.paint if look.paint is not None else look.base)) < 120
+        colour = (225.0, 225.0, 225.0) if light else (30.0, 30.0, 30.0)
+        marks.stencil(img, rng, (look.stamp, "P", "RE", "L", "B")[int(rng.integers(5))], colour)
+    elif look.marking == "label":
+        marks.label(img, rng)
+
+
+@lru_cache(maxsize=768)
+def block_texture(
+    pallet_id: str,
+    side: str,
+    block: int,
+    style: SideStyle | None = None,
+    size_m: tuple[float, float] = (0.145, 0.078),
+) -> np.ndarray:
+    """Front face of support block ``block`` (0, 1, 2 left to right) of a pallet side.
+
+    ``size_m`` is (width, height) of the face. The style's ageing, if any, is drawn last
+    (seeded by the identity, the block and the ageing's seed). Returns BGR uint8
+    (read-only, cached).
+    """
+    style = style or SideStyle()
+    h, w = _mm(size_m[1]), _mm(size_m[0])
+    ageing = style.ageing
+    img = _block_face(pallet_id, side, block, style.unaged(), h, w, True)
+    if ageing is not None and ageing.changes_texture:
+        if ageing.fade_stamps > 0:
+            bare = _block_face(pallet_id, side, block, style.unaged(), h, w, False)
+            img = img * (1 - ageing.fade_stamps) + bare * ageing.fade_stamps
+        arng = _rng(pallet_id, side, f"block{block}/age{ageing.seed}", style.texture_seed)
+        age_image(img, arng, ageing)
     out = np.clip(img, 0, 255).astype(np.uint8)
     out.setflags(write=False)
     return out
@@ -219,7 +367,9 @@ def _board(rng: np.random.Generator, look: _Look, w: int, h: int, nail_xs: list[
         warp_px=rng.uniform(3, 8),
         knots=knots,
     )
-    img = colourise(lum, base, _DARK_BGR * base / _WOOD_BGR).astype(np.float32)
+    img = colourise(lum, base, _dark(base)).astype(np.float32)
+    if look.paint is not None and not look.paint_blocks_only:
+        marks.paint_over(img, rng, look.paint, look.wear)
     r = max(2, int(h * 0.09))
     for x in nail_xs:
         for dx in (-1, 1):
@@ -272,7 +422,10 @@ def face_texture(
         img[2 * b : 2 * b + bh, x0:x1] = tex[:bh, : x1 - x0]
         base = np.asarray(look.base, np.float32) * 0.85
         lum = end_grain(rng, b, x1 - x0, period_px=rng.uniform(6, 12))
-        img[b : 2 * b, x0:x1] = colourise(lum, base, _DARK_BGR)
+        end = colourise(lum, base, _dark(base)).astype(np.float32)
+        if look.paint is not None and not look.paint_blocks_only:
+            marks.paint_over(end, rng, look.paint, look.wear)
+        img[b : 2 * b, x0:x1] = end
         img[2 * b - 1 : 2 * b + 1, x0:x1] *= 0.55  # joint between board end and block
     img[b - 1 : b + 1] *= 0.6
     img[H - b - 1 : H - b + 1] *= 0.6
@@ -310,7 +463,8 @@ def short_face_texture(
     for cx in (bw // 2, W // 2, W - bw // 2):
         x0 = cx - bw // 2
         lum = end_grain(rng, H - 3 * b, bw, period_px=5.0)
-        img[2 * b : H - b, x0 : x0 + bw] = colourise(lum, np.asarray(look.base), _DARK_BGR)
+        base = np.asarray(look.base, np.float32)
+        img[2 * b : H - b, x0 : x0 + bw] = colourise(lum, base, _dark(base))
     out = np.clip(img, 0, 255).astype(np.uint8)
     out.setflags(write=False)
     return out
@@ -339,55 +493,4 @@ def top_texture(
         y += wd + gap
     out = np.clip(img, 0, 255).astype(np.uint8)
     out.setflags(write=False)
-    return out
-
-
-@lru_cache(maxsize=8)
-def floor_texture(w_px: int = 800, h_px: int = 600, joint_px: int = 200) -> np.ndarray:
-    """Concrete floor (BGR uint8), row 0 at the floor's smallest x, column 0 at its largest y."""
-    img = concrete(np.random.default_rng(zlib.crc32(b"btrun-floor")), h_px, w_px, joint_px=joint_px)
-    out = img.astype(np.uint8)
-    out.setflags(write=False)
-    return out
-
-
-@lru_cache(maxsize=8)
-def wall_texture(w_px: int = 800, h_px: int = 200) -> np.ndarray:
-    """Warehouse wall (BGR uint8, row 0 at the top): painted block work, a dark base band."""
-    rng = np.random.default_rng(zlib.crc32(b"btrun-wall"))
-    lum = 0.82 + 0.02 * smooth_noise(rng, h_px, w_px, 4, 16)
-    lum += 0.012 * rng.standard_normal((h_px, w_px), dtype=np.float32)
-    img = np.stack([lum * 200.0, lum * 204.0, lum * 206.0], axis=-1)
-    course = max(h_px // 20, 2)
-    img[::course] *= 0.8  # mortar joints of the block work
-    for r in range(0, h_px, course):
-        off = (r // course % 2) * course
-        img[r : r + course, off :: course * 2] *= 0.8
-    for x in range(w_px // 10, w_px, w_px // 5):  # steel columns
-        img[:, x : x + 3] = (120, 110, 60)
-    band = int(h_px * 0.75)
-    img[band:] = img[band:] * np.array([0.55, 0.45, 0.35], np.float32)  # dark base band
-    img[band : band + 2] = (20, 170, 220)  # yellow line
-    out = np.clip(img, 0, 255).astype(np.uint8)
-    out.setflags(write=False)
-    return out
-
-
-@lru_cache(maxsize=8)
-def stand_texture(w_px: int = 300, h_px: int = 100) -> np.ndarray:
-    """Front of the stand box under a raised pallet: a dark grey plastic crate with ribs."""
-    rng = np.random.default_rng(zlib.crc32(b"btrun-stand"))
-    img = concrete(rng, h_px, w_px) * np.array([0.55, 0.52, 0.5], np.float32)
-    img[:, :: max(w_px // 24, 2)] *= 0.7
-    img[:: max(h_px // 6, 2)] *= 0.75
-    out = np.clip(img, 0, 255).astype(np.uint8)
-    out.setflags(write=False)
-    return out
-
-
-def pyramid(tex: np.ndarray, levels: int = 6) -> list[np.ndarray]:
-    """Mip levels of a texture (level k = ``tex`` reduced 2^k times) for minified drawing."""
-    out = [np.ascontiguousarray(tex)]
-    while len(out) < levels and min(out[-1].shape[:2]) >= 4:
-        out.append(cv2.pyrDown(out[-1]))
     return out

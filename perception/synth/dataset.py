@@ -16,6 +16,7 @@ deterministic for a given ``numpy.random.Generator`` state.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import lru_cache
 
 import cv2
@@ -23,9 +24,12 @@ import numpy as np
 
 from perception.synth.appearance import EPAL, SideStyle, split_identity
 from perception.synth.camera_model import CameraModel, CameraPose
-from perception.synth.render import BlockBox, Lighting, SensorModel, render_frame
+from perception.synth.render import BlockBox, Lighting, SensorModel, block_boxes, render_frame
 from perception.synth.scene import PalletSpec, Scene, SceneLight
+from perception.synth.views import ViewConditions, develop, take_frame
 from perception.white_balance import calibrate, preprocess, render_white_target
+
+Conditions = ViewConditions | Callable[[np.random.Generator], ViewConditions] | None
 
 NOMINAL_K = 4000.0  # colour temperature the white balance is calibrated under
 
@@ -59,6 +63,39 @@ def _scene(pallet_id: str, side: str, style: SideStyle | None, base_z: float) ->
     )
 
 
+#: rack layouts the training scenes draw from (a finite set, so racked scenes are cached too)
+RACK_VARIANTS = 24
+
+
+@lru_cache(maxsize=48)
+def _rack_scene(
+    pallet_id: str, side: str, style: SideStyle | None, base_z: float, variant: int
+) -> Scene:
+    """The pallet on a rack beam at ``base_z``: rack steel around it, neighbour pallets in
+    wide bays and on the levels above and below (:mod:`perception.synth.rack_context`),
+    each neighbour with a look of its own."""
+    from perception.synth.looks import random_look
+    from perception.synth.rack_context import neighbour_slots, rack_boxes, rack_variant
+
+    light = SceneLight(0.6, (((-1.5, 0.0, 4.0), 1.0), ((0.5, 1.0, 4.0), 0.7)), NOMINAL_K)
+    v = rack_variant(np.random.default_rng([variant, 31]))
+    pallets = [
+        PalletSpec(
+            pallet_id, side, 0.0, 0.0, base_z, math.pi, EPAL, (((side, style),) if style else ())
+        )
+    ]
+    for k, (x, y, z, facing) in enumerate(neighbour_slots(v, base_z)):
+        name = f"{pallet_id}n{variant}-{k}"
+        look = SideStyle(**random_look(np.random.default_rng([variant, k, *name.encode()])))
+        pallets.append(PalletSpec(name, "AB"[k % 2], x, y, z, facing, EPAL, (("AB"[k % 2], look),)))
+    return Scene.build(
+        pallets,
+        boxes=rack_boxes(v, base_z),
+        floor=((-6.0, -6.0), (12.0, 12.0), 0.0),
+        light=light,
+    )
+
+
 def _random_light(rng: np.random.Generator) -> tuple[float, Lighting]:
     kelvin = float(rng.uniform(3000.0, 6000.0))
     lighting = Lighting(
@@ -82,12 +119,19 @@ def render_detection_sample(
     yaw_deg: float = 15.0,
     height_m: float = 0.05,
     blur_probability: float = 0.3,
+    conditions: ViewConditions | None = None,
+    rack_probability: float = 0.0,
 ) -> tuple[np.ndarray, list[BlockBox]]:
     """A raw Bayer frame and its ground-truth block boxes, everything randomised.
 
     Pallet identity from ``identities`` (default: 100 synthetic ones; ``styles`` maps
     identity -> :class:`SideStyle`), distance, lateral offset along the face, yaw, height
     around the block centre line, stand height, light, exposure, blur, noise.
+    ``conditions``: take the frame under these instead (light, optics, sensor noise,
+    Bayer JPEG; see :mod:`perception.synth.views`; develop it with
+    :func:`perception.synth.views.develop` for the lower resolution).
+    ``rack_probability``: the share of frames with the pallet on a rack beam, among rack
+    steel and neighbour pallets (:func:`_rack_scene`); 0 draws nothing more from ``rng``.
     """
     camera = camera or CameraModel()
     identities = identities or identity_names(100)
@@ -95,7 +139,12 @@ def render_detection_sample(
     pallet_id, side = split_identity(identity)
     base_z = _stand_height(rng)
     kelvin, lighting = _random_light(rng)
-    scene = _scene(pallet_id, side, (styles or {}).get(identity), base_z)
+    style = (styles or {}).get(identity)
+    if rack_probability > 0.0 and rng.random() < rack_probability:
+        base_z = 0.05 * int(rng.integers(3, 33))  # beams at 0.15 .. 1.6 m
+        scene = _rack_scene(pallet_id, side, style, base_z, int(rng.integers(RACK_VARIANTS)))
+    else:
+        scene = _scene(pallet_id, side, style, base_z)
     d = rng.uniform(*distance_m)
     pose = CameraPose.from_yaw(
         -d,
@@ -105,6 +154,8 @@ def render_detection_sample(
         pitch=math.radians(rng.normal(0.0, 2.0)),
         roll=math.radians(rng.normal(0.0, 2.0)),
     )
+    if conditions is not None:
+        return take_frame(camera, pose, scene, rng, conditions), block_boxes(camera, pose, scene)
     velocity = None
     if rng.random() < blur_probability:
         velocity = (0.0, float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-0.1, 0.1)))
@@ -156,6 +207,8 @@ def block_crops(
     max_occlusion: float = 0.3,
     blur_probability: float = 0.3,
     min_size_px: int = 8,
+    yaw_deg: float = 15.0,
+    conditions: Conditions = None,
 ) -> list[np.ndarray]:
     """``n`` white-balanced BGR crops of block ``block_index`` (0, 1, 2 left to right) of a
     pallet side, as the mission's detector would cut them.
@@ -165,7 +218,10 @@ def block_crops(
     lateral offset, yaw +-15 deg, height +-5 cm; light, colour temperature, exposure, blur,
     noise), decoded and white-balanced with factors calibrated at 4000 K, cut along the
     ground-truth box with jittered margins, sometimes partly occluded. Crops keep their
-    native size (about 20..100 px wide).
+    native size (about 20..100 px wide). ``yaw_deg``: the largest yaw off square;
+    ``conditions``: light, optics and sensor of every frame (a :class:`ViewConditions`,
+    or a function drawing one from the generator; default: the renderer's own light,
+    exposure, motion blur and noise).
     """
     camera = camera or CameraModel()
     pallet_id, side = split_identity(identity, side)
@@ -181,7 +237,7 @@ def block_crops(
         kelvin, lighting = _random_light(rng)
         scene = _scene(pallet_id, side, style, base_z)
         d = rng.uniform(*distance_m)
-        yaw = math.radians(rng.uniform(-15.0, 15.0))
+        yaw = math.radians(rng.uniform(-yaw_deg, yaw_deg))
         # Aim roughly at the block: lateral position so the block lands near the centre.
         y = block_y - d * math.tan(yaw) + rng.uniform(-0.25, 0.25) * d
         pose = CameraPose.from_yaw(
@@ -192,26 +248,33 @@ def block_crops(
             pitch=math.radians(rng.normal(0, 2)),
             roll=math.radians(rng.normal(0, 2)),
         )
-        velocity = None
-        if rng.random() < blur_probability:
-            velocity = (0.0, float(rng.uniform(-0.4, 0.4)), 0.0)
-        raw, boxes = render_frame(
-            camera,
-            pose,
-            scene,
-            rng,
-            velocity=velocity,
-            lighting=lighting,
-            colour_temperature_k=kelvin,
-            return_boxes=True,
-        )
+        cond = conditions(rng) if callable(conditions) else conditions
+        if cond is not None:
+            raw, boxes = (
+                take_frame(camera, pose, scene, rng, cond),
+                block_boxes(camera, pose, scene),
+            )
+        else:
+            velocity = None
+            if rng.random() < blur_probability:
+                velocity = (0.0, float(rng.uniform(-0.4, 0.4)), 0.0)
+            raw, boxes = render_frame(
+                camera,
+                pose,
+                scene,
+                rng,
+                velocity=velocity,
+                lighting=lighting,
+                colour_temperature_k=kelvin,
+                return_boxes=True,
+            )
         box = next(
             (b for b in boxes if b.block == block_index and b.identity == f"{pallet_id}{side}"),
             None,
         )
         if box is None or box.visible < 0.7 or box.x2 - box.x1 < min_size_px:
             continue
-        bgr = preprocess(raw, factors)
+        bgr = develop(raw, factors, cond) if cond is not None else preprocess(raw, factors)
         w, h = box.x2 - box.x1, box.y2 - box.y1
         x1 = int(round(box.x1 - w * rng.uniform(-0.06, 0.12)))
         x2 = int(round(box.x2 + w * rng.uniform(-0.06, 0.12)))

@@ -16,6 +16,17 @@ Rng = np.random.Generator
 
 _REGIONS = ("NW", "BY", "NI", "HE", "SN", "BW", "RP", "PL", "CZ", "FR")
 _FONTS = (cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_TRIPLEX)
+#: every Hershey face OpenCV has, for the varied marking styles
+ALL_FONTS = (
+    cv2.FONT_HERSHEY_SIMPLEX,
+    cv2.FONT_HERSHEY_PLAIN,
+    cv2.FONT_HERSHEY_DUPLEX,
+    cv2.FONT_HERSHEY_COMPLEX,
+    cv2.FONT_HERSHEY_TRIPLEX,
+    cv2.FONT_HERSHEY_COMPLEX_SMALL,
+    cv2.FONT_HERSHEY_SCRIPT_SIMPLEX,
+    cv2.FONT_HERSHEY_SCRIPT_COMPLEX,
+)
 _INK = ((34, 40, 52), (28, 30, 36), (45, 55, 75))  # burnt brown-black, black ink, brown
 
 
@@ -64,14 +75,31 @@ def _apply_ink(
     blend(img[y0:y1, x0:x1], np.clip(sub * strength, 0.0, 1.0), ink)
 
 
-def stamp_block(img: np.ndarray, rng: Rng, block: int, stamp: str, wear: float) -> None:
+def _font(rng: Rng, varied: bool) -> int:
+    """A Hershey font: the three brand faces, or (``varied``) any face, sometimes italic."""
+    if not varied:
+        return _FONTS[int(rng.integers(len(_FONTS)))]
+    font = ALL_FONTS[int(rng.integers(len(ALL_FONTS)))]
+    return font | (cv2.FONT_ITALIC if rng.random() < 0.25 else 0)
+
+
+def stamp_block(
+    img: np.ndarray,
+    rng: Rng,
+    block: int,
+    stamp: str,
+    wear: float,
+    ink: tuple[float, float, float] | None = None,
+    varied: bool = False,
+) -> None:
     """Brand a block face: corner blocks (0, 2) an oval logo, the middle block (1) the IPPC
-    phytosanitary mark with region, licence number and "HT", plus a date code."""
+    phytosanitary mark with region, licence number and "HT", plus a date code. ``ink``:
+    the colour (default: burnt brown-black, black or brown ink); ``varied``: any font."""
     h, w = img.shape[:2]
     mask = np.zeros((h, w), np.uint8)
     cx = w * (0.5 + rng.uniform(-0.1, 0.1))
     cy = h * (0.5 + rng.uniform(-0.1, 0.1))
-    font = _FONTS[int(rng.integers(len(_FONTS)))]
+    font = _font(rng, varied)
     thick = max(1, round(h / 60 * rng.uniform(0.8, 1.4)))
     if block != 1:
         ax, ay = w * rng.uniform(0.28, 0.36), h * rng.uniform(0.25, 0.32)
@@ -111,7 +139,8 @@ def stamp_block(img: np.ndarray, rng: Rng, block: int, stamp: str, wear: float) 
                 font,
                 1,
             )
-    ink = _INK[int(rng.integers(len(_INK)))]
+    drawn = _INK[int(rng.integers(len(_INK)))]
+    ink = ink or drawn
     _apply_ink(img, mask, rng, wear, rng.uniform(-5.0, 5.0), (cx, cy), ink, rng.uniform(0.65, 0.95))
     if block == 1 or rng.random() < 0.35:  # date / batch code somewhere else on the face
         mask = np.zeros((h, w), np.uint8)
@@ -234,3 +263,98 @@ def dirt_and_wear(img: np.ndarray, rng: Rng, wear: float) -> None:
             -1,
             cv2.LINE_AA,
         )
+
+
+def ink_text(
+    img: np.ndarray,
+    rng: Rng,
+    text: str,
+    centre: tuple[float, float],
+    height_px: float,
+    *,
+    boxed: bool = False,
+    ink: tuple[float, float, float] | None = None,
+) -> np.ndarray:
+    """Stamp ``text`` (optionally in a box) in ink at ``centre``; returns the ink's alpha."""
+    h, w = img.shape[:2]
+    mask = np.zeros((h, w), np.uint8)
+    thick = max(1, round(height_px / 9))
+    _text(mask, text, centre, height_px, _font(rng, True), thick)
+    if boxed:
+        x, y, bw, bh = cv2.boundingRect(mask)
+        pad = max(2, int(height_px * 0.3))
+        cv2.rectangle(mask, (x - pad, y - pad), (x + bw + pad, y + bh + pad), 255, thick)
+    ink = ink or ((20, 20, 24), (120, 40, 30), (30, 30, 140), (25, 90, 30))[int(rng.integers(4))]
+    before = img.copy()
+    _apply_ink(img, mask, rng, 0.2, rng.uniform(-8, 8), centre, ink, rng.uniform(0.7, 0.95))
+    return np.clip(np.abs(img - before).max(axis=2) / 60.0, 0, 1).astype(np.float32)
+
+
+def stencil(img: np.ndarray, rng: Rng, text: str, colour: tuple[float, float, float]) -> None:
+    """Painted stencil letters across a face (the bridges of the stencil leave gaps)."""
+    h, w = img.shape[:2]
+    mask = np.zeros((h, w), np.uint8)
+    font = ALL_FONTS[int(rng.choice([0, 2, 3, 4]))]
+    _text(
+        mask,
+        text,
+        (w * rng.uniform(0.4, 0.6), h * rng.uniform(0.4, 0.6)),
+        h * rng.uniform(0.3, 0.45),
+        font,
+        max(2, h // 18),
+    )
+    bridge = max(1, w // 90)
+    for x in range(int(rng.integers(3, 9)), w, int(rng.integers(9, 16))):
+        mask[:, x : x + bridge] = 0  # stencil bridges
+    alpha = cv2.GaussianBlur(mask.astype(np.float32) / 255.0, (3, 3), 0.8)
+    patch = np.clip(0.7 + 0.5 * smooth_noise(rng, h, w, 4, 8), 0, 1)  # uneven spray
+    blend(img, alpha * patch * rng.uniform(0.75, 0.95), colour)
+
+
+def label(img: np.ndarray, rng: Rng) -> None:
+    """A paper label with a barcode and a line of text, somewhere on the face."""
+    h, w = img.shape[:2]
+    lw, lh = int(w * rng.uniform(0.3, 0.55)), int(h * rng.uniform(0.3, 0.55))
+    x0, y0 = int(rng.uniform(0.03, 0.95 - lw / w) * w), int(rng.uniform(0.05, 0.95 - lh / h) * h)
+    paper = float(rng.uniform(205, 240))
+    tint = (paper * rng.uniform(0.85, 1.0), paper, paper * rng.uniform(0.95, 1.0))
+    cv2.rectangle(img, (x0, y0), (x0 + lw, y0 + lh), tint, -1)
+    bars_h = int(lh * 0.55)
+    x = x0 + max(2, lw // 12)
+    while x < x0 + lw - max(2, lw // 12):
+        bw = int(rng.integers(1, 4))
+        if rng.random() < 0.55:
+            cv2.rectangle(
+                img, (x, y0 + lh // 8), (x + bw - 1, y0 + lh // 8 + bars_h), (20, 20, 20), -1
+            )
+        x += bw
+    mask = np.zeros((h, w), np.uint8)
+    code = f"{int(rng.integers(10**5, 10**6))}"
+    _text(mask, code, (x0 + lw / 2, y0 + lh * 0.85), lh * 0.16, cv2.FONT_HERSHEY_SIMPLEX, 1)
+    blend(img, mask.astype(np.float32) / 255.0 * 0.9, (25, 25, 25))
+    if rng.random() < 0.5:  # torn or weathered corner
+        cv2.circle(
+            img,
+            (x0 + lw, y0),
+            int(min(lw, lh) * rng.uniform(0.2, 0.5)),
+            tuple(float(v) for v in img[min(y0 + lh, h - 1), min(x0 + lw, w - 1)]),
+            -1,
+        )
+
+
+def paint_over(img: np.ndarray, rng: Rng, colour: tuple[float, float, float], wear: float) -> None:
+    """Paint a face ``colour``: the grain shows faintly through, the paint is worn off at
+    the edges and in patches (more with ``wear``), where the wood shows."""
+    h, w = img.shape[:2]
+    lum = img.mean(axis=2)
+    rel = lum / max(float(lum.mean()), 1.0)
+    painted = np.asarray(colour, np.float32)[None, None, :] * (0.82 + 0.18 * rel)[..., None]
+    painted *= (1.0 + 0.04 * smooth_noise(rng, h, w, 3, 5))[..., None]
+    worn = np.clip(smooth_noise(rng, h, w, max(h // 20, 2), max(w // 20, 2)) - 1.4 + wear, 0, 1)
+    edge = np.zeros((h, w), np.float32)
+    e = max(2, int(min(h, w) * 0.05))
+    edge[:e] = edge[-e:] = 1.0
+    edge[:, :e] = edge[:, -e:] = 1.0
+    edge *= np.clip(rng.random((h, w), dtype=np.float32) * (0.4 + wear), 0, 1)
+    keep_wood = np.clip(np.maximum(worn * 2.0, edge), 0, 1)[..., None]
+    img[:] = painted * (1 - keep_wood) + img * keep_wood

@@ -28,7 +28,7 @@ import numpy as np
 from drivers.sim.world import World
 from drivers.vehicle.angles import yaw_from_quaternion
 from drivers.vehicle.types import Pose
-from perception.synth.appearance import PalletGeometry, SideStyle
+from perception.synth.appearance import PalletGeometry, part_seed, world_side_style
 from perception.synth.camera_model import CameraModel, CameraPose
 from perception.synth.render import BlockBox, Lighting, block_boxes, render_frame
 from perception.synth.scene import PalletSpec, Scene, SceneLight
@@ -68,8 +68,9 @@ def _build_scene(world: World) -> Scene:
     geometry = PalletGeometry.from_dict(data["pallet_geometry"])
     pallets = []
     for p in world.pallets:
+        look = data.get("pallet_look") or {}
         styles = tuple(
-            (side, SideStyle(s.get("stamp"), s.get("wear"), int(s.get("texture_seed") or 0)))
+            (side, world_side_style(s, look, part_seed(p.pallet_id, side, "age")))
             for side, s in sorted((p.sides or {}).items())
             if s is not None
         )

@@ -1,0 +1,195 @@
+"""Matching a scanned side against a gallery: the ranking, the margin, "unknown".
+
+The :class:`MatchingMixin` half of :class:`perception.gallery.Gallery`: every active view
+of every side in memory, a fast float32 screen over all of them, exact distances for the
+best candidates (:mod:`perception.gallery_math` has the maths), and the decision.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from perception import gallery_math as gm
+from perception.errors import GalleryError
+from perception.gallery_math import BLOCKS, block_distances
+
+
+@dataclass(frozen=True)
+class Match:
+    """The answer of :meth:`Gallery.match`.
+
+    ``pallet_id`` is the best entry's identity, or ``"unknown"`` when a threshold failed;
+    ``best_id`` is always the closest entry. ``ranking`` lists ``(identity, mean distance,
+    per-block distances)`` best first.
+    """
+
+    pallet_id: str
+    best_id: str
+    distance: float
+    runner_up_id: str | None
+    runner_up_distance: float | None
+    margin: float
+    known: bool
+    reason: str
+    ranking: list[tuple[str, float, tuple[float, ...]]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """When to answer "unknown": best mean distance above ``max_distance`` or a margin to the
+    runner-up below ``min_margin``."""
+
+    max_distance: float = float("inf")
+    min_margin: float = 0.0
+
+
+@dataclass
+class _Rows:
+    """Every active view in memory: identities, rows (m, 3, dim), owner index (m,),
+    stripe visibilities (m, 3, parts) or None, and for the fast screen the unit stripes
+    and the blocks' squared norms."""
+
+    ids: list[str]
+    rows: np.ndarray
+    owner: np.ndarray
+    vis: np.ndarray | None
+    unit: np.ndarray | None = None  # unit stripes (m, 3 * parts, dim / parts), float32
+    sq: np.ndarray | None = None  # squared norms of the rows' blocks (m, 3)
+
+
+class MatchingMixin:
+    """Matching for :class:`perception.gallery.Gallery` (it provides ``conn``, ``dim``,
+    ``path``, ``thresholds``, ``matrix()``, ``_check_visibility()`` and ``_rows``)."""
+
+    def _all_rows(self, parts: int) -> _Rows:
+        """Every active view (enrolment views first per identity), cached per stripe count."""
+        if parts in self._rows:
+            return self._rows[parts]
+        ids, enrol = self.matrix()
+        index = {ident: i for i, ident in enumerate(ids)}
+        vis_rows = dict(self.conn.execute("SELECT identity, stripes FROM visibility").fetchall())
+        added = self.conn.execute(
+            "SELECT identity, embeddings, stripes FROM views WHERE active ORDER BY view_id"
+        ).fetchall()
+        rows = [enrol] + [
+            np.frombuffer(e, np.float32).reshape(1, BLOCKS, self.dim) for _, e, _ in added
+        ]
+        owner = np.concatenate(
+            [np.arange(len(ids)), np.array([index[i] for i, _, _ in added], int)]
+        ).astype(np.int64)
+        blobs = [vis_rows.get(i) for i in ids] + [s for _, _, s in added]
+        vis = None
+        if any(b is not None for b in blobs):
+            vis = np.ones((len(owner), BLOCKS, parts), np.float32)
+            for k, b in enumerate(blobs):
+                if b is not None:
+                    v = np.frombuffer(b, np.float32)
+                    if v.size == BLOCKS * parts:
+                        vis[k] = v.reshape(BLOCKS, parts)
+        all_rows = np.concatenate(rows) if rows else np.zeros((0, BLOCKS, self.dim), np.float32)
+        unit = all_rows.reshape(len(owner), BLOCKS, parts, -1).astype(np.float32)
+        unit = unit / np.maximum(np.linalg.norm(unit, axis=-1, keepdims=True), 1e-12)
+        unit = np.ascontiguousarray(unit.reshape(len(owner), BLOCKS * parts, -1))
+        sq = np.einsum("nbd,nbd->nb", all_rows, all_rows)
+        self._rows[parts] = _Rows(ids, all_rows, owner, vis, unit, sq)
+        return self._rows[parts]
+
+    # -- matching --------------------------------------------------------------------------
+    def match(
+        self,
+        query: np.ndarray,
+        top_k: int = 5,
+        thresholds: Thresholds | None = None,
+        visibility: np.ndarray | None = None,
+    ) -> Match:
+        """Match three block embeddings (left to right) against every entry.
+
+        Distance between two blocks: Euclidean distance of the embeddings, stripes weighted
+        by their visibility in both crops when known (``visibility``: (3, parts) of the
+        query); per entry: the mean of the three block distances (the reference rule), each
+        block taken from the entry's closest view.
+        """
+        q = np.asarray(query, dtype=np.float32)
+        if q.shape != (BLOCKS, self.dim):
+            raise GalleryError(
+                f"match: expected a query of shape {(BLOCKS, self.dim)}, got {q.shape}"
+            )
+        qvis = self._check_visibility("match", visibility)
+        ids, _ = self.matrix()
+        if not ids:
+            raise GalleryError(f"{self.path}: the gallery is empty: enrol pallets first")
+        parts = qvis.shape[1] if qvis is not None else 1
+        data = self._all_rows(parts)
+        weights = gm.block_weights(qvis)
+        screen = gm.side_distance(self._screen(q, qvis, data, parts), weights)
+        k = min(len(ids), max(top_k, 2) + 16)
+        cand = np.argpartition(screen, k - 1)[:k] if k < len(ids) else np.arange(len(ids))
+        exact = self._exact(q, qvis, data, np.sort(cand))
+        means = gm.side_distance(exact, weights)
+        local = np.argsort(means, kind="stable")
+        order, per_block, means = np.sort(cand)[local], exact[local], means[local]
+        th = thresholds or self.thresholds
+        best = int(order[0])
+        second = int(order[1]) if len(order) > 1 else None
+        d1 = float(means[0])
+        d2 = float(means[1]) if second is not None else None
+        margin = (d2 - d1) if d2 is not None else float("inf")
+        reason = ""
+        if d1 > th.max_distance:
+            reason = f"best distance {d1:.3f} above the threshold {th.max_distance:.3f}"
+        elif margin < th.min_margin:
+            reason = f"margin {margin:.3f} to {ids[second]} below the threshold {th.min_margin:.3f}"
+        ranking = [
+            (ids[i], float(means[j]), tuple(float(x) for x in per_block[j]))
+            for j, i in enumerate(order[:top_k])
+        ]
+        return Match(
+            pallet_id=ids[best] if not reason else "unknown",
+            best_id=ids[best],
+            distance=d1,
+            runner_up_id=ids[second] if second is not None else None,
+            runner_up_distance=d2,
+            margin=margin,
+            known=not reason,
+            reason=reason,
+            ranking=ranking,
+        )
+
+    def _screen(
+        self, q: np.ndarray, qvis: np.ndarray | None, data: _Rows, parts: int
+    ) -> np.ndarray:
+        """Approximate per-identity block distances (n, 3) with float32 dot products:
+        ``|g|^2 + |q|^2 - 2 g.q`` per block, or per-stripe cosines when the query has
+        stripe visibilities."""
+        # einsum, not BLAS: OpenBLAS's threads stall for milliseconds per call when the
+        # other core is busy (the mission shares the machine with the simulator).
+        m = len(data.owner)
+        if qvis is None:
+            dots = np.einsum("nbd,bd->nb", data.rows, q)
+            d2 = data.sq + np.einsum("bd,bd->b", q, q)[None, :] - 2.0 * dots
+            per_row = np.sqrt(np.maximum(d2, 0.0))
+        else:
+            qs = q.reshape(BLOCKS * parts, -1)
+            qs = qs / np.maximum(np.linalg.norm(qs, axis=-1, keepdims=True), 1e-12)
+            cos = np.einsum("nkd,kd->nk", data.unit, qs).reshape(m, BLOCKS, parts)
+            w = gm.stripe_weights(qvis, data.vis, m, parts)
+            per_row = gm.weighted_block_distances(cos, w)
+        return gm.closest_views(per_row, data.owner, len(data.ids))
+
+    def _exact(
+        self, q: np.ndarray, qvis: np.ndarray | None, data: _Rows, cand: np.ndarray
+    ) -> np.ndarray:
+        """Exact block distances (len(cand), 3) of the candidate identities (float64)."""
+        sel = np.flatnonzero(np.isin(data.owner, cand))
+        rows = data.rows[sel].astype(np.float64)
+        if qvis is None:
+            per_row = block_distances(q.astype(np.float64), rows)
+        else:
+            rvis = data.vis[sel] if data.vis is not None else None
+            per_row = block_distances(q, rows, qvis, rvis)
+        return gm.closest_views(per_row, np.searchsorted(cand, data.owner[sel]), len(cand))
+
+
+__all__ = ["Match", "MatchingMixin", "Thresholds"]

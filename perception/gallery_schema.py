@@ -1,0 +1,137 @@
+"""The gallery file's SQLite schema, its versions and the checks run when one is opened.
+
+Schema 2 (this btrun) adds to schema 1's ``meta``, ``entries`` and ``crops``:
+
+* ``visibility``: per enrolled side, the stripe visibilities of its three blocks (optional);
+* ``views``: views added to an identity after confident identifications (a gallery that
+  keeps up): embeddings, visibilities, when, which run, the distance and margin of the
+  identification, whether the view is active and which later view evicted it;
+* ``history``: the audit trail, one row per enrolment, added view, eviction, rollback
+  and removal.
+
+A schema-1 file is upgraded in place when opened (one transaction: the new tables, an
+``enrol`` history row per existing side, ``schema_version`` 2). A read-only schema-1 file
+cannot be upgraded and is refused with a message that says so.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+
+SCHEMA_VERSION = 2
+READABLE_SCHEMAS = (1, 2)
+
+_V1 = """
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE entries (
+    identity TEXT PRIMARY KEY,
+    embeddings BLOB NOT NULL,
+    created REAL NOT NULL,
+    source TEXT NOT NULL DEFAULT ''
+);
+CREATE TABLE crops (
+    identity TEXT NOT NULL REFERENCES entries(identity) ON DELETE CASCADE,
+    block INTEGER NOT NULL,
+    png BLOB NOT NULL,
+    PRIMARY KEY (identity, block)
+);
+"""
+
+_V2_ADDED = """
+CREATE TABLE visibility (
+    identity TEXT PRIMARY KEY REFERENCES entries(identity) ON DELETE CASCADE,
+    stripes BLOB NOT NULL
+);
+CREATE TABLE views (
+    view_id INTEGER PRIMARY KEY AUTOINCREMENT,
+    identity TEXT NOT NULL REFERENCES entries(identity) ON DELETE CASCADE,
+    embeddings BLOB NOT NULL,
+    stripes BLOB,
+    added REAL NOT NULL,
+    run TEXT NOT NULL DEFAULT '',
+    distance REAL,
+    margin REAL,
+    active INTEGER NOT NULL DEFAULT 1,
+    evicted_by INTEGER
+);
+CREATE INDEX views_identity ON views(identity, active);
+CREATE TABLE history (
+    event_id INTEGER PRIMARY KEY AUTOINCREMENT,
+    identity TEXT NOT NULL,
+    time REAL NOT NULL,
+    action TEXT NOT NULL,
+    run TEXT NOT NULL DEFAULT '',
+    distance REAL,
+    margin REAL,
+    view_id INTEGER,
+    note TEXT NOT NULL DEFAULT ''
+);
+CREATE INDEX history_identity ON history(identity);
+"""
+
+#: tables every readable file has, by schema
+TABLES = {
+    1: {"meta", "entries", "crops"},
+    2: {"meta", "entries", "crops", "visibility", "views", "history"},
+}
+
+
+def write_schema(conn: sqlite3.Connection, model_version: str, dim: int) -> None:
+    """Create the tables and the metadata of an empty schema-2 gallery (one transaction)."""
+    with conn:
+        conn.executescript(_V1 + _V2_ADDED)
+        conn.executemany(
+            "INSERT INTO meta VALUES (?, ?)",
+            [
+                ("schema_version", str(SCHEMA_VERSION)),
+                ("model_version", model_version),
+                ("dim", str(dim)),
+                ("created", repr(time.time())),
+            ],
+        )
+
+
+def upgrade_v1(conn: sqlite3.Connection) -> None:
+    """Upgrade a schema-1 gallery to schema 2 in one transaction (see the module doc)."""
+    with conn:
+        conn.execute("BEGIN IMMEDIATE")  # DDL opens no transaction by itself
+        for stmt in _V2_ADDED.split(";"):
+            if stmt.strip():
+                conn.execute(stmt)
+        conn.execute(
+            "INSERT INTO history (identity, time, action, note) "
+            "SELECT identity, created, 'enrol', 'upgraded from gallery schema 1' FROM entries"
+        )
+        conn.execute(
+            "UPDATE meta SET value = ? WHERE key = 'schema_version'", (str(SCHEMA_VERSION),)
+        )
+
+
+def check_contents(conn: sqlite3.Connection, dim: int) -> str | None:
+    """The first problem with the stored vectors (wrong byte count), or None."""
+    want = 3 * dim * 4
+    for table in ("entries", "views"):
+        bad = conn.execute(
+            f"SELECT identity, length(embeddings) FROM {table} WHERE length(embeddings) != ? "  # noqa: S608
+            "OR typeof(embeddings) != 'blob' LIMIT 1",
+            (want,),
+        ).fetchone()
+        if bad is not None:
+            where = "entry" if table == "entries" else "a view of"
+            return (
+                f"{where} {bad[0]!r} holds {bad[1]} bytes of embeddings, expected {want} "
+                f"(3 blocks x {dim} numbers): the file is damaged or from another model; "
+                "remove the entry (btrun gallery remove) or re-enrol"
+            )
+    return None
+
+
+__all__ = [
+    "READABLE_SCHEMAS",
+    "SCHEMA_VERSION",
+    "TABLES",
+    "check_contents",
+    "upgrade_v1",
+    "write_schema",
+]

@@ -1,0 +1,156 @@
+"""A gallery that keeps up: added views, the audit trail, rollbacks.
+
+The :class:`ViewsMixin` half of :class:`perception.gallery.Gallery`: after a confident
+identification :meth:`ViewsMixin.update` adds the scan as a view of the side when
+:func:`perception.gallery_update.decide` allows it (bounded: the oldest added view is
+evicted), :meth:`ViewsMixin.rollback` undoes one, and :meth:`ViewsMixin.history` reads the
+``history`` table every change is written to.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from perception import gallery_math as gm
+from perception.errors import GalleryError
+from perception.gallery_match import Match, Thresholds
+from perception.gallery_math import block_distances
+from perception.gallery_update import UpdateDecision, UpdateRule, decide
+
+
+class ViewsMixin:
+    """Views and history for :class:`perception.gallery.Gallery` (it provides ``conn``,
+    ``path``, ``thresholds``, ``matrix()``, ``identities()``, ``_check_vectors()``,
+    ``_check_visibility()``, ``_writing()``, ``_event()`` and ``_invalidate()``)."""
+
+    def views(self, identity: str, active_only: bool = True) -> list[dict]:
+        """The views added to ``identity``: id, time, run, distance, margin, active."""
+        q = "SELECT view_id, added, run, distance, margin, active, evicted_by FROM views "
+        q += "WHERE identity = ?" + (" AND active" if active_only else "") + " ORDER BY view_id"
+        keys = ("view_id", "added", "run", "distance", "margin", "active", "evicted_by")
+        return [dict(zip(keys, r, strict=True)) for r in self.conn.execute(q, (identity,))]
+
+    def history(self, identity: str | None = None) -> list[dict]:
+        """The audit trail (oldest first), of one identity or of all."""
+        q = "SELECT event_id, identity, time, action, run, distance, margin, view_id, note "
+        q += "FROM history" + (" WHERE identity = ?" if identity else "") + " ORDER BY event_id"
+        keys = ("event", "identity", "time", "action", "run", "distance", "margin", "view", "note")
+        args = (identity,) if identity else ()
+        return [dict(zip(keys, r, strict=True)) for r in self.conn.execute(q, args)]
+
+    def update(
+        self,
+        match: Match,
+        query: np.ndarray,
+        visibility: np.ndarray | None = None,
+        run: str = "",
+        rule: UpdateRule | None = None,
+        thresholds: Thresholds | None = None,
+    ) -> UpdateDecision:
+        """Add the scan ``query`` as a view of ``match.pallet_id`` if ``rule`` finds the
+        answer confident enough (:func:`perception.gallery_update.decide`); evict the
+        oldest added view beyond ``rule.max_views``. Every change goes to the history."""
+        rule = rule or UpdateRule()
+        th = thresholds or self.thresholds
+        ident = match.pallet_id
+        emb = self._check_vectors("update", query)
+        vis = self._check_visibility("update", visibility)
+        anchor = None
+        if match.known and ident in self.identities():
+            anchor = self._enrolment_distance(ident, emb, vis)
+        decision = decide(match, th, rule, anchor)
+        if not decision.update:
+            return decision
+        now = time.time()
+        with self._writing(f"add a view to {ident}"), self.conn:
+            cur = self.conn.execute(
+                "INSERT INTO views (identity, embeddings, stripes, added, run, distance, margin) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (
+                    ident,
+                    emb.tobytes(),
+                    vis.tobytes() if vis is not None else None,
+                    now,
+                    run,
+                    match.distance,
+                    match.margin,
+                ),
+            )
+            view_id = int(cur.lastrowid or 0)
+            self._event(
+                ident,
+                now,
+                "add view",
+                run,
+                match.distance,
+                match.margin,
+                view_id,
+                f"{anchor:.3f} from the enrolment view" if anchor is not None else "",
+            )
+            active = [
+                r[0]
+                for r in self.conn.execute(
+                    "SELECT view_id FROM views WHERE identity = ? AND active ORDER BY view_id",
+                    (ident,),
+                )
+            ]
+            for old in active[: max(0, len(active) - rule.max_views)]:
+                self.conn.execute(
+                    "UPDATE views SET active = 0, evicted_by = ? WHERE view_id = ?", (view_id, old)
+                )
+                self._event(ident, now, "evict view", run, view_id=old, note=f"by view {view_id}")
+        self._invalidate()
+        return decision
+
+    def _enrolment_distance(self, identity: str, emb: np.ndarray, vis: np.ndarray | None) -> float:
+        """Side distance of a scan to ``identity``'s enrolment view alone."""
+        ids, enrol = self.matrix()
+        i = ids.index(identity)
+        if vis is None:
+            per = block_distances(emb.astype(np.float64), enrol[i : i + 1].astype(np.float64))
+        else:
+            row = self.conn.execute(
+                "SELECT stripes FROM visibility WHERE identity = ?", (identity,)
+            ).fetchone()
+            ev = np.frombuffer(row[0], np.float32) if row is not None else None
+            ev = ev.reshape(1, *vis.shape) if ev is not None and ev.size == vis.size else None
+            per = block_distances(emb, enrol[i : i + 1], vis, ev)
+        return float(gm.side_distance(per, gm.block_weights(vis))[0])
+
+    def rollback(self, identity: str, view_id: int | None = None, run: str = "") -> int:
+        """Undo an added view of ``identity`` (default: the latest active one): deactivate
+        it and restore the views it evicted. Returns the view id rolled back.
+
+        Raises:
+            GalleryError: not enrolled, no such active view, or nothing to roll back.
+        """
+        if identity not in self.identities():
+            raise GalleryError(f"rollback: {identity} is not enrolled in {self.path}")
+        active = [v["view_id"] for v in self.views(identity)]
+        if view_id is None:
+            if not active:
+                raise GalleryError(f"rollback: {identity} has no added view to roll back")
+            view_id = active[-1]
+        elif view_id not in active:
+            raise GalleryError(f"rollback: {identity} has no active view {view_id} (see history)")
+        now = time.time()
+        with self._writing(f"roll back view {view_id} of {identity}"), self.conn:
+            self.conn.execute("UPDATE views SET active = 0 WHERE view_id = ?", (view_id,))
+            back = [
+                r[0]
+                for r in self.conn.execute(
+                    "SELECT view_id FROM views WHERE evicted_by = ?", (view_id,)
+                )
+            ]
+            self.conn.execute(
+                "UPDATE views SET active = 1, evicted_by = NULL WHERE evicted_by = ?", (view_id,)
+            )
+            note = f"restored view {', '.join(map(str, back))}" if back else ""
+            self._event(identity, now, "rollback", run, view_id=view_id, note=note)
+        self._invalidate()
+        return view_id
+
+
+__all__ = ["ViewsMixin"]

@@ -1,0 +1,459 @@
+"""End-to-end robustness evaluation: detector and identification under changed conditions.
+
+A *condition* changes one thing about how a pallet side looks or is seen: its wood tone
+or paint (the pallet looks like that when enrolled and when scanned), what happened to it
+after enrolment (stains, dust, occlusion, ...), the view (distance, yaw) or the camera
+(exposure, colour temperature, blur, noise, the AI-deck's Bayer JPEG, resolution).
+
+For each condition :func:`evaluate_condition` enrols sides from clean views at the scan
+stand-off (0.4 m, square, nominal light) through the same path as the mission (detector,
+crop along the box nearest the image centre, embedder, gallery), then scans every enrolled
+side again and as many never-enrolled sides under the condition and reports:
+
+* detector: precision and recall over every frame (IoU >= 0.5; blocks less than half in
+  view are "don't care") and the share of sides whose three blocks were all found;
+* identification: right, wrong, unknown for enrolled sides, and non-enrolled sides
+  accepted as an enrolled one.
+
+Identities (prefix ``rb``) and texture seeds (9000 and up) are never used in training.
+``bench/robustness.py`` runs the table; see docs/performance.md.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from perception.gallery import Gallery, Match
+from perception.sequencer import Detection
+from perception.synth.ageing import Ageing, progressive
+from perception.synth.appearance import EPAL, SideStyle, split_identity
+from perception.synth.camera_model import CameraModel, CameraPose
+from perception.synth.dataset import _block_centre_z, _scene, _wb_factors, identity_names
+from perception.synth.render import SensorModel, block_boxes
+from perception.synth.views import ViewConditions, develop, take_frame
+
+#: identity prefix and first texture seed of the bench's pallets (never trained on)
+PREFIX, SEED0 = "rb", 9000
+#: stand-off of enrolment and of the reference scans (the mission's 0.4 m)
+STANDOFF_M = 0.4
+#: a detection this close to the image centre (px) is the block the camera looks at
+CENTRE_TOLERANCE_PX = 80.0
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One row of the robustness table.
+
+    ``look``: :class:`SideStyle` keywords the side has at enrolment and at the scan;
+    ``ageing``: changes between the two (scan only); ``distance_m``, ``yaw_deg``: the
+    scan's view; ``view``: its light, optics and sensor.
+    """
+
+    group: str
+    name: str
+    look: tuple[tuple[str, Any], ...] = ()
+    ageing: Ageing | None = None
+    distance_m: float = STANDOFF_M
+    yaw_deg: float = 0.0
+    view: ViewConditions = field(default_factory=ViewConditions)
+
+
+def _c(group: str, name: str, **kw: Any) -> Condition:
+    look = kw.pop("look", {})
+    return Condition(group, name, tuple(sorted(look.items())), **kw)
+
+
+def conditions() -> list[Condition]:
+    """Every row of the table (the issue's rows and the camera conditions)."""
+    out = [_c("reference", "clean")]
+    for tone in ("fresh", "pale", "yellowed", "orange", "brown", "grey", "silver", "dark", "wet"):
+        out.append(_c("wood", tone, look={"wood": tone}))
+    out.append(_c("wood", "20 % saturation", look={"saturation": 0.2}))
+    for paint in ("blue", "red", "green", "yellow", "black", "white"):
+        out.append(_c("paint", paint, look={"paint": paint}))
+    out.append(_c("paint", "blue blocks only", look={"paint": "blue", "paint_parts": "blocks"}))
+    out.append(_c("faces", "other generator (plank)", look={"generator": "plank"}))
+    out.append(_c("faces", "stencil marking", look={"marking": "stencil"}))
+    out.append(_c("faces", "paper labels", look={"marking": "label"}))
+    for f in (0.07, 0.12, 0.2):
+        out.append(_c("ageing", f"new stains {f:.0%}", ageing=Ageing(stains=f)))
+    for f in (0.12, 0.25):
+        out.append(_c("ageing", f"dust {f:.0%}", ageing=Ageing(dust=f)))
+    for occ in ("strap", "film", "overhang", "shape"):
+        out.append(
+            _c("ageing", f"30 % occluded ({occ})", ageing=Ageing(occlusion=0.3, occluder=occ))
+        )
+    out.append(_c("ageing", "moisture 0.8", ageing=Ageing(moisture=0.8)))
+    out.append(
+        _c(
+            "ageing",
+            "scratches, chips, new stamp",
+            ageing=Ageing(scratches=3, chips=2, new_stamp=True),
+        )
+    )
+    out.append(_c("ageing", "stamps faded", ageing=Ageing(fade_stamps=0.8)))
+    out.append(_c("ageing", "gradual ageing 1.0", ageing=Ageing.gradual(1.0)))
+    for d in (0.25, 0.6, 0.8, 1.0, 1.2):
+        out.append(_c("distance", f"{d:.2f} m", distance_m=d))
+    for y in (15, 30):
+        out.append(_c("yaw", f"{y} deg", yaw_deg=float(y)))
+    for name, view in (
+        ("exposure 0.5", ViewConditions(exposure=0.5)),
+        ("exposure 2.0", ViewConditions(exposure=2.0)),
+        ("2700 K", ViewConditions(colour_temperature_k=2700.0)),
+        ("6500 K", ViewConditions(colour_temperature_k=6500.0)),
+        ("motion blur 6 px", ViewConditions(motion_px=6.0)),
+        ("defocus 1.5 px", ViewConditions(defocus_px=1.5)),
+        ("downscale 2x", ViewConditions(downscale=2.0)),
+        ("downscale 3x", ViewConditions(downscale=3.0)),
+        ("noise 10 DN", ViewConditions(noise_dn=10.0)),
+        ("noise 20 DN", ViewConditions(noise_dn=20.0)),
+        ("Bayer JPEG q50", ViewConditions(jpeg_quality=50)),
+        ("Bayer JPEG q20", ViewConditions(jpeg_quality=20)),
+        ("Bayer JPEG q10", ViewConditions(jpeg_quality=10)),
+    ):
+        out.append(_c("camera", name, view=view))
+    return out
+
+
+@dataclass
+class SideScan:
+    """What one side's three views gave: crops (None where no block was found near the
+    centre), and the detector's counts."""
+
+    crops: list[np.ndarray | None]
+    found: int = 0  # blocks of the side found (IoU >= 0.5 in the view aimed at them)
+    tp: int = 0
+    fp: int = 0
+    gt: int = 0
+
+    @property
+    def complete(self) -> bool:
+        """True if all three crops were cut."""
+        return all(c is not None for c in self.crops)
+
+
+def _iou(a: Sequence[float], b: Sequence[float]) -> float:
+    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / union if union > 0 else 0.0
+
+
+class Pipeline:
+    """The mission's perception path on rendered views: detector, crop, embedder, gallery."""
+
+    def __init__(self, detector: Any, embedder: Any, camera: CameraModel | None = None) -> None:
+        self.detector, self.embedder = detector, embedder
+        self.camera = camera or CameraModel()
+        self.factors = _wb_factors(SensorModel())
+
+    def scan(
+        self,
+        identity: str,
+        style: SideStyle,
+        rng: np.random.Generator,
+        distance_m: float = STANDOFF_M,
+        yaw_deg: float = 0.0,
+        view: ViewConditions | None = None,
+        jitter: bool = True,
+    ) -> SideScan:
+        """Three views of a side, one aimed at each block, through the detector."""
+        pallet_id, side = split_identity(identity)
+        base_z = 0.194
+        scene = _scene(pallet_id, side, style, base_z)
+        out = SideScan([])
+        for k, offset in enumerate(EPAL.block_offsets_m()):
+            j = (lambda s: float(rng.uniform(-s, s))) if jitter else (lambda s: 0.0)
+            yaw = math.radians(yaw_deg * (1 if rng.random() < 0.5 else -1) + j(3.0))
+            d = distance_m * (1.0 + j(0.04))
+            # Seen from in front (camera at -x looking +x), "right" is -y.
+            y = -offset + j(0.03) - d * math.sin(yaw)
+            pose = CameraPose.from_yaw(
+                -d * math.cos(yaw),
+                y,
+                _block_centre_z(base_z) + j(0.02),
+                yaw,
+                pitch=math.radians(j(2.0)),
+                roll=math.radians(j(2.0)),
+            )
+            cond = view or ViewConditions()
+            if jitter and view is None:
+                cond = ViewConditions(
+                    exposure=float(rng.uniform(0.85, 1.15)),
+                    colour_temperature_k=float(rng.uniform(3500, 4500)),
+                )
+            raw = take_frame(self.camera, pose, scene, rng, cond)
+            bgr = develop(raw, self.factors, cond)
+            dets = self.detector.detect(bgr)
+            self._count(out, dets, block_boxes(self.camera, pose, scene), k)
+            out.crops.append(_centre_crop(bgr, dets))
+        return out
+
+    @staticmethod
+    def _count(out: SideScan, dets: list[Detection], gt: list, k: int) -> None:
+        care = [b for b in gt if b.visible >= 0.5 and b.x2 - b.x1 >= 4]
+        used: set[int] = set()
+        for d in sorted(dets, key=lambda d: -d.score):
+            box = (d.x1, d.y1, d.x2, d.y2)
+            best, best_i = 0.0, -1
+            for i, b in enumerate(care):
+                v = _iou(box, (b.x1, b.y1, b.x2, b.y2))
+                if i not in used and v > best:
+                    best, best_i = v, i
+            if best >= 0.5:
+                used.add(best_i)
+                out.tp += 1
+                out.found += int(care[best_i].block == k)
+            elif not any(_iou(box, (b.x1, b.y1, b.x2, b.y2)) >= 0.3 for b in gt if b not in care):
+                out.fp += 1
+        out.gt += len(care)
+
+    def describe(self, crops: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray | None]:
+        """Embeddings of three crops and, if the embedder gives them, their stripe
+        visibilities."""
+        d = self.embedder.describe(crops)
+        return d.vectors, (d.visibility if self.embedder.occlusion_aware else None)
+
+
+def _centre_crop(bgr: np.ndarray, dets: list[Detection]) -> np.ndarray | None:
+    """The crop of the detection nearest the image centre (within the tolerance)."""
+    if not dets:
+        return None
+    cx = bgr.shape[1] / 2
+    d = min(dets, key=lambda d: abs(d.cx - cx))
+    if abs(d.cx - cx) > CENTRE_TOLERANCE_PX:
+        return None
+    h, w = bgr.shape[:2]
+    x1, y1 = max(int(round(d.x1)), 0), max(int(round(d.y1)), 0)
+    x2, y2 = min(int(round(d.x2)), w), min(int(round(d.y2)), h)
+    if x2 - x1 < 2 or y2 - y1 < 2:
+        return None
+    return bgr[y1:y2, x1:x2].copy()
+
+
+def side_style(index: int, cond: Condition, aged: bool) -> SideStyle:
+    """The bench's style of side ``index`` under ``cond`` (``aged``: at the later scan)."""
+    style = SideStyle(texture_seed=SEED0 + index, **dict(cond.look))
+    if aged and cond.ageing is not None:
+        style = replace(style, ageing=replace(cond.ageing, seed=SEED0 + index))
+    return style
+
+
+def enrol_gallery(
+    pipe: Pipeline, names: list[str], cond: Condition, seed: int
+) -> tuple[Gallery, int, list[SideScan]]:
+    """An in-memory gallery of ``names`` enrolled from clean views (the condition's look,
+    no ageing); returns it, the number enrolled and every enrolment scan."""
+    g = Gallery.create(":memory:", pipe.embedder.model_version, pipe.embedder.dim)
+    g.set_thresholds(pipe.embedder.thresholds)
+    rng = np.random.default_rng([seed, 1])
+    scans = []
+    for i, name in enumerate(names):
+        scan = pipe.scan(
+            name, side_style(i, cond, aged=False), rng, view=ViewConditions(), jitter=False
+        )
+        scans.append(scan)
+        if scan.complete:
+            vec, vis = pipe.describe(scan.crops)  # type: ignore[arg-type]
+            _enrol(g, name, vec, vis)
+    return g, len(g), scans
+
+
+def _enrol(g: Gallery, name: str, vec: np.ndarray, vis: np.ndarray | None) -> None:
+    if vis is not None:
+        g.enrol(name, vec, visibility=vis)
+    else:
+        g.enrol(name, vec)
+
+
+def _match(g: Gallery, vec: np.ndarray, vis: np.ndarray | None) -> Any:
+    if len(g) == 0:  # nothing could be enrolled (the detector found no blocks)
+        return Match("unknown", "", float("inf"), None, None, 0.0, False, "empty gallery")
+    return g.match(vec, visibility=vis) if vis is not None else g.match(vec)
+
+
+def evaluate_condition(
+    pipe: Pipeline,
+    cond: Condition,
+    enrolled: int,
+    unknown: int,
+    seed: int = 0,
+    gallery: tuple[Gallery, int] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> dict:
+    """Detector and identification figures of one condition (see the module doc).
+
+    ``gallery``: a gallery already enrolled for this look (reused between conditions that
+    change only the scan), with its enrolled count.
+    """
+    names = identity_names(enrolled, PREFIX)
+    others = identity_names(unknown, PREFIX, start=enrolled // 2 + 1000)
+    if gallery is None:
+        g, n_enrolled, _ = enrol_gallery(pipe, names, cond, seed)
+    else:
+        g, n_enrolled = gallery
+    rng = np.random.default_rng([seed, 2, zlib.crc32(f"{cond.group}/{cond.name}".encode())])
+    res = {
+        "right": 0,
+        "wrong": 0,
+        "unknown": 0,
+        "sides": 0,
+        "all3": 0,
+        "tp": 0,
+        "fp": 0,
+        "gt": 0,
+        "accepted": 0,
+        "non_enrolled": 0,
+        "wrong_ids": [],
+    }
+    offset = enrolled
+    for idx, name in list(enumerate(names)) + [(offset + i, n) for i, n in enumerate(others)]:
+        known = idx < offset
+        scan = pipe.scan(
+            name,
+            side_style(idx, cond, aged=True),
+            rng,
+            cond.distance_m,
+            cond.yaw_deg,
+            cond.view if cond.view != ViewConditions() else None,
+        )
+        res["sides"] += 1
+        res["all3"] += int(scan.found == 3)
+        res["tp"] += scan.tp
+        res["fp"] += scan.fp
+        res["gt"] += scan.gt
+        answer = "unknown"
+        if scan.complete:
+            vec, vis = pipe.describe(scan.crops)  # type: ignore[arg-type]
+            answer = _match(g, vec, vis).pallet_id
+        if known:
+            key = "right" if answer == name else ("unknown" if answer == "unknown" else "wrong")
+            res[key] += 1
+            if key == "wrong":
+                res["wrong_ids"].append(f"{name}->{answer}")
+        else:
+            res["non_enrolled"] += 1
+            res["accepted"] += int(answer != "unknown")
+    known_n = len(names)
+    res.update(
+        group=cond.group,
+        name=cond.name,
+        enrolled=n_enrolled,
+        known=known_n,
+        precision=res["tp"] / max(1, res["tp"] + res["fp"]),
+        recall=res["tp"] / max(1, res["gt"]),
+        all3_rate=res["all3"] / max(1, res["sides"]),
+        right_rate=res["right"] / max(1, known_n),
+    )
+    if log:
+        log(format_row(res))
+    return res
+
+
+def ageing_sequence(
+    pipe: Pipeline,
+    sides: int,
+    steps: int = 10,
+    update: bool = True,
+    seed: int = 0,
+    log: Callable[[str], None] | None = None,
+) -> dict:
+    """Sides enrolled clean, then scanned ``steps`` times while they age slowly
+    (:func:`perception.synth.ageing.progressive`); with ``update`` the gallery adds
+    confident scans as views (:meth:`perception.gallery.Gallery.update`). Per step: right,
+    wrong, unknown; and the views added."""
+    names = identity_names(sides, PREFIX, start=5000)
+    cond = Condition("ageing", "sequence")
+    g, _, _ = enrol_gallery(pipe, names, cond, seed)
+    rng = np.random.default_rng([seed, 3])
+    out = {"update": update, "sides": sides, "steps": [], "views_added": 0}
+    for k in range(1, steps + 1):
+        row = {"step": k, "right": 0, "wrong": 0, "unknown": 0}
+        for i, name in enumerate(names):
+            style = replace(side_style(i, cond, False), ageing=progressive(k, steps, SEED0 + i))
+            scan = pipe.scan(name, style, rng)
+            answer = "unknown"
+            if scan.complete:
+                vec, vis = pipe.describe(scan.crops)  # type: ignore[arg-type]
+                m = _match(g, vec, vis)
+                answer = m.pallet_id
+                if update and g.update(m, vec, vis, run=f"step {k}").update:
+                    out["views_added"] += 1
+            key = "right" if answer == name else ("unknown" if answer == "unknown" else "wrong")
+            row[key] += 1
+        out["steps"].append(row)
+        if log:
+            log(
+                f"ageing step {k:>2} ({'with' if update else 'without'} updates): right "
+                f"{row['right']}/{sides} wrong {row['wrong']} unknown {row['unknown']}"
+            )
+    return out
+
+
+def similar_never_absorbed(
+    pipe: Pipeline,
+    sides: int,
+    scans: int = 10,
+    seed: int = 0,
+    log: Callable[[str], None] | None = None,
+) -> dict:
+    """Sides enrolled clean; then, for each, another pallet that looks alike (same pallet id
+    and side, so the same wood colour, material and stamp, but other textures: another
+    texture seed) scanned ``scans`` times with gallery updates on. Counts the look-alike's
+    answers that named the enrolled side and the views it added to it (both should be 0)."""
+    names = identity_names(sides, PREFIX, start=7000)
+    cond = Condition("ageing", "look-alike")
+    g, _, _ = enrol_gallery(pipe, names, cond, seed)
+    rng = np.random.default_rng([seed, 4])
+    res = {"sides": sides, "scans": 0, "named_enrolled": 0, "views_added": 0, "unknown": 0}
+    for k in range(scans):
+        for i, name in enumerate(names):
+            twin = SideStyle(texture_seed=SEED0 + 50_000 + i)
+            scan = pipe.scan(name, twin, rng)
+            res["scans"] += 1
+            if not scan.complete:
+                res["unknown"] += 1
+                continue
+            vec, vis = pipe.describe(scan.crops)  # type: ignore[arg-type]
+            m = _match(g, vec, vis)
+            res["named_enrolled"] += int(m.pallet_id == name)
+            res["unknown"] += int(m.pallet_id == "unknown")
+            res["views_added"] += int(g.update(m, vec, vis, run=f"look-alike scan {k}").update)
+    if log:
+        log(
+            f"look-alikes: {res['scans']} scans, named as the enrolled side {res['named_enrolled']}, "
+            f"views added {res['views_added']}, unknown {res['unknown']}"
+        )
+    return res
+
+
+def format_row(r: dict) -> str:
+    """One line of the table."""
+    return (
+        f"{r['group']:<9} {r['name']:<30} det P {r['precision']:.3f} R {r['recall']:.3f} "
+        f"all3 {100 * r['all3_rate']:5.1f} %  enrolled {r['enrolled']}/{r['known']}  "
+        f"right {r['right']}/{r['known']} ({100 * r['right_rate']:.1f} %) wrong {r['wrong']} "
+        f"unknown {r['unknown']}  non-enrolled accepted {r['accepted']}/{r['non_enrolled']}"
+    )
+
+
+__all__ = [
+    "Condition",
+    "Pipeline",
+    "SideScan",
+    "ageing_sequence",
+    "conditions",
+    "enrol_gallery",
+    "evaluate_condition",
+    "format_row",
+    "side_style",
+    "similar_never_absorbed",
+]
