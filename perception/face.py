@@ -399,7 +399,13 @@ class FaceTracker:
             return [], []
         best_n = max(n for n, _, _ in scored)
         top = [(c, m) for n, c, m in scored if n == best_n]
-        ok = [(c, m) for c, m in top if not self._contradicted(c, probe)] or top
+        ok = [(c, m) for c, m in top if not self._contradicted(c, probe)]
+        if not ok and best_n < 2:
+            # One block whose pallet's other blocks were in view, often, and never seen: no
+            # evidence of a pallet here (a neighbour's block at the edge, a look-alike on
+            # the wall behind an empty rack place).
+            return [], []
+        ok = ok or top
         ok.sort(key=lambda cm: abs(cm[0] - prior_s))
         return [c for c, _ in ok], ok[0][1]
 
