@@ -294,6 +294,9 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
     t0 = time.perf_counter()
     cfg = SMOKE if args.smoke else TrainConfig(pallets=args.pallets, steps=args.steps)
     cfg = replace(cfg, init=args.init or "", lr=args.lr or cfg.lr)
+    for key in ("ageing", "ageing_strength", "triplet_margin"):
+        if getattr(args, key, None) is not None:
+            cfg = replace(cfg, **{key: getattr(args, key)})
     model, stats = train(cfg, args.seed, args.jobs, log)
     tmp_emb = BlockEmbedder(model, "calibrating", Thresholds())
     th, figures = validate(
@@ -371,6 +374,11 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--smoke", action="store_true", help="tiny run for tests (seconds)")
     tr.add_argument("--init", default="", help="start from these btrun-pcb weights")
     tr.add_argument("--lr", type=float, default=None, help="peak learning rate")
+    tr.add_argument("--ageing", type=float, default=None, help="share of training views aged")
+    tr.add_argument(
+        "--ageing-strength", type=float, default=None, help="x the largest random ageing"
+    )
+    tr.add_argument("--triplet-margin", type=float, default=None, help="triplet loss margin")
     ca = sub.add_parser("calibrate", help="recalibrate a checkpoint's unknown thresholds")
     ca.add_argument("--weights", required=True)
     ca.add_argument("--out", default="", help="write here (default: over --weights)")
