@@ -57,7 +57,16 @@ def fly_seed(job: tuple[str, int, str, list[str]]) -> dict:
     with contextlib.redirect_stdout(buf):
         code = main(args)
     wall = time.perf_counter() - t0
+    if not os.path.exists(os.path.join(out, "summary.json")):
+        raise BenchError(
+            f"seed {seed}: btrun fleet exited with {code} and flew nothing "
+            f"(its message is above) {buf.getvalue().strip()}".rstrip()
+        )
     return figures(out, seed, code, wall)
+
+
+class BenchError(RuntimeError):
+    """A fleet run that could not fly (bad settings: the fleet's own message)."""
 
 
 def figures(out: str, seed: int, code: int, wall_s: float) -> dict:
@@ -128,7 +137,15 @@ def main() -> int:
         f"{'mission':>8} {'x rt':>5}"
     )
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        for r in pool.map(fly_seed, jobs):
+        results = pool.map(fly_seed, jobs)
+        while True:
+            try:
+                r = next(results)
+            except StopIteration:
+                break
+            except BenchError as exc:
+                print(f"inventory bench: {exc}", file=sys.stderr)
+                return 2
             rows.append(r)
             print(
                 f"{r['seed']:>4} {r['status']:>8} {r['right']:>3}/{r['places']:<3} {r['wrong']:>5} "
