@@ -186,6 +186,13 @@ class LocatePallet(_Reactive):
         input_port(
             "window", FLOAT, 0.45, "the row centre may be this far along the face from place, m"
         ),
+        input_port(
+            "depth_window",
+            FLOAT,
+            0.5,
+            "the face may be this much nearer or farther than place, m (farther: something "
+            "behind an empty place)",
+        ),
         _SPEED,
         input_port("pos_threshold", FLOAT, 0.05, "look point position tolerance, m"),
         _DETECTOR,
@@ -211,13 +218,21 @@ class LocatePallet(_Reactive):
         self.facing = math.radians(self.get_input("facing_deg"))
         self.set_output("blocks_seen", -1)  # not looked yet (0: looked, saw no block)
         if self.tracker.sightings:  # a second pass: everything seen so far counts
-            face = self.tracker.fit(self.facing, self.prior, self.get_input("window"))
+            face = self._fit()
             if face is not None:
                 return self._found(face)
         self.point_index = self.looked = 0
         self.refused: list[str] = []
         self.looking_since: float | None = None
         return self._next_point() or self.on_running()
+
+    def _fit(self) -> Any:
+        return self.tracker.fit(
+            self.facing,
+            self.prior,
+            self.get_input("window"),
+            depth_window_m=self.get_input("depth_window"),
+        )
 
     def _look_points(self) -> list[tuple[float, float, float]]:
         x, y, z = self.prior
@@ -275,7 +290,7 @@ class LocatePallet(_Reactive):
             if why:
                 return self._fail(why)
             if self.now() - self.looking_since >= self.get_input("look_time") - 1e-9:
-                face = self.tracker.fit(self.facing, self.prior, self.get_input("window"))
+                face = self._fit()
                 if face is not None:
                     return self._found(face)
                 status = self._next_point()

@@ -254,6 +254,7 @@ class FaceTracker:
         prior_from_blocks: bool = False,
         search_centre_rad: float | None = None,
         max_turn_deg: float = 35.0,
+        depth_window_m: float | None = None,
     ) -> FaceEstimate | None:
         """The face from the sightings so far (None without a usable one).
 
@@ -262,7 +263,9 @@ class FaceTracker:
         above or below it are other things (a pallet on the floor below, a beam), and row
         placements whose centre is more than ``window_m`` along the face from it are not
         considered (the neighbours' blocks). ``prior_from_blocks``: the prior facing came
-        from an earlier fit.
+        from an earlier fit. ``depth_window_m``: a face nearer or farther than this from the
+        prior along its normal is something else (the wall behind an empty rack place, the
+        back of the rack): no face (None: the default does not check).
 
         How: bearings are precise to a pixel; depth from the box height only near the image
         centre (off-centre boxes are a few pixels too tall) and best from near. The facing
@@ -343,6 +346,8 @@ class FaceTracker:
         normal = np.array([math.cos(facing), math.sin(facing)])
         left = np.array([-math.sin(facing), math.cos(facing)])
         offset, x = _cut(pts, orig, dirs, depth, central, normal)
+        if depth_window_m is not None and abs(offset - float(prior_xy @ normal)) > depth_window_m:
+            return None
         along = x[:, :2] @ left
         clusters = _clusters(along)
         w = 1.0 / np.maximum(depth, 0.1) ** 2
