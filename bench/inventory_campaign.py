@@ -168,8 +168,8 @@ def main() -> int:
         ("separation violations", sum(r["violations"] for r in rows), "0", all(r["violations"] == 0 for r in rows)),
         ("closest approach (m)", min((r["closest_m"] for r in rows if r["closest_m"] is not None), default=None), ">= 0.5", None),
         ("battery changes, all resumed in order", f"{sum(r['swaps'] for r in rows)}, {all(r['in_order'] for r in rows)}", "every one", all(r["in_order"] for r in rows)),
-        ("places per hour per drone (median)", statistics.median(r["places_per_hour_per_drone"] for r in rows), f"anchor ~{ANCHOR_PLACES_PER_HOUR}", None),
-        ("fleet speed, x real time (median)", statistics.median(r["realtime_x"] for r in rows), ">= 10", statistics.median(r["realtime_x"] for r in rows) >= 10),
+        ("places per hour per drone (median)", round(statistics.median(r["places_per_hour_per_drone"] for r in rows), 1), f"anchor ~{ANCHOR_PLACES_PER_HOUR}", None),
+        ("fleet speed, x real time (median)", round(statistics.median(r["realtime_x"] for r in rows), 2), ">= 10", statistics.median(r["realtime_x"] for r in rows) >= 10),
     ]  # fmt: skip
     for what, value, target, ok in checks:
         mark = "" if ok is None else ("  met" if ok else "  NOT MET")
