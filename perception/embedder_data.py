@@ -26,7 +26,12 @@ from perception.synth.ageing import age_image, random_ageing
 from perception.synth.appearance import SideStyle, split_identity
 from perception.synth.dataset import block_crops, identity_names
 from perception.synth.looks import random_look
-from perception.synth.views import ViewConditions, resensor_crop
+from perception.synth.views import (
+    ConditionRanges,
+    ViewConditions,
+    random_conditions,
+    resensor_crop,
+)
 
 BLOCKS = 3
 Log = Callable[[str], None]
@@ -40,22 +45,26 @@ def split_names(kind: str, pallets: int) -> list[str]:
     return identity_names(2 * pallets, prefix=kind)
 
 
+#: the embedder's view conditions: milder extremes than the detector's
+EMBEDDER_RANGES = ConditionRanges(
+    exposure=(0.6, 1.6),
+    contrast=(0.75, 1.2),
+    gradient=0.3,
+    kelvin=(3000.0, 6500.0),
+    motion=(0.33, 6.0),
+    defocus=(0.2, 1.5),
+    noise=(0.33, 20.0),
+    jpeg=(0.3, 15),
+    downscale=(0.1, 2.5),
+)
+
+
 def view_conditions(rng: np.random.Generator) -> ViewConditions:
     """Conditions of the embedder's crops: as broad as the detector's in kind but not in
     extremes (a crop nobody could re-identify teaches nothing): exposure 0.6..1.6,
     3000..6500 K, motion blur in a third, defocus up to 1.5 px in a fifth, noise up to
     20 DN in a third, Bayer JPEG q15..95 in 30 %, lower resolution in 10 %."""
-    return ViewConditions(
-        exposure=float(np.exp(rng.uniform(np.log(0.6), np.log(1.6)))),
-        contrast=float(rng.uniform(0.75, 1.2)),
-        gradient=float(rng.uniform(0.0, 0.3)),
-        colour_temperature_k=float(rng.uniform(3000.0, 6500.0)),
-        motion_px=float(rng.uniform(-6, 6)) if rng.random() < 0.33 else 0.0,
-        defocus_px=float(rng.uniform(0.4, 1.5)) if rng.random() < 0.2 else 0.0,
-        noise_dn=float(rng.uniform(2.0, 20.0)) if rng.random() < 0.33 else 0.0,
-        jpeg_quality=int(rng.integers(15, 96)) if rng.random() < 0.3 else 0,
-        downscale=float(rng.uniform(1.3, 2.5)) if rng.random() < 0.1 else 1.0,
-    )
+    return random_conditions(rng, EMBEDDER_RANGES)
 
 
 def look_of(name: str) -> SideStyle:

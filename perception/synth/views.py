@@ -132,20 +132,42 @@ def develop(
     return bgr
 
 
-def random_conditions(rng: np.random.Generator) -> ViewConditions:
-    """Broad training conditions: exposure 0.55..1.8, contrast 0.6..1.3, 2700..7000 K,
-    motion blur in a third of the frames, defocus in a fifth, extra noise up to 24 DN in
-    a third, Bayer JPEG (quality 8..95) in 40 %, lower resolution in 15 %."""
+@dataclass(frozen=True)
+class ConditionRanges:
+    """What :func:`random_conditions` draws from: (low, high) ranges, and for the optional
+    effects (share of frames, largest strength)."""
+
+    exposure: tuple[float, float] = (0.55, 1.8)  # log-uniform
+    contrast: tuple[float, float] = (0.6, 1.3)
+    gradient: float = 0.35
+    kelvin: tuple[float, float] = (2700.0, 7000.0)
+    motion: tuple[float, float] = (0.33, 8.0)  # share, largest blur (px, either way)
+    defocus: tuple[float, float] = (0.2, 2.0)  # share, largest (px; at least 0.4)
+    noise: tuple[float, float] = (0.33, 24.0)  # share, largest (DN; at least 2)
+    jpeg: tuple[float, int] = (0.4, 8)  # share, lowest quality (up to 95)
+    downscale: tuple[float, float] = (0.15, 3.0)  # share, largest factor (at least 1.3)
+
+
+def random_conditions(
+    rng: np.random.Generator, ranges: ConditionRanges = ConditionRanges()
+) -> ViewConditions:
+    """Broad training conditions (the defaults, the detector's): exposure 0.55..1.8,
+    contrast 0.6..1.3, 2700..7000 K, motion blur in a third of the frames, defocus in a
+    fifth, extra noise up to 24 DN in a third, Bayer JPEG (quality 8..95) in 40 %, lower
+    resolution in 15 %; ``ranges`` narrows or widens them."""
+    r = ranges
     return ViewConditions(
-        exposure=float(np.exp(rng.uniform(np.log(0.55), np.log(1.8)))),
-        contrast=float(rng.uniform(0.6, 1.3)),
-        gradient=float(rng.uniform(0.0, 0.35)),
-        colour_temperature_k=float(rng.uniform(2700.0, 7000.0)),
-        motion_px=float(rng.uniform(-8, 8)) if rng.random() < 0.33 else 0.0,
-        defocus_px=float(rng.uniform(0.4, 2.0)) if rng.random() < 0.2 else 0.0,
-        noise_dn=float(rng.uniform(2.0, 24.0)) if rng.random() < 0.33 else 0.0,
-        jpeg_quality=int(rng.integers(8, 96)) if rng.random() < 0.4 else 0,
-        downscale=float(rng.uniform(1.3, 3.0)) if rng.random() < 0.15 else 1.0,
+        exposure=float(np.exp(rng.uniform(np.log(r.exposure[0]), np.log(r.exposure[1])))),
+        contrast=float(rng.uniform(*r.contrast)),
+        gradient=float(rng.uniform(0.0, r.gradient)),
+        colour_temperature_k=float(rng.uniform(*r.kelvin)),
+        motion_px=float(rng.uniform(-r.motion[1], r.motion[1]))
+        if rng.random() < r.motion[0]
+        else 0.0,
+        defocus_px=float(rng.uniform(0.4, r.defocus[1])) if rng.random() < r.defocus[0] else 0.0,
+        noise_dn=float(rng.uniform(2.0, r.noise[1])) if rng.random() < r.noise[0] else 0.0,
+        jpeg_quality=int(rng.integers(r.jpeg[1], 96)) if rng.random() < r.jpeg[0] else 0,
+        downscale=float(rng.uniform(1.3, r.downscale[1])) if rng.random() < r.downscale[0] else 1.0,
     )
 
 
@@ -184,6 +206,7 @@ __all__ = [
     "bayer_jpeg",
     "develop",
     "mosaic",
+    "ConditionRanges",
     "random_conditions",
     "resensor_crop",
     "take_frame",
