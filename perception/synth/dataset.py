@@ -154,12 +154,32 @@ def render_detection_sample(
         pitch=math.radians(rng.normal(0.0, 2.0)),
         roll=math.radians(rng.normal(0.0, 2.0)),
     )
+    return _shoot(
+        camera, pose, scene, rng, conditions, blur_probability, (0.5, 0.1), lighting, kelvin
+    )
+
+
+def _shoot(
+    camera: CameraModel,
+    pose: CameraPose,
+    scene: Scene,
+    rng: np.random.Generator,
+    conditions: ViewConditions | None,
+    blur_probability: float,
+    blur_mps: tuple[float, float],
+    lighting: Lighting,
+    kelvin: float,
+) -> tuple[np.ndarray, list[BlockBox]]:
+    """A raw frame and its block boxes: under ``conditions`` if given, else with the
+    renderer's light (``lighting``, ``kelvin``) and, in ``blur_probability`` of the frames,
+    motion blur from a sideways and vertical speed up to ``blur_mps``."""
     if conditions is not None:
         return take_frame(camera, pose, scene, rng, conditions), block_boxes(camera, pose, scene)
     velocity = None
     if rng.random() < blur_probability:
-        velocity = (0.0, float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-0.1, 0.1)))
-    raw, boxes = render_frame(
+        vy, vz = blur_mps
+        velocity = (0.0, float(rng.uniform(-vy, vy)), float(rng.uniform(-vz, vz)) if vz else 0.0)
+    return render_frame(
         camera,
         pose,
         scene,
@@ -169,7 +189,6 @@ def render_detection_sample(
         colour_temperature_k=kelvin,
         return_boxes=True,
     )
-    return raw, boxes
 
 
 @lru_cache(maxsize=4)
@@ -249,25 +268,9 @@ def block_crops(
             roll=math.radians(rng.normal(0, 2)),
         )
         cond = conditions(rng) if callable(conditions) else conditions
-        if cond is not None:
-            raw, boxes = (
-                take_frame(camera, pose, scene, rng, cond),
-                block_boxes(camera, pose, scene),
-            )
-        else:
-            velocity = None
-            if rng.random() < blur_probability:
-                velocity = (0.0, float(rng.uniform(-0.4, 0.4)), 0.0)
-            raw, boxes = render_frame(
-                camera,
-                pose,
-                scene,
-                rng,
-                velocity=velocity,
-                lighting=lighting,
-                colour_temperature_k=kelvin,
-                return_boxes=True,
-            )
+        raw, boxes = _shoot(
+            camera, pose, scene, rng, cond, blur_probability, (0.4, 0.0), lighting, kelvin
+        )
         box = next(
             (b for b in boxes if b.block == block_index and b.identity == f"{pallet_id}{side}"),
             None,
