@@ -24,6 +24,7 @@ import glob
 import json
 import os
 import sys
+import time
 from typing import Any
 
 import numpy as np
@@ -109,8 +110,6 @@ def _list(args: argparse.Namespace) -> int:
     th = g.thresholds
     print(f"{g.path}: {len(g)} pallet sides, model {g.model_version}")
     print(f"unknown above mean distance {th.max_distance:.3f} or below margin {th.min_margin:.3f}")
-    import time
-
     for e in g.entries():
         when = time.strftime("%Y-%m-%d %H:%M", time.localtime(e["created"]))
         views = f"  +{e['views']} views" if e["views"] else ""
@@ -119,8 +118,6 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def _history(args: argparse.Namespace) -> int:
-    import time
-
     if args.gallery == "demo":
         raise GalleryCommandError("the demo gallery is generated: it has no history")
     _, g = _open(args)
