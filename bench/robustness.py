@@ -14,6 +14,7 @@ issue 17, met or not. ``--json`` keeps every figure.
     .venv/bin/python bench/robustness.py --enrolled 40 --unknown 40 --only wood paint
     .venv/bin/python bench/robustness.py --clean-unknown 400   # the non-enrolled target
     .venv/bin/python bench/robustness.py --markdown before.json after.json   # a docs table
+    .venv/bin/python bench/robustness.py --no-texture          # the embedding alone decides
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from perception.robustness import (
     similar_never_absorbed,
 )
 from perception.synth.dataset import identity_names
+from perception.verify import VerifyThresholds
 
 #: (row name, figure, at least) of issue 17's targets
 TARGETS = [
@@ -86,6 +88,20 @@ def check_targets(rows: list[dict], extra: dict | None = None) -> list[str]:
         f"  non-enrolled sides accepted, all rows: {acc} of {non} (target 0 in >= 400): "
         f"{'met' if acc == 0 and non >= 400 else 'NOT met'}"
     )
+    seq = (extra or {}).get("ageing_with_updates")
+    if seq:
+        worst = min(st["right"] for st in seq["steps"]) / seq["sides"]
+        out.append(
+            f"  ageing sequence with updates, worst step: {100 * worst:.1f} % >= 90.0 %: "
+            f"{'met' if worst >= 0.9 else 'NOT met'}"
+        )
+    alike = (extra or {}).get("look_alikes")
+    if alike:
+        bad = alike["named_enrolled"] + alike["views_added"]
+        out.append(
+            f"  look-alikes named or absorbed: {bad} of {alike['scans']} scans (target 0): "
+            f"{'met' if bad == 0 else 'NOT met'}"
+        )
     return out
 
 
@@ -139,15 +155,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--similar", type=int, default=40, help="look-alike pallets, 10 scans each (0: skip)"
     )
+    ap.add_argument(
+        "--no-texture",
+        action="store_true",
+        help="the embedding alone decides (no texture verification: the figures before it)",
+    )
     ap.add_argument("--json", default="")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     pipe = Pipeline(
-        BlockDetector.load(args.detector, threads=1), BlockEmbedder.load(args.embedder, threads=1)
+        BlockDetector.load(args.detector, threads=1),
+        BlockEmbedder.load(args.embedder, threads=1),
+        texture=not args.no_texture,
     )
     print(
         f"detector {pipe.detector.model_version}, embedder {pipe.embedder.model_version}, "
-        f"thresholds {pipe.embedder.thresholds}",
+        f"thresholds {pipe.embedder.thresholds}, texture verification "
+        f"{'off' if args.no_texture else VerifyThresholds()}",
         flush=True,
     )
     rows, galleries = [], {}
@@ -194,8 +218,10 @@ def main(argv: list[str] | None = None) -> int:
                     "detector": pipe.detector.model_version,
                     "embedder": pipe.embedder.model_version,
                     "thresholds": list(vars(pipe.embedder.thresholds).values()),
+                    "texture": None if args.no_texture else vars(VerifyThresholds()),
                     "args": vars(args),
                     "rows": rows,
+                    "extra": extra,
                 },
                 f,
                 indent=1,

@@ -13,6 +13,7 @@ message in the run log; they never raise, so the tree (or the safety supervisor)
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Any
 
@@ -233,9 +234,12 @@ class IdentifyPallet(SyncActionNode):
     """Embed the three block crops and match them against the gallery: ``pallet_id`` is the
     closest enrolled side, or ``unknown`` when its mean block distance is above
     ``max_distance`` or its margin to the runner-up is below ``min_margin`` (defaults: the
-    thresholds stored in the gallery, calibrated with the model). SUCCESS with an answer
-    (``unknown`` included); FAILURE if there are not three crops or the gallery cannot be
-    used."""
+    thresholds stored in the gallery, calibrated with the model). With ``verify_texture``
+    the best candidates are also compared on the blocks' texture with their enrolment crops:
+    a side whose texture matches far above every other pallet's is identified even when it
+    aged or is seen from farther away, and an answer whose texture does not match is
+    ``unknown``. SUCCESS with an answer (``unknown`` included); FAILURE if there are not
+    three crops or the gallery cannot be used."""
 
     bt_id = "IdentifyPallet"
     category = CATEGORY_PERCEPTION
@@ -256,12 +260,21 @@ class IdentifyPallet(SyncActionNode):
             "this scan as a view of the side (bounded, in the gallery's history, can be "
             "rolled back); never from an unconfident one",
         ),
+        input_port(
+            "verify_texture",
+            BOOL,
+            True,
+            "verify the best candidates on the blocks' texture against their enrolment crops",
+        ),
         output_port("pallet_id", STRING, "identity (e.g. 3A) or unknown"),
         output_port("best_id", STRING, "closest identity, even when the answer is unknown"),
         output_port("distance", FLOAT, "mean block distance to the closest identity"),
         output_port("margin", FLOAT, "runner-up distance minus the best distance"),
         output_port("ranking", ANY, "top_k [identity, mean distance] pairs, best first"),
         output_port("gallery_updated", BOOL, "true if this scan was added to the gallery"),
+        output_port(
+            "decided_by", STRING, "embedding, texture or embedding+texture (empty if unknown)"
+        ),
     )
 
     def tick_impl(self) -> NodeStatus:
@@ -281,9 +294,13 @@ class IdentifyPallet(SyncActionNode):
             desc = embedder.describe(crops)
             vis = desc.visibility if embedder.occlusion_aware else None
             match = g.match(
-                desc.vectors, top_k=self.get_input("top_k"), thresholds=th, visibility=vis
+                desc.vectors,
+                top_k=self.get_input("top_k"),
+                thresholds=th,
+                visibility=vis,
+                crops=crops if self.get_input("verify_texture") else None,
             )
-            update = self._update(session, g, match, desc.vectors, vis, th)
+            update = self._update(session, g, match, desc.vectors, vis, th, crops)
         except (PerceptionError, GalleryError, ModelError) as exc:
             session.identifications.append(
                 {"t_s": self.now(), "key": key, "node": self.describe(), "failed": str(exc)}
@@ -304,6 +321,16 @@ class IdentifyPallet(SyncActionNode):
                 "thresholds": [th.max_distance, th.min_margin],
                 "ranking": [[i, d, list(b)] for i, d, b in match.ranking],
                 "gallery_update": update,
+                "texture": (
+                    None
+                    if match.texture_z is None
+                    else [
+                        match.texture_id,
+                        match.texture_z,
+                        match.texture_margin if math.isfinite(match.texture_margin or 0) else None,
+                    ]
+                ),
+                "decided_by": match.decided_by if match.known else "",
                 "crops": crops,
             }
         )
@@ -313,7 +340,10 @@ class IdentifyPallet(SyncActionNode):
         self.set_output("distance", match.distance)
         self.set_output("margin", match.margin)
         self.set_output("ranking", ranking)
-        note = "" if match.known else f" ({match.reason}; closest {match.best_id})"
+        self.set_output("decided_by", match.decided_by if match.known else "")
+        note = f" ({match.decided_by})" if match.known else ""
+        if not match.known:
+            note = f" ({match.reason}; closest {match.best_id})"
         self.ctx.log(
             f"pallet {match.pallet_id}: distance {match.distance:.3f}, margin {match.margin:.3f}{note}"
         )
@@ -321,7 +351,7 @@ class IdentifyPallet(SyncActionNode):
             self.ctx.log(f"gallery update: {update}")
         return SUCCESS
 
-    def _update(self, session, g, match, vectors, vis, th) -> str:
+    def _update(self, session, g, match, vectors, vis, th, crops) -> str:
         """Add the scan to the gallery if asked and confident; what happened ("" if not asked)."""
         if not self.get_input("update_gallery"):
             return ""
@@ -329,7 +359,7 @@ class IdentifyPallet(SyncActionNode):
             return "not updated: the demo gallery is generated (use your own gallery file)"
         run = os.path.basename(str(self.ctx.resources.get("run_dir") or "")) or "mission"
         run = f"{run} t={self.now():.1f} s"
-        decision = g.update(match, vectors, vis, run=run, thresholds=th)
+        decision = g.update(match, vectors, vis, run=run, thresholds=th, crops=crops)
         if decision.update:
             return f"added a view to {match.pallet_id} ({decision.reason})"
         return f"not updated: {decision.reason}"

@@ -22,8 +22,8 @@ Safety of the file:
 * the file records the model version; opening it with another model is refused, because
   embeddings of two models are not comparable;
 * a damaged file is detected (``PRAGMA quick_check``) and reported, never silently used;
-* a schema-1 file (before views and history) is upgraded in place when opened
-  (:mod:`perception.gallery_schema`).
+* a file of an older schema (before views and history, or before view crops) is upgraded
+  in place when opened (:mod:`perception.gallery_schema`).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ from perception.gallery_schema import (
     SCHEMA_VERSION,
     TABLES,
     check_contents,
-    upgrade_v1,
+    upgrade,
     write_schema,
 )
 from perception.gallery_update import UpdateDecision, UpdateRule
@@ -66,6 +66,7 @@ class Gallery(MatchingMixin, ViewsMixin):
         self.thresholds = self._load_thresholds()
         self._cache: tuple[list[str], np.ndarray] | None = None
         self._rows: dict[int, _Rows] = {}
+        self._grey: dict[str, list[list[np.ndarray]]] | None = None
 
     # -- opening -------------------------------------------------------------------------
     @classmethod
@@ -135,11 +136,11 @@ class Gallery(MatchingMixin, ViewsMixin):
             )
         if dim <= 0 or dim > 65536:
             raise GalleryError(f"{path}: embedding size {dim} in its metadata is not valid")
-        if schema == 1:
-            _upgrade(conn, path)
-        elif TABLES[2] - tables:
-            missing = ", ".join(sorted(TABLES[2] - tables))
+        if TABLES[schema] - tables:
+            missing = ", ".join(sorted(TABLES[schema] - tables))
             raise GalleryError(f"{path}: not a complete btrun gallery (table {missing} missing)")
+        if schema < SCHEMA_VERSION:
+            _upgrade(conn, path, schema)
         problem = check_contents(conn, dim)
         if problem:
             raise GalleryError(f"{path}: {problem}")
@@ -280,6 +281,7 @@ class Gallery(MatchingMixin, ViewsMixin):
     def _invalidate(self) -> None:
         self._cache = None
         self._rows.clear()
+        self._grey = None
 
     # -- reading ---------------------------------------------------------------------------
     def identities(self) -> list[str]:
@@ -322,14 +324,14 @@ class Gallery(MatchingMixin, ViewsMixin):
         return self.conn.execute("SELECT COUNT(*) FROM entries").fetchone()[0]
 
 
-def _upgrade(conn: sqlite3.Connection, path: str) -> None:
+def _upgrade(conn: sqlite3.Connection, path: str, schema: int) -> None:
     try:
-        upgrade_v1(conn)
+        upgrade(conn, schema)
     except sqlite3.Error as exc:
         raise GalleryError(
-            f"{path}: gallery schema 1 must be upgraded to schema {SCHEMA_VERSION} (views and "
-            f"history) but the file cannot be written ({exc}); copy it somewhere writable and "
-            "open it again, or re-enrol"
+            f"{path}: gallery schema {schema} must be upgraded to schema {SCHEMA_VERSION} "
+            f"(views, history, view crops) but the file cannot be written ({exc}); copy it "
+            "somewhere writable and open it again, or re-enrol"
         ) from None
 
 

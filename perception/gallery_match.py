@@ -3,17 +3,28 @@
 The :class:`MatchingMixin` half of :class:`perception.gallery.Gallery`: every active view
 of every side in memory, a fast float32 screen over all of them, exact distances for the
 best candidates (:mod:`perception.gallery_math` has the maths), and the decision.
+
+With the query's crops, the best candidates are also verified on the blocks' texture
+against their enrolment crops (:mod:`perception.verify`): a candidate whose texture
+matches far above every other pallet's is the answer even when the embedding distance
+alone would say "unknown" (new stains, dust, a strap, a farther view), and an embedding
+answer whose texture does not match is refused.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 
 from perception import gallery_math as gm
+from perception import verify as tv
 from perception.errors import GalleryError
 from perception.gallery_math import BLOCKS, block_distances
+
+#: embedding candidates verified on texture (best first)
+VERIFY_CANDIDATES = 8
 
 
 @dataclass(frozen=True)
@@ -22,7 +33,10 @@ class Match:
 
     ``pallet_id`` is the best entry's identity, or ``"unknown"`` when a threshold failed;
     ``best_id`` is always the closest entry. ``ranking`` lists ``(identity, mean distance,
-    per-block distances)`` best first.
+    per-block distances)`` best first. With texture verification: ``texture_id`` is the
+    candidate whose blocks' texture matches best, ``texture_z`` its score and
+    ``texture_margin`` its lead over the next candidate; ``decided_by`` says which test gave
+    the answer (``embedding``, ``texture``, or ``embedding+texture`` when both agree).
     """
 
     pallet_id: str
@@ -34,6 +48,10 @@ class Match:
     known: bool
     reason: str
     ranking: list[tuple[str, float, tuple[float, ...]]] = field(default_factory=list)
+    texture_id: str | None = None
+    texture_z: float | None = None
+    texture_margin: float | None = None
+    decided_by: str = "embedding"
 
 
 @dataclass(frozen=True)
@@ -103,13 +121,16 @@ class MatchingMixin:
         top_k: int = 5,
         thresholds: Thresholds | None = None,
         visibility: np.ndarray | None = None,
+        crops: list[np.ndarray] | None = None,
+        verify_thresholds: tv.VerifyThresholds | None = None,
     ) -> Match:
         """Match three block embeddings (left to right) against every entry.
 
         Distance between two blocks: Euclidean distance of the embeddings, stripes weighted
         by their visibility in both crops when known (``visibility``: (3, parts) of the
         query); per entry: the mean of the three block distances (the reference rule), each
-        block taken from the entry's closest view.
+        block taken from the entry's closest view. With the query's three BGR ``crops``, the
+        best candidates are verified on texture (:meth:`_decide_with_texture`).
         """
         q = np.asarray(query, dtype=np.float32)
         if q.shape != (BLOCKS, self.dim):
@@ -145,7 +166,7 @@ class MatchingMixin:
             (ids[i], float(means[j]), tuple(float(x) for x in per_block[j]))
             for j, i in enumerate(order[:top_k])
         ]
-        return Match(
+        match = Match(
             pallet_id=ids[best] if not reason else "unknown",
             best_id=ids[best],
             distance=d1,
@@ -156,6 +177,91 @@ class MatchingMixin:
             reason=reason,
             ranking=ranking,
         )
+        if crops is None:
+            return match
+        candidates = [ids[int(i)] for i in order[:VERIFY_CANDIDATES]]
+        return self._decide_with_texture(
+            match, crops, candidates, weights, verify_thresholds or tv.VerifyThresholds()
+        )
+
+    # -- texture verification ---------------------------------------------------------------
+    def _texture_sides(self) -> dict[str, list[list[np.ndarray]]]:
+        """Per side stored with its three crops, its views' grey crops: the enrolment's
+        first, then every active added view's (cached)."""
+        if self._grey is None:
+            sides: dict[str, list[list[np.ndarray]]] = {}
+            enrol = self.conn.execute("SELECT identity, block, png FROM crops ORDER BY 1, 2")
+            for key, side in _grey_views(enrol).items():
+                sides[key] = [side]
+            added = self.conn.execute(
+                "SELECT v.identity || char(0) || v.view_id, c.block, c.png FROM view_crops c "
+                "JOIN views v ON v.view_id = c.view_id WHERE v.active ORDER BY v.view_id, 2"
+            )
+            for key, side in _grey_views(added).items():
+                ident = key.split("\0")[0]
+                if ident in sides:
+                    sides[ident].append(side)
+            self._grey = sides
+        return self._grey
+
+    def _texture_cohort(self) -> list[tuple[str, list[np.ndarray]]]:
+        """The verifier's cohort: up to :data:`perception.verify.COHORT_FROM_GALLERY` of the
+        gallery's sides (each candidate's own is left out of its scale) and the shipped
+        cohort."""
+        sides = self._texture_sides()
+        own = [(k, sides[k][0]) for k in sorted(sides)[: tv.COHORT_FROM_GALLERY]]
+        return own + tv.shipped_cohort()
+
+    def _decide_with_texture(
+        self,
+        match: Match,
+        crops: list[np.ndarray],
+        candidates: list[str],
+        weights: np.ndarray,
+        th: tv.VerifyThresholds,
+    ) -> Match:
+        """The answer once the candidates' texture is known.
+
+        * the texture's best candidate scores at least ``accept_z`` and leads the next by
+          ``margin_z``: it is the answer (whatever the embedding distance says);
+        * otherwise an embedding answer stands if its own texture score is at least
+          ``veto_z``, and is refused ("unknown") if it is not;
+        * candidates without stored crops are not verified (an embedding answer among them
+          stands as it is).
+        """
+        if len(crops) != BLOCKS:
+            raise GalleryError(f"match: expected {BLOCKS} crops, got {len(crops)}")
+        sides = self._texture_sides()
+        cands = [(c, sides[c]) for c in candidates if c in sides]
+        if not cands:
+            return match
+        ver = tv.verify(crops, cands, self._texture_cohort(), weights)
+        tid, tz = ver.best  # type: ignore[misc]
+        tmargin = ver.margin()
+        out = {"texture_id": tid, "texture_z": tz, "texture_margin": tmargin}
+        if tz >= th.accept_z and tmargin >= th.margin_z:
+            if match.known and match.pallet_id != tid:
+                reason = (
+                    f"the embedding says {match.pallet_id}, the blocks' texture {tid} "
+                    f"(score {tz:.2f}): they disagree"
+                )
+                return replace(match, pallet_id="unknown", known=False, reason=reason, **out)
+            by = "embedding+texture" if match.known else "texture"
+            return replace(match, pallet_id=tid, known=True, reason="", decided_by=by, **out)
+        if match.known:
+            z = ver.z_of(match.pallet_id)
+            if z is not None and z < th.veto_z:
+                reason = (
+                    f"the blocks' texture does not match {match.pallet_id} "
+                    f"(score {z:.2f} below {th.veto_z:.2f})"
+                )
+                return replace(match, pallet_id="unknown", known=False, reason=reason, **out)
+            return replace(match, **out)
+        reason = (
+            f"{match.reason}; texture: {tid} scores {tz:.2f} (needs {th.accept_z:.2f}), "
+            f"{tmargin:.2f} ahead (needs {th.margin_z:.2f})"
+        )
+        return replace(match, reason=reason, **out)
 
     def _screen(
         self, q: np.ndarray, qvis: np.ndarray | None, data: _Rows, parts: int
@@ -190,6 +296,17 @@ class MatchingMixin:
             rvis = data.vis[sel] if data.vis is not None else None
             per_row = block_distances(q, rows, qvis, rvis)
         return gm.closest_views(per_row, np.searchsorted(cand, data.owner[sel]), len(cand))
+
+
+def _grey_views(rows) -> dict[str, list[np.ndarray]]:
+    """Rows ``(key, block, png)`` in key and block order -> key: three grey crops (keys
+    with fewer than three readable crops are left out)."""
+    out: dict[str, list[np.ndarray]] = {}
+    for key, _, png in rows:
+        img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_GRAYSCALE)
+        if img is not None and min(img.shape[:2]) >= 2:
+            out.setdefault(key, []).append(img.astype(np.float32))
+    return {k: v for k, v in out.items() if len(v) == BLOCKS}
 
 
 __all__ = ["Match", "MatchingMixin", "Thresholds"]

@@ -9,9 +9,13 @@ Schema 2 (this btrun) adds to schema 1's ``meta``, ``entries`` and ``crops``:
 * ``history``: the audit trail, one row per enrolment, added view, eviction, rollback
   and removal.
 
-A schema-1 file is upgraded in place when opened (one transaction: the new tables, an
-``enrol`` history row per existing side, ``schema_version`` 2). A read-only schema-1 file
-cannot be upgraded and is refused with a message that says so.
+Schema 3 adds ``view_crops``: the three block crops (PNG) of an added view, so the texture
+verifier (:mod:`perception.verify`) compares a scan with how the side looked lately, too.
+
+An older file is upgraded in place when opened (one transaction per step: schema 1 to 2
+adds the tables and an ``enrol`` history row per existing side; 2 to 3 adds
+``view_crops``). A read-only older file cannot be upgraded and is refused with a message
+that says so.
 """
 
 from __future__ import annotations
@@ -19,8 +23,8 @@ from __future__ import annotations
 import sqlite3
 import time
 
-SCHEMA_VERSION = 2
-READABLE_SCHEMAS = (1, 2)
+SCHEMA_VERSION = 3
+READABLE_SCHEMAS = (1, 2, 3)
 
 _V1 = """
 CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -70,17 +74,27 @@ CREATE TABLE history (
 CREATE INDEX history_identity ON history(identity);
 """
 
+_V3_ADDED = """
+CREATE TABLE view_crops (
+    view_id INTEGER NOT NULL REFERENCES views(view_id) ON DELETE CASCADE,
+    block INTEGER NOT NULL,
+    png BLOB NOT NULL,
+    PRIMARY KEY (view_id, block)
+);
+"""
+
 #: tables every readable file has, by schema
 TABLES = {
     1: {"meta", "entries", "crops"},
     2: {"meta", "entries", "crops", "visibility", "views", "history"},
+    3: {"meta", "entries", "crops", "visibility", "views", "history", "view_crops"},
 }
 
 
 def write_schema(conn: sqlite3.Connection, model_version: str, dim: int) -> None:
-    """Create the tables and the metadata of an empty schema-2 gallery (one transaction)."""
+    """Create the tables and the metadata of an empty gallery (one transaction)."""
     with conn:
-        conn.executescript(_V1 + _V2_ADDED)
+        conn.executescript(_V1 + _V2_ADDED + _V3_ADDED)
         conn.executemany(
             "INSERT INTO meta VALUES (?, ?)",
             [
@@ -92,20 +106,30 @@ def write_schema(conn: sqlite3.Connection, model_version: str, dim: int) -> None
         )
 
 
-def upgrade_v1(conn: sqlite3.Connection) -> None:
-    """Upgrade a schema-1 gallery to schema 2 in one transaction (see the module doc)."""
+def _step(conn: sqlite3.Connection, script: str, to: int, extra: str = "") -> None:
     with conn:
         conn.execute("BEGIN IMMEDIATE")  # DDL opens no transaction by itself
-        for stmt in _V2_ADDED.split(";"):
+        for stmt in script.split(";"):
             if stmt.strip():
                 conn.execute(stmt)
-        conn.execute(
+        if extra:
+            conn.execute(extra)
+        conn.execute("UPDATE meta SET value = ? WHERE key = 'schema_version'", (str(to),))
+
+
+def upgrade(conn: sqlite3.Connection, schema: int) -> None:
+    """Upgrade a gallery of an older ``schema`` to :data:`SCHEMA_VERSION`, one transaction
+    per step (see the module doc)."""
+    if schema < 2:
+        _step(
+            conn,
+            _V2_ADDED,
+            2,
             "INSERT INTO history (identity, time, action, note) "
-            "SELECT identity, created, 'enrol', 'upgraded from gallery schema 1' FROM entries"
+            "SELECT identity, created, 'enrol', 'upgraded from gallery schema 1' FROM entries",
         )
-        conn.execute(
-            "UPDATE meta SET value = ? WHERE key = 'schema_version'", (str(SCHEMA_VERSION),)
-        )
+    if schema < 3:
+        _step(conn, _V3_ADDED, 3)
 
 
 def check_contents(conn: sqlite3.Connection, dim: int) -> str | None:
@@ -132,6 +156,6 @@ __all__ = [
     "SCHEMA_VERSION",
     "TABLES",
     "check_contents",
-    "upgrade_v1",
+    "upgrade",
     "write_schema",
 ]

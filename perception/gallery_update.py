@@ -32,6 +32,10 @@ class UpdateRule:
         min_novelty: a scan this close to an existing view adds nothing new (skipped).
         max_views: added views kept per side (the enrolment view is always kept; the
             oldest added view is evicted).
+        texture_z, texture_margin: an answer the texture verifier confirms with at least
+            this score and this lead over the next candidate (:mod:`perception.verify`) is
+            confident whatever its embedding distance (a pallet that aged drifts in the
+            embedding; its wood's texture still proves it).
     """
 
     distance_fraction: float = 0.75
@@ -40,6 +44,8 @@ class UpdateRule:
     anchor_factor: float = 1.25
     min_novelty: float = 0.03
     max_views: int = 4
+    texture_z: float = 4.5
+    texture_margin: float = 2.0
 
     def __post_init__(self) -> None:
         if not 0 < self.distance_fraction <= 1.0:
@@ -63,13 +69,24 @@ def decide(
 ) -> UpdateDecision:
     """Apply ``rule`` to a :class:`perception.gallery.Match` answered under ``thresholds``.
 
-    Never updates from an answer that is ``unknown`` or only just confident: the best
-    distance must be well inside ``max_distance`` (``distance_fraction``), each block too,
+    Never updates from an answer that is ``unknown`` or only just confident: either the
+    blocks' texture confirms it by a wide margin (``texture_z``, ``texture_margin``), or the
+    best distance is well inside ``max_distance`` (``distance_fraction``), each block too,
     the margin well above ``min_margin`` (``margin_factor``, and ``min_margin``), and the
     scan close enough to the side's enrolment view (``enrolment_distance``).
     """
     if not match.known or match.pallet_id == "unknown":
         return UpdateDecision(False, f"not confident: {match.reason or 'unknown'}")
+    if match.distance < rule.min_novelty:
+        return UpdateDecision(False, f"distance {match.distance:.3f}: nothing new to learn")
+    tz, tm = getattr(match, "texture_z", None), getattr(match, "texture_margin", None)
+    if (
+        tz is not None
+        and getattr(match, "texture_id", None) == match.pallet_id
+        and tz >= rule.texture_z
+        and (tm if tm is not None else 0.0) >= rule.texture_margin
+    ):
+        return UpdateDecision(True, f"texture confirmed: score {tz:.2f}, {tm:.2f} ahead")
     max_d = thresholds.max_distance
     if not math.isfinite(max_d):
         return UpdateDecision(

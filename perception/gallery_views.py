@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 
+import cv2
 import numpy as np
 
 from perception import gallery_math as gm
@@ -48,10 +49,12 @@ class ViewsMixin:
         run: str = "",
         rule: UpdateRule | None = None,
         thresholds: Thresholds | None = None,
+        crops: list[np.ndarray] | None = None,
     ) -> UpdateDecision:
-        """Add the scan ``query`` as a view of ``match.pallet_id`` if ``rule`` finds the
-        answer confident enough (:func:`perception.gallery_update.decide`); evict the
-        oldest added view beyond ``rule.max_views``. Every change goes to the history."""
+        """Add the scan ``query`` (and its three BGR ``crops``, for the texture verifier) as
+        a view of ``match.pallet_id`` if ``rule`` finds the answer confident enough
+        (:func:`perception.gallery_update.decide`); evict the oldest added view beyond
+        ``rule.max_views``. Every change goes to the history."""
         rule = rule or UpdateRule()
         th = thresholds or self.thresholds
         ident = match.pallet_id
@@ -79,6 +82,13 @@ class ViewsMixin:
                 ),
             )
             view_id = int(cur.lastrowid or 0)
+            for b, crop in enumerate(crops or []):
+                ok, png = cv2.imencode(".png", crop)
+                if not ok:
+                    raise GalleryError(f"update: crop {b} cannot be encoded as PNG")
+                self.conn.execute(
+                    "INSERT INTO view_crops VALUES (?, ?, ?)", (view_id, b, png.tobytes())
+                )
             self._event(
                 ident,
                 now,

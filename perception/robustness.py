@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+import cv2
 import numpy as np
 
 from perception.gallery import Gallery, Match
@@ -37,6 +38,7 @@ from perception.synth.camera_model import CameraModel, CameraPose
 from perception.synth.dataset import _block_centre_z, _scene, _wb_factors, identity_names
 from perception.synth.render import SensorModel, block_boxes
 from perception.synth.views import ViewConditions, develop, take_frame
+from perception.verify import VerifyThresholds
 
 #: identity prefix and first texture seed of the bench's pallets (never trained on)
 PREFIX, SEED0 = "rb", 9000
@@ -150,10 +152,20 @@ def _iou(a: Sequence[float], b: Sequence[float]) -> float:
 class Pipeline:
     """The mission's perception path on rendered views: detector, crop, embedder, gallery."""
 
-    def __init__(self, detector: Any, embedder: Any, camera: CameraModel | None = None) -> None:
+    def __init__(
+        self,
+        detector: Any,
+        embedder: Any,
+        camera: CameraModel | None = None,
+        texture: bool = True,
+        verify_thresholds: VerifyThresholds | None = None,
+    ) -> None:
         self.detector, self.embedder = detector, embedder
         self.camera = camera or CameraModel()
         self.factors = _wb_factors(SensorModel())
+        self.texture = texture  # verify matches on the blocks' texture (perception.verify)
+        self.verify_thresholds = verify_thresholds
+        self.matches: list[tuple[str, bool, Match]] | None = None  # (name, enrolled, match)
 
     def scan(
         self,
@@ -263,21 +275,20 @@ def enrol_gallery(
         scans.append(scan)
         if scan.complete:
             vec, vis = pipe.describe(scan.crops)  # type: ignore[arg-type]
-            _enrol(g, name, vec, vis)
+            pngs = [cv2.imencode(".png", c)[1].tobytes() for c in scan.crops]  # type: ignore[arg-type]
+            g.enrol(name, vec, pngs, visibility=vis)
     return g, len(g), scans
 
 
-def _enrol(g: Gallery, name: str, vec: np.ndarray, vis: np.ndarray | None) -> None:
-    if vis is not None:
-        g.enrol(name, vec, visibility=vis)
-    else:
-        g.enrol(name, vec)
-
-
-def _match(g: Gallery, vec: np.ndarray, vis: np.ndarray | None) -> Any:
+def _match(pipe: Pipeline, g: Gallery, vec: np.ndarray, vis: np.ndarray | None, crops: list) -> Any:
     if len(g) == 0:  # nothing could be enrolled (the detector found no blocks)
         return Match("unknown", "", float("inf"), None, None, 0.0, False, "empty gallery")
-    return g.match(vec, visibility=vis) if vis is not None else g.match(vec)
+    return g.match(
+        vec,
+        visibility=vis,
+        crops=crops if pipe.texture else None,
+        verify_thresholds=pipe.verify_thresholds,
+    )
 
 
 def evaluate_condition(
@@ -333,7 +344,10 @@ def evaluate_condition(
         answer = "unknown"
         if scan.complete:
             vec, vis = pipe.describe(scan.crops)  # type: ignore[arg-type]
-            answer = _match(g, vec, vis).pallet_id
+            m = _match(pipe, g, vec, vis, scan.crops)
+            answer = m.pallet_id
+            if pipe.matches is not None:
+                pipe.matches.append((name, known, m))
         if known:
             key = "right" if answer == name else ("unknown" if answer == "unknown" else "wrong")
             res[key] += 1
@@ -383,9 +397,9 @@ def ageing_sequence(
             answer = "unknown"
             if scan.complete:
                 vec, vis = pipe.describe(scan.crops)  # type: ignore[arg-type]
-                m = _match(g, vec, vis)
+                m = _match(pipe, g, vec, vis, scan.crops)
                 answer = m.pallet_id
-                if update and g.update(m, vec, vis, run=f"step {k}").update:
+                if update and g.update(m, vec, vis, run=f"step {k}", crops=scan.crops).update:
                     out["views_added"] += 1
             key = "right" if answer == name else ("unknown" if answer == "unknown" else "wrong")
             row[key] += 1
@@ -423,10 +437,11 @@ def similar_never_absorbed(
                 res["unknown"] += 1
                 continue
             vec, vis = pipe.describe(scan.crops)  # type: ignore[arg-type]
-            m = _match(g, vec, vis)
+            m = _match(pipe, g, vec, vis, scan.crops)
             res["named_enrolled"] += int(m.pallet_id == name)
             res["unknown"] += int(m.pallet_id == "unknown")
-            res["views_added"] += int(g.update(m, vec, vis, run=f"look-alike scan {k}").update)
+            upd = g.update(m, vec, vis, run=f"look-alike scan {k}", crops=scan.crops)
+            res["views_added"] += int(upd.update)
     if log:
         log(
             f"look-alikes: {res['scans']} scans, named as the enrolled side {res['named_enrolled']}, "

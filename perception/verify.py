@@ -1,0 +1,303 @@
+"""Verifying a match on the blocks' own texture: normalised cross-correlation, cohort scaled.
+
+The embedder ranks the gallery; a pallet side that aged since its enrolment (new stains,
+dust, a strap across a block) or is seen from farther away can drift far enough in the
+embedding space that the ranking is right but the distance no longer proves it. The
+verifier looks at the pixels instead: the grain, knots and marks of a block face are a
+fingerprint of that piece of wood, and the same face correlates with its enrolment crop
+far above any other face, even through dirt, occlusion or a third of the resolution.
+
+Score of a query block ``q`` against an enrolled block ``e``: both grey, ``e`` resized to
+``q``'s size (``q`` shrunk to ``e``'s area first if it is larger: :func:`work_size`), times
+each of :data:`SCALES` (the detector's boxes differ by a few per cent),
+both band-passed (difference of Gaussians, :data:`BAND_SIGMAS` pixels: the grain, not
+the light), then the largest normalised cross-correlation (``cv2.matchTemplate``,
+``TM_CCOEFF_NORMED``) of ``q`` without a border of :data:`BORDER` (the block's edges
+look alike on every pallet) over every shift and scale, leaving out what on the query is
+not the block's own face: dark blots (new stains, ink and burnt marks: :data:`DARK_MADS`)
+and anything far from the face's colour (a strap, film, a label: :data:`COLOUR_MADS`).
+
+A raw score depends on the block (a plain face correlates less with everything), so it is
+scaled by a *cohort*: the same query block's scores against other pallets' blocks (the
+gallery's other sides, topped up with the shipped cohort of synthetic blocks when the
+gallery is small) give a median and a robust spread, and ``z = (score - median) /
+spread``. A side's ``z`` is the mean of its three blocks' (weighted by how visible each
+block is, when the embedder says). Over the bench's never-enrolled sides the best
+candidate's ``z`` stays below about 3; the same side, aged or seen from 1.2 m, scores 3 to
+5 (docs/perception.md, "Texture verification").
+
+Pure numpy and OpenCV; :class:`perception.gallery.Gallery` calls :func:`verify`.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+#: how much of each side of the query crop is left out of the template (fraction)
+BORDER = 0.08
+#: scales of the enrolled crop relative to the query crop that are tried
+SCALES = (0.92, 1.0, 1.08)
+#: difference-of-Gaussians band (pixels at the query crop's size)
+BAND_SIGMAS = (0.7, 3.0)
+#: a query pixel this many robust deviations darker than its surroundings is a blot
+#: (stain, ink, burn) and is left out of the correlation
+DARK_MADS = 2.5
+#: a query pixel farther than this many robust deviations from the face's median colour
+#: (Lab), and at least MIN_COLOUR_OFF, is not the face (a strap, film, a label)
+COLOUR_MADS = 3.0
+MIN_COLOUR_OFF = 18.0
+#: ... unless fewer than this share of the template would be left
+MIN_KEPT = 0.4
+#: a spread never below this (a cohort of identical scores would divide by zero)
+MIN_SPREAD = 0.02
+#: cohort sides taken from the gallery at most (the first ones, in a stable order)
+COHORT_FROM_GALLERY = 64
+#: a query block is scaled by its this many best cohort scores (its closest impostors)
+COHORT_TOP = 16
+#: the shipped cohort: grey block crops of synthetic pallets never in any gallery
+COHORT_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "weights", "cohort.npz")
+
+
+@dataclass(frozen=True)
+class VerifyThresholds:
+    """When the texture decides: a candidate whose side ``z`` is at least ``accept_z`` and
+    ``margin_z`` above every other candidate's is the answer; an embedding answer whose
+    side ``z`` is below ``veto_z`` is not (the texture says it is another pallet)."""
+
+    accept_z: float = 3.2
+    margin_z: float = 1.0
+    veto_z: float = 1.0
+
+
+@dataclass(frozen=True)
+class Verification:
+    """Side ``z`` per candidate (best first) and each one's per-block ``z``."""
+
+    ranking: list[tuple[str, float, tuple[float, ...]]]
+
+    @property
+    def best(self) -> tuple[str, float] | None:
+        """The best candidate and its ``z`` (None without candidates)."""
+        return (self.ranking[0][0], self.ranking[0][1]) if self.ranking else None
+
+    def z_of(self, identity: str) -> float | None:
+        """``z`` of one candidate (None if it was not verified)."""
+        for ident, z, _ in self.ranking:
+            if ident == identity:
+                return z
+        return None
+
+    def margin(self) -> float:
+        """Best ``z`` minus the runner-up's (infinite with one candidate)."""
+        if len(self.ranking) < 2:
+            return float("inf")
+        return self.ranking[0][1] - self.ranking[1][1]
+
+
+def grey(crop: np.ndarray) -> np.ndarray:
+    """A BGR (or already grey) crop as a float32 grey image (grey float32 is returned as is)."""
+    img = np.asarray(crop)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    return img if img.dtype == np.float32 else img.astype(np.float32)
+
+
+def _band(g: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    g = cv2.resize(g, (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
+    lo, hi = BAND_SIGMAS
+    return cv2.GaussianBlur(g, (0, 0), lo) - cv2.GaussianBlur(g, (0, 0), hi)
+
+
+def _template(
+    query: np.ndarray, hw: tuple[int, int], colour: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The band-passed grey query at size ``hw`` without its border, and the mask of what
+    is the block's own face (None if all of it is): dark blots (stains, ink, burnt marks)
+    and, with the BGR ``colour`` crop, whatever is far from the face's own colour (a
+    strap, film, a label, a load hanging over it) are left out."""
+    h, w = hw
+    g = cv2.resize(query, (w, h), interpolation=cv2.INTER_AREA)
+    lo, hi = BAND_SIGMAS
+    b = cv2.GaussianBlur(g, (0, 0), lo) - cv2.GaussianBlur(g, (0, 0), hi)
+    r = cv2.GaussianBlur(g, (0, 0), 1.0) - cv2.GaussianBlur(g, (0, 0), max(h, w) / 6.0)
+    off = r < -DARK_MADS * _mad(r)
+    if colour is not None and colour.ndim == 3:
+        lab = cv2.cvtColor(
+            cv2.resize(colour, (w, h), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2LAB
+        )
+        lab = cv2.GaussianBlur(lab.astype(np.float32), (0, 0), 1.0)
+        dist = np.linalg.norm(lab - np.median(lab.reshape(-1, 3), axis=0), axis=2)
+        off |= dist > max(COLOUR_MADS * _mad(dist, centre=0.0), MIN_COLOUR_OFF)
+    off = cv2.dilate(off.astype(np.uint8), np.ones((3, 3), np.uint8))
+    mh, mw = max(1, int(BORDER * h)), max(1, int(BORDER * w))
+    keep = (1 - off[mh : h - mh, mw : w - mw]).astype(np.float32)
+    mask = None if keep.all() or keep.mean() < MIN_KEPT else keep
+    return b[mh : h - mh, mw : w - mw], mask
+
+
+def _mad(x: np.ndarray, centre: float | None = None) -> float:
+    c = float(np.median(x)) if centre is None else centre
+    return 1.4826 * float(np.median(np.abs(x - c))) + 1e-3
+
+
+def work_size(query_hw: tuple[int, int], enrolled_hw: tuple[int, int]) -> tuple[int, int]:
+    """Where a query block is compared with an enrolled one: at the query's size, or
+    shrunk to the enrolled crop's area when the query is larger (an enrolled crop blown up
+    has no fine grain left, only the marks every pallet shares)."""
+    qh, qw = query_hw
+    f = min(1.0, float(np.sqrt(enrolled_hw[0] * enrolled_hw[1] / max(1, qh * qw))))
+    return max(1, int(round(qh * f))), max(1, int(round(qw * f)))
+
+
+def block_score(
+    template: np.ndarray,
+    work_hw: tuple[int, int],
+    enrolled: np.ndarray,
+    mask: np.ndarray | None = None,
+) -> float:
+    """Largest normalised cross-correlation of a query block's template (band-passed at
+    ``work_hw``, without its border; ``mask`` 0 where it is not counted) over the enrolled
+    grey crop resized to ``work_hw`` times each of :data:`SCALES`."""
+    h, w = work_hw
+    best = -1.0
+    for s in SCALES:
+        eh, ew = int(round(h * s)), int(round(w * s))
+        if eh < template.shape[0] or ew < template.shape[1]:
+            continue
+        r = cv2.matchTemplate(_band(enrolled, (eh, ew)), template, cv2.TM_CCOEFF_NORMED, mask=mask)
+        if mask is not None:
+            r = r[np.isfinite(r)]
+        if r.size:
+            best = max(best, float(r.max()))
+    return best
+
+
+def _scores(
+    queries: Sequence[np.ndarray],
+    sides: Sequence[Sequence[np.ndarray]],
+    colours: Sequence[np.ndarray | None] | None = None,
+) -> np.ndarray:
+    """Raw scores (len(sides), 3) of the three grey query blocks (``colours``: their BGR
+    crops, for the mask) against every side's blocks."""
+    out = np.full((len(sides), len(queries)), np.nan)
+    for b, q in enumerate(queries):
+        if min(q.shape[:2]) < 6:
+            continue
+        templates: dict[tuple[int, int], tuple[np.ndarray, np.ndarray | None]] = {}
+        for j, side in enumerate(sides):
+            if b < len(side) and side[b] is not None:
+                e = grey(side[b])
+                hw = work_size(q.shape[:2], e.shape[:2])
+                if hw not in templates:
+                    templates[hw] = _template(q, hw, colours[b] if colours else None)
+                t, mask = templates[hw]
+                out[j, b] = block_score(t, hw, e, mask)
+    return out
+
+
+def load_cohort(path: str = COHORT_PATH) -> list[list[np.ndarray]]:
+    """The shipped cohort: a list of sides, each three float32 grey block crops."""
+    with np.load(path) as z:
+        crops, shapes = z["crops"], z["shapes"]
+    sides, k = [], 0
+    for row in shapes.reshape(-1, 3, 2):
+        side = []
+        for h, w in row:
+            side.append(crops[k : k + h * w].reshape(h, w).astype(np.float32))
+            k += h * w
+        sides.append(side)
+    return sides
+
+
+@functools.lru_cache(maxsize=1)
+def _shipped() -> tuple[tuple[np.ndarray, ...], ...]:
+    return tuple(tuple(side) for side in load_cohort())
+
+
+def shipped_cohort() -> list[tuple[str, list[np.ndarray]]]:
+    """The shipped cohort as ``(name, three grey crops)`` (loaded once)."""
+    return [(f"cohort {i}", list(side)) for i, side in enumerate(_shipped())]
+
+
+def save_cohort(path: str, sides: Sequence[Sequence[np.ndarray]]) -> None:
+    """Write sides of three BGR or grey uint8 crops as a cohort file."""
+    flat, shapes = [], []
+    for side in sides:
+        for c in side:
+            g = np.clip(grey(c), 0, 255).astype(np.uint8)
+            flat.append(g.ravel())
+            shapes.append(g.shape[:2])
+    np.savez_compressed(
+        path, crops=np.concatenate(flat), shapes=np.array(shapes, np.int32).reshape(-1, 3, 2)
+    )
+
+
+def verify(
+    query_crops: Sequence[np.ndarray],
+    candidates: Sequence[tuple[str, Sequence[Sequence[np.ndarray]]]],
+    cohort: Sequence[tuple[str, Sequence[np.ndarray]]],
+    block_weights: np.ndarray | None = None,
+) -> Verification:
+    """Side ``z`` of each candidate ``(identity, views)`` (every view three grey crops; a
+    candidate takes, block by block, its best view) against the query's three crops.
+
+    Each query block's raw scores are scaled by its scores against ``cohort``
+    (``(identity, three grey crops)`` of other pallets; a candidate's own identity there is
+    left out of its scale) and against the candidates' *other* blocks (the same look and
+    stamp style as the query, whatever the gallery holds): ``z = (score - mean) / std``
+    over the :data:`COHORT_TOP` best of these scores, the query's closest impostors (so a
+    query that looks like many pallets, painted or stamped alike, is scaled by those)."""
+    queries = [grey(c) for c in query_crops]
+    colours = [np.asarray(c) if np.asarray(c).ndim == 3 else None for c in query_crops]
+    names = [n for n, _ in cohort]
+    ref = _scores(queries, [side for _, side in cohort], colours)
+    # The candidates' other blocks are impostors of the query's look (same wood, paint,
+    # face generator, stamp style): always in the cohort, whatever the gallery holds.
+    cross = [
+        [views[0][(b + k) % len(queries)] for b in range(len(queries))]
+        for _, views in candidates
+        if len(views)
+        for k in range(1, len(queries))
+    ]
+    if cross:
+        ref = np.concatenate([ref, _scores(queries, cross, colours)])
+        names = names + [""] * len(cross)
+    w = np.ones(len(queries)) if block_weights is None else np.asarray(block_weights, float)
+    ranking = []
+    for ident, views in candidates:
+        keep = ref[[i for i, n in enumerate(names) if n != ident]]
+        top = np.sort(np.where(np.isfinite(keep), keep, -np.inf), axis=0)[::-1][:COHORT_TOP]
+        top = np.where(np.isfinite(top), top, np.nan)
+        mean = np.nanmean(top, axis=0)
+        spread = np.maximum(np.nanstd(top, axis=0), MIN_SPREAD)
+        raw = (
+            np.nanmax(_scores(queries, views, colours), axis=0)
+            if len(views)
+            else np.full(3, np.nan)
+        )
+        z = (raw - mean) / spread
+        ok = np.isfinite(z)
+        side = float((z[ok] * w[ok]).sum() / w[ok].sum()) if ok.any() else float("-inf")
+        ranking.append((ident, side, tuple(float(v) for v in z)))
+    ranking.sort(key=lambda r: -r[1])
+    return Verification(ranking)
+
+
+__all__ = [
+    "COHORT_PATH",
+    "VerifyThresholds",
+    "Verification",
+    "block_score",
+    "work_size",
+    "grey",
+    "load_cohort",
+    "save_cohort",
+    "shipped_cohort",
+    "verify",
+]

@@ -1,0 +1,127 @@
+"""Texture verification (perception.verify) on rendered scans through the shipped detector
+and embedder: the same side's blocks score far above every other pallet's, aged scans the
+embedding alone calls unknown are identified, never-enrolled sides stay unknown, an
+embedding answer whose texture does not match is refused, galleries without crops match as
+before, and older gallery files gain the view crops table."""
+
+from __future__ import annotations
+
+import sqlite3
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from perception.detector import BlockDetector
+from perception.embedder import BlockEmbedder
+from perception.gallery import Gallery
+from perception.robustness import Condition, Pipeline, enrol_gallery, side_style
+from perception.synth.ageing import Ageing
+from perception.synth.dataset import identity_names
+from perception.verify import VerifyThresholds, load_cohort, shipped_cohort, verify
+
+SIDES = 6
+
+
+@pytest.fixture(scope="module")
+def pipe() -> Pipeline:
+    return Pipeline(BlockDetector.load(threads=1), BlockEmbedder.load(threads=1))
+
+
+@pytest.fixture(scope="module")
+def enrolled(pipe):
+    names = identity_names(SIDES, "tv", start=300)
+    g, n, scans = enrol_gallery(pipe, names, Condition("test", "clean"), seed=5)
+    assert n == SIDES
+    return g, names, scans
+
+
+def _scan(pipe, index: int, name: str, ageing: Ageing | None, seed: int):
+    cond = Condition("test", "aged", ageing=ageing)
+    style = side_style(index, cond, aged=True)
+    scan = pipe.scan(name, style, np.random.default_rng(seed))
+    assert scan.complete
+    vec, vis = pipe.describe(scan.crops)
+    return scan.crops, vec, vis
+
+
+def test_the_shipped_cohort_loads():
+    cohort = load_cohort()
+    assert len(cohort) >= 32
+    assert all(len(side) == 3 and all(c.ndim == 2 for c in side) for side in cohort)
+
+
+def test_a_block_scores_far_above_other_pallets_blocks(pipe, enrolled):
+    g, names, scans = enrolled
+    crops, _, _ = _scan(pipe, 2, names[2], Ageing(stains=0.12, seed=7), seed=3)
+    cands = [(n, [s.crops]) for n, s in zip(names, scans, strict=True)]
+    ver = verify(crops, cands, shipped_cohort())
+    assert ver.best[0] == names[2]
+    assert ver.best[1] > 4.0 and ver.margin() > 2.0, ver.ranking[:2]
+
+
+def test_aged_sides_are_identified_and_never_enrolled_sides_are_not(pipe, enrolled):
+    g, names, _ = enrolled
+    by_texture = 0
+    for i, name in enumerate(names):
+        crops, vec, vis = _scan(pipe, i, name, Ageing(stains=0.12, seed=100 + i), seed=10 + i)
+        alone = g.match(vec, visibility=vis)
+        m = g.match(vec, visibility=vis, crops=crops)
+        assert m.pallet_id == name, (name, m.reason)
+        assert alone.pallet_id in (name, "unknown")
+        by_texture += alone.pallet_id == "unknown"
+        assert m.texture_id == name and m.texture_z is not None
+    assert by_texture >= 1  # the embedding alone lost some of them: the texture found them
+    others = identity_names(SIDES, "tv", start=900)
+    for i, name in enumerate(others):
+        crops, vec, vis = _scan(pipe, 50 + i, name, None, seed=40 + i)
+        m = g.match(vec, visibility=vis, crops=crops)
+        assert m.pallet_id == "unknown", (name, m.texture_z, m.texture_margin)
+
+
+def test_an_embedding_answer_whose_texture_does_not_match_is_refused(pipe, enrolled):
+    g, names, scans = enrolled
+    crops, vec, vis = _scan(pipe, 0, names[0], None, seed=60)
+    assert g.match(vec, visibility=vis).pallet_id == names[0]
+    swapped = Gallery.create(":memory:", g.model_version, g.dim)
+    swapped.set_thresholds(g.thresholds)
+    ids, rows = g.matrix()
+    for k, ident in enumerate(ids):  # each side's embeddings with the next side's crops
+        other = scans[(names.index(ident) + 1) % len(names)]
+        pngs = [__import__("cv2").imencode(".png", c)[1].tobytes() for c in other.crops]
+        swapped.enrol(ident, rows[k], pngs)
+    m = swapped.match(vec, crops=crops)
+    assert m.pallet_id == "unknown"
+    assert "texture does not match" in m.reason or "disagree" in m.reason, m.reason
+    strict = VerifyThresholds(accept_z=float("inf"), margin_z=float("inf"), veto_z=-1e9)
+    assert swapped.match(vec, crops=crops, verify_thresholds=strict).pallet_id == names[0]
+
+
+def test_a_gallery_without_crops_matches_as_before(pipe, enrolled):
+    g, names, _ = enrolled
+    crops, vec, vis = _scan(pipe, 1, names[1], None, seed=70)
+    bare = Gallery.create(":memory:", g.model_version, g.dim)
+    bare.set_thresholds(g.thresholds)
+    ids, rows = g.matrix()
+    for k, ident in enumerate(ids):
+        bare.enrol(ident, rows[k])
+    m = bare.match(vec, crops=crops)
+    assert replace(m) == bare.match(vec)
+    assert m.texture_z is None and m.decided_by == "embedding"
+
+
+def test_a_schema_2_gallery_gains_view_crops(tmp_path):
+    path = tmp_path / "v2.sqlite"
+    g = Gallery.create(str(path), "m1", 4)
+    g.enrol("1A", np.eye(3, 4, dtype=np.float32))
+    g.close()
+    conn = sqlite3.connect(path)  # make it a schema-2 file, as the last btrun wrote them
+    conn.execute("DROP TABLE view_crops")
+    conn.execute("UPDATE meta SET value = '2' WHERE key = 'schema_version'")
+    conn.commit()
+    conn.close()
+    g = Gallery.open(str(path), "m1")
+    tables = {r[0] for r in g.conn.execute("SELECT name FROM sqlite_master")}
+    meta = dict(g.conn.execute("SELECT key, value FROM meta").fetchall())
+    assert "view_crops" in tables and meta["schema_version"] == "3"
+    assert g.match(np.eye(3, 4, dtype=np.float32)).pallet_id == "1A"
