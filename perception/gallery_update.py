@@ -45,7 +45,7 @@ class UpdateRule:
     min_novelty: float = 0.03
     max_views: int = 4
     texture_z: float = 4.5
-    texture_margin: float = 2.0
+    texture_margin: float = 3.5
 
     def __post_init__(self) -> None:
         if not 0 < self.distance_fraction <= 1.0:
