@@ -35,7 +35,8 @@ class Match:
     ``best_id`` is always the closest entry. ``ranking`` lists ``(identity, mean distance,
     per-block distances)`` best first. With texture verification: ``texture_id`` is the
     candidate whose blocks' texture matches best, ``texture_z`` its score and
-    ``texture_margin`` its lead over the next candidate; ``decided_by`` says which test gave
+    ``texture_margin`` its lead over the next candidate, ``texture_blocks`` its per-block
+    ``z``; ``decided_by`` says which test gave
     the answer (``embedding``, ``texture``, or ``embedding+texture`` when both agree).
     """
 
@@ -51,6 +52,7 @@ class Match:
     texture_id: str | None = None
     texture_z: float | None = None
     texture_margin: float | None = None
+    texture_blocks: tuple[float, ...] | None = None
     decided_by: str = "embedding"
 
 
@@ -238,8 +240,15 @@ class MatchingMixin:
         ver = tv.verify(crops, cands, self._texture_cohort(), weights)
         tid, tz = ver.best  # type: ignore[misc]
         tmargin = ver.margin()
-        out = {"texture_id": tid, "texture_z": tz, "texture_margin": tmargin}
-        if tz >= th.accept_z and tmargin >= th.margin_z:
+        blocks = ver.blocks_of(tid)
+        agree = tv.agreement(blocks)
+        out = {
+            "texture_id": tid,
+            "texture_z": tz,
+            "texture_margin": tmargin,
+            "texture_blocks": blocks,
+        }
+        if tz >= th.accept_z and tmargin >= th.margin_z and agree >= th.block_z:
             if match.known and match.pallet_id != tid:
                 reason = (
                     f"the embedding says {match.pallet_id}, the blocks' texture {tid} "
@@ -259,7 +268,8 @@ class MatchingMixin:
             return replace(match, **out)
         reason = (
             f"{match.reason}; texture: {tid} scores {tz:.2f} (needs {th.accept_z:.2f}), "
-            f"{tmargin:.2f} ahead (needs {th.margin_z:.2f})"
+            f"{tmargin:.2f} ahead (needs {th.margin_z:.2f}), second-best block {agree:.2f} "
+            f"(needs {th.block_z:.2f})"
         )
         return replace(match, reason=reason, **out)
 

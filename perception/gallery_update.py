@@ -82,6 +82,7 @@ def decide(
     tz, tm = getattr(match, "texture_z", None), getattr(match, "texture_margin", None)
     if (
         tz is not None
+        and "texture" in getattr(match, "decided_by", "")
         and getattr(match, "texture_id", None) == match.pallet_id
         and tz >= rule.texture_z
         and (tm if tm is not None else 0.0) >= rule.texture_margin

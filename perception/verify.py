@@ -54,6 +54,9 @@ COLOUR_MADS = 3.0
 MIN_COLOUR_OFF = 18.0
 #: ... unless fewer than this share of the template would be left
 MIN_KEPT = 0.4
+#: query pixels whose local band-pass energy is below this share of the face's median are
+#: left out too (a flat occluder: a load's front, a board, smooth film has no grain)
+FLAT_FRACTION = 0.0
 #: a spread never below this (a cohort of identical scores would divide by zero)
 MIN_SPREAD = 0.02
 #: cohort sides taken from the gallery at most (the first ones, in a stable order)
@@ -67,14 +70,23 @@ COHORT_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "weights"
 @dataclass(frozen=True)
 class VerifyThresholds:
     """When the texture decides: a candidate whose side ``z`` is at least ``accept_z`` and
-    ``margin_z`` above every other candidate's is the answer; an embedding answer whose
-    side ``z`` is below ``veto_z`` is not (the texture says it is another pallet)."""
+    ``margin_z`` above every other candidate's, and whose second-best block reaches
+    ``block_z``, is the answer; an embedding answer whose side ``z`` is below ``veto_z`` is
+    not (the texture says it is another pallet).
+
+    ``block_z``: the three blocks of a side are one pallet's wood, so at least two must
+    match. One block matching alone is a mark that pallets share (the same stamp at the
+    same place, blocks sawn from one beam): on dark wood, where the grain is faint, a
+    never-enrolled side scored block ``z`` 14 to 20 on one block and below 1.4 on both
+    others, while a genuine side's second-best block was above 2.0 in every accepted scan
+    (docs/perception.md)."""
 
     # calibrated by bench/texture_calibration.py (docs/perception.md): never-enrolled scans
     # reached z 2.97 at most; embedding answers that were right, z 2.2 at least
     accept_z: float = 3.3
     margin_z: float = 3.0
     veto_z: float = 1.0
+    block_z: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -95,11 +107,25 @@ class Verification:
                 return z
         return None
 
+    def blocks_of(self, identity: str) -> tuple[float, ...] | None:
+        """Per-block ``z`` of one candidate (NaN for a block that could not be compared)."""
+        for ident, _, blocks in self.ranking:
+            if ident == identity:
+                return blocks
+        return None
+
     def margin(self) -> float:
         """Best ``z`` minus the runner-up's (infinite with one candidate)."""
         if len(self.ranking) < 2:
             return float("inf")
         return self.ranking[0][1] - self.ranking[1][1]
+
+
+def agreement(blocks: Sequence[float] | None) -> float:
+    """The second-best block ``z`` of a side (``-inf`` with fewer than two blocks
+    compared): how well the side matches beyond its single best block."""
+    z = sorted((float(v) for v in blocks or () if np.isfinite(v)), reverse=True)
+    return z[1] if len(z) >= 2 else float("-inf")
 
 
 def grey(crop: np.ndarray) -> np.ndarray:
@@ -129,6 +155,9 @@ def _template(
     b = cv2.GaussianBlur(g, (0, 0), lo) - cv2.GaussianBlur(g, (0, 0), hi)
     r = cv2.GaussianBlur(g, (0, 0), 1.0) - cv2.GaussianBlur(g, (0, 0), max(h, w) / 6.0)
     off = r < -DARK_MADS * _mad(r)
+    if FLAT_FRACTION > 0:
+        energy = cv2.GaussianBlur(b * b, (0, 0), 1.5)
+        off |= energy < FLAT_FRACTION * float(np.median(energy))
     if colour is not None and colour.ndim == 3:
         lab = cv2.cvtColor(
             cv2.resize(colour, (w, h), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2LAB
@@ -293,6 +322,7 @@ def verify(
 
 __all__ = [
     "COHORT_PATH",
+    "agreement",
     "VerifyThresholds",
     "Verification",
     "block_score",
