@@ -32,7 +32,7 @@ import numpy as np
 import perception.robustness as rb
 from perception.detector import BlockDetector
 from perception.embedder import BlockEmbedder
-from perception.verify import VerifyThresholds
+from perception.verify import VerifyThresholds, agreement
 
 #: the conditions of the calibration (a mix of ageing, distance, camera and looks)
 CONDITIONS = (
@@ -49,6 +49,7 @@ CONDITIONS = (
     "30 deg",
     "gradual ageing 1.0",
     "grey",
+    "dark",
     "blue",
     "black",
     "other generator (plank)",
@@ -58,7 +59,8 @@ SAFETY_Z, SAFETY_MARGIN = 0.3, 0.2
 
 
 def collect(pipe: rb.Pipeline, names: list[str], enrolled: int, unknown: int, log) -> list:
-    """(condition, enrolled?, right candidate?, z, margin, embedding answer right?) rows."""
+    """(condition, enrolled?, right candidate?, z, margin, embedding answer right?,
+    second-best block z) rows."""
     rows = []
     for cond in (c for c in rb.conditions() if c.name in names):
         pipe.matches = []
@@ -67,16 +69,30 @@ def collect(pipe: rb.Pipeline, names: list[str], enrolled: int, unknown: int, lo
             if m.texture_z is None:
                 continue
             rows.append(
-                (cond.name, known, m.texture_id == name, m.texture_z, m.texture_margin, m.known)
+                (
+                    cond.name,
+                    known,
+                    m.texture_id == name,
+                    m.texture_z,
+                    m.texture_margin,
+                    m.known,
+                    agreement(m.texture_blocks),
+                )
             )
     return rows
 
 
 def choose(rows: list) -> tuple[VerifyThresholds, dict]:
     """The grid point accepting the most enrolled sides with no never-enrolled side accepted
-    even a safety step below it."""
-    known = np.array([(r[2], r[3], r[4]) for r in rows if r[1]], float)
-    other = np.array([(r[3], r[4]) for r in rows if not r[1]], float)
+    even a safety step below it. Scans whose second-best block misses ``block_z`` are never
+    accepted (rows of older runs, without it, count as agreeing)."""
+    block_z = VerifyThresholds().block_z
+
+    def agrees(r: list) -> bool:
+        return len(r) < 7 or r[6] >= block_z
+
+    known = np.array([(r[2], r[3], r[4]) for r in rows if r[1] and agrees(r)], float)
+    other = np.array([(r[3], r[4]) for r in rows if not r[1] and agrees(r)], float)
     best, best_key = None, None
     for a in np.arange(2.0, 6.01, 0.1):
         for m in np.arange(0.4, 3.01, 0.1):
@@ -91,11 +107,12 @@ def choose(rows: list) -> tuple[VerifyThresholds, dict]:
                 best, best_key = (round(float(a), 2), round(float(m), 2)), key
     assert best is not None and best_key is not None
     figures = {
-        "enrolled_scans": int(len(known)),
-        "never_enrolled_scans": int(len(other)),
+        "enrolled_scans": sum(1 for r in rows if r[1]),
+        "never_enrolled_scans": sum(1 for r in rows if not r[1]),
+        "never_enrolled_failing_block_z": sum(1 for r in rows if not r[1] and not agrees(r)),
         "accepted_by_texture": best_key[0],
-        "never_enrolled_max_z": float(other[:, 0].max()),
-        "never_enrolled_max_margin": float(other[:, 1].max()),
+        "never_enrolled_max_z": float(other[:, 0].max()) if len(other) else float("nan"),
+        "never_enrolled_max_margin": float(other[:, 1].max()) if len(other) else float("nan"),
     }
     return VerifyThresholds(accept_z=best[0], margin_z=best[1]), figures
 
@@ -135,7 +152,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     for cond in names:
         k = [r for r in rows if r[0] == cond and r[1]]
-        acc = sum(r[2] and r[3] >= th.accept_z and r[4] >= th.margin_z for r in k)
+        acc = sum(
+            r[2] and r[3] >= th.accept_z and r[4] >= th.margin_z and r[6] >= th.block_z for r in k
+        )
         emb = sum(r[5] for r in k)
         print(f"  {cond:<28} accepted by texture {acc}/{len(k)}, by the embedding {emb}/{len(k)}")
     print(f"\nthresholds: accept_z={th.accept_z} margin_z={th.margin_z} (veto_z {th.veto_z})")

@@ -328,6 +328,7 @@ class IdentifyPallet(SyncActionNode):
                         match.texture_id,
                         match.texture_z,
                         match.texture_margin if math.isfinite(match.texture_margin or 0) else None,
+                        [z if math.isfinite(z) else None for z in match.texture_blocks or ()],
                     ]
                 ),
                 "decided_by": match.decided_by if match.known else "",
