@@ -54,9 +54,6 @@ COLOUR_MADS = 3.0
 MIN_COLOUR_OFF = 18.0
 #: ... unless fewer than this share of the template would be left
 MIN_KEPT = 0.4
-#: query pixels whose local band-pass energy is below this share of the face's median are
-#: left out too (a flat occluder: a load's front, a board, smooth film has no grain)
-FLAT_FRACTION = 0.0
 #: a spread never below this (a cohort of identical scores would divide by zero)
 MIN_SPREAD = 0.02
 #: cohort sides taken from the gallery at most (the first ones, in a stable order)
@@ -155,9 +152,6 @@ def _template(
     b = cv2.GaussianBlur(g, (0, 0), lo) - cv2.GaussianBlur(g, (0, 0), hi)
     r = cv2.GaussianBlur(g, (0, 0), 1.0) - cv2.GaussianBlur(g, (0, 0), max(h, w) / 6.0)
     off = r < -DARK_MADS * _mad(r)
-    if FLAT_FRACTION > 0:
-        energy = cv2.GaussianBlur(b * b, (0, 0), 1.5)
-        off |= energy < FLAT_FRACTION * float(np.median(energy))
     if colour is not None and colour.ndim == 3:
         lab = cv2.cvtColor(
             cv2.resize(colour, (w, h), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2LAB
