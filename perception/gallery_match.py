@@ -25,6 +25,13 @@ from perception.gallery_math import BLOCKS, block_distances
 
 #: embedding candidates verified on texture (best first)
 VERIFY_CANDIDATES = 8
+#: the texture may name only one of the embedding's this many best candidates (it confirms
+#: or re-orders the closest few; the others are verified to scale the margin). A
+#: never-enrolled side of the other face generator, sharing stamps at the same places with
+#: an enrolled side the embedding ranked 6th or lower, scored z 3.45; every genuine side the
+#: texture accepted under dark wood, plank faces and overhanging loads was the embedding's
+#: first
+TEXTURE_TOP_RANK = 3
 
 
 @dataclass(frozen=True)
@@ -224,8 +231,10 @@ class MatchingMixin:
     ) -> Match:
         """The answer once the candidates' texture is known.
 
-        * the texture's best candidate scores at least ``accept_z`` and leads the next by
-          ``margin_z``: it is the answer (whatever the embedding distance says);
+        * the texture's best candidate scores at least ``accept_z``, leads the next by
+          ``margin_z``, its second-best block reaches ``block_z`` and it is among the
+          embedding's :data:`TEXTURE_TOP_RANK` best: it is the answer (whatever the
+          embedding distance says);
         * otherwise an embedding answer stands if its own texture score is at least
           ``veto_z``, and is refused ("unknown") if it is not;
         * candidates without stored crops are not verified (an embedding answer among them
@@ -248,7 +257,8 @@ class MatchingMixin:
             "texture_margin": tmargin,
             "texture_blocks": blocks,
         }
-        if tz >= th.accept_z and tmargin >= th.margin_z and agree >= th.block_z:
+        near = candidates.index(tid) < TEXTURE_TOP_RANK
+        if tz >= th.accept_z and tmargin >= th.margin_z and agree >= th.block_z and near:
             if match.known and match.pallet_id != tid:
                 reason = (
                     f"the embedding says {match.pallet_id}, the blocks' texture {tid} "
@@ -269,7 +279,8 @@ class MatchingMixin:
         reason = (
             f"{match.reason}; texture: {tid} scores {tz:.2f} (needs {th.accept_z:.2f}), "
             f"{tmargin:.2f} ahead (needs {th.margin_z:.2f}), second-best block {agree:.2f} "
-            f"(needs {th.block_z:.2f})"
+            f"(needs {th.block_z:.2f}), embedding rank {candidates.index(tid) + 1} "
+            f"(needs <= {TEXTURE_TOP_RANK})"
         )
         return replace(match, reason=reason, **out)
 

@@ -144,3 +144,22 @@ def test_one_block_alike_is_not_the_same_side(pipe, enrolled):
     assert (
         g.match(vec, visibility=vis, crops=crops, verify_thresholds=loose).pallet_id == (names[3])
     ), m.texture_blocks
+
+
+def test_the_texture_names_only_one_of_the_embeddings_closest(pipe, enrolled):
+    """The texture confirms or re-orders the embedding's TEXTURE_TOP_RANK best candidates;
+    a side the embedding ranked lower is not named, however well its texture matches."""
+    from perception.gallery_match import TEXTURE_TOP_RANK
+
+    g, names, _ = enrolled
+    crops, vec, vis = _scan(pipe, 4, names[4], Ageing(stains=0.12, seed=90), seed=91)
+    m = g.match(vec, visibility=vis, crops=crops)
+    assert m.pallet_id == names[4] and "texture" in m.decided_by
+    refused = replace(m, pallet_id="unknown", known=False, decided_by="embedding")
+    others = [n for n in names if n != names[4]]
+    weights = np.ones(3)
+    th = VerifyThresholds()
+    low = others[:TEXTURE_TOP_RANK] + [names[4]] + others[TEXTURE_TOP_RANK:]
+    assert g._decide_with_texture(refused, crops, low, weights, th).pallet_id == "unknown"
+    high = others[: TEXTURE_TOP_RANK - 1] + [names[4]] + others[TEXTURE_TOP_RANK - 1 :]
+    assert g._decide_with_texture(refused, crops, high, weights, th).pallet_id == names[4]
