@@ -138,6 +138,20 @@ def test_resync_mid_frame_drops_it_and_stall() -> None:
     assert not asm.in_progress and asm.counters.reasons == {"stall": 1}
 
 
+def test_a_frame_on_the_wire_when_the_reader_stops_is_not_a_drop() -> None:
+    """abort (the link broke) counts the frame in progress as dropped; discard (we are
+    closing the stream at the end of a run) forgets it without counting."""
+    ((h1, p1),) = _frames(1, seed=5)
+    f1 = encode_image(h1, p1, [3])
+    for end, dropped in (("abort", 1), ("discard", 0)):
+        asm = FrameAssembler()
+        for raw in f1[:2]:
+            asm.feed(decode(raw), 1.0)
+        assert asm.in_progress
+        getattr(asm, end)()
+        assert not asm.in_progress and asm.counters.dropped == dropped, end
+
+
 def test_non_app_packets_ignored_mid_frame() -> None:
     (h1, p1), = _frames(1, seed=5)  # fmt: skip
     f1 = encode_image(h1, p1, [4])

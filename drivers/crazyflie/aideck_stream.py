@@ -297,7 +297,10 @@ class AIDeckStream:
                 self._connected = False
                 self._sock = None
                 with self._lock:
-                    self._asm.abort("disconnect")
+                    if self._stop.is_set():  # we are closing: a frame on the wire is not a drop
+                        self._asm.discard()
+                    else:
+                        self._asm.abort("disconnect")
                 self._parser.reset()
                 try:
                     sock.close()

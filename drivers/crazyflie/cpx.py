@@ -342,6 +342,11 @@ class FrameAssembler:
             c.reasons[reason] = c.reasons.get(reason, 0) + 1
         self._hdr, self._parts, self._got = None, [], 0
 
+    def discard(self) -> None:
+        """Forget the frame in progress without counting it: the reader is stopping, so
+        the frame was not lost, the run ended while it was on the wire."""
+        self._hdr, self._parts, self._got = None, [], 0
+
     def abort(self, reason: str = "disconnect") -> None:
         """Drop the frame in progress (e.g. the connection closed)."""
         self._drop(reason)
