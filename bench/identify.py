@@ -30,12 +30,12 @@ from collections.abc import Callable
 if __package__ in (None, ""):
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import cv2
 import numpy as np
 import torch
 
 from perception.embedder import BlockEmbedder
 from perception.gallery import Gallery
+from perception.gallery_views import png_bytes
 from perception.synth.dataset import block_crops
 
 
@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
         assert loop_match(g, q) == g.match(q).best_id
         g.close()
         tg = Gallery.create(":memory:", emb.model_version, emb.dim)
-        pngs = [cv2.imencode(".png", c)[1].tobytes() for c in crops]
+        pngs = [png_bytes(c) for c in crops]
         for i in range(args.texture_sides):
             e = rng.standard_normal((3, emb.dim)).astype(np.float32)
             tg.enrol(f"t{i:04d}", e / np.linalg.norm(e, axis=1, keepdims=True), pngs)

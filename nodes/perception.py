@@ -387,7 +387,7 @@ class EnrollPallet(SyncActionNode):
     )
 
     def tick_impl(self) -> NodeStatus:
-        from nodes.gallery.demo import png_bytes
+        from perception.gallery_views import png_bytes
 
         session = PerceptionSession.of(self.ctx)
         name = self.get_input("identity").strip()

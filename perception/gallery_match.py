@@ -43,8 +43,8 @@ class Match:
     per-block distances)`` best first. With texture verification: ``texture_id`` is the
     candidate whose blocks' texture matches best, ``texture_z`` its score and
     ``texture_margin`` its lead over the next candidate, ``texture_blocks`` its per-block
-    ``z``; ``decided_by`` says which test gave
-    the answer (``embedding``, ``texture``, or ``embedding+texture`` when both agree).
+    ``z``; ``decided_by`` says which test gave the answer (``embedding``, ``texture``, or
+    ``embedding+texture`` when both agree).
     """
 
     pallet_id: str

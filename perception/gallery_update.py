@@ -32,10 +32,11 @@ class UpdateRule:
         min_novelty: a scan this close to an existing view adds nothing new (skipped).
         max_views: added views kept per side (the enrolment view is always kept; the
             oldest added view is evicted).
-        texture_z, texture_margin: an answer the texture verifier confirms with at least
-            this score and this lead over the next candidate (:mod:`perception.verify`) is
-            confident whatever its embedding distance (a pallet that aged drifts in the
-            embedding; its wood's texture still proves it).
+        texture_z, texture_margin: an answer the texture verifier decided (``decided_by``
+            ``texture`` or ``embedding+texture``) with at least this score and this lead
+            over the next candidate (:mod:`perception.verify`) is confident whatever its
+            embedding distance (a pallet that aged drifts in the embedding; its wood's
+            texture still proves it).
     """
 
     distance_fraction: float = 0.75
@@ -70,7 +71,7 @@ def decide(
     """Apply ``rule`` to a :class:`perception.gallery.Match` answered under ``thresholds``.
 
     Never updates from an answer that is ``unknown`` or only just confident: either the
-    blocks' texture confirms it by a wide margin (``texture_z``, ``texture_margin``), or the
+    blocks' texture decided it by a wide margin (``texture_z``, ``texture_margin``), or the
     best distance is well inside ``max_distance`` (``distance_fraction``), each block too,
     the margin well above ``min_margin`` (``margin_factor``, and ``min_margin``), and the
     scan close enough to the side's enrolment view (``enrolment_distance``).

@@ -21,6 +21,14 @@ from perception.gallery_math import block_distances
 from perception.gallery_update import UpdateDecision, UpdateRule, decide
 
 
+def png_bytes(crop: np.ndarray) -> bytes:
+    """A crop as PNG bytes, as the gallery stores enrolment and view crops."""
+    ok, buf = cv2.imencode(".png", crop)
+    if not ok:
+        raise GalleryError(f"a crop of shape {np.shape(crop)} cannot be encoded as PNG")
+    return buf.tobytes()
+
+
 class ViewsMixin:
     """Views and history for :class:`perception.gallery.Gallery` (it provides ``conn``,
     ``path``, ``thresholds``, ``matrix()``, ``identities()``, ``_check_vectors()``,
@@ -83,11 +91,8 @@ class ViewsMixin:
             )
             view_id = int(cur.lastrowid or 0)
             for b, crop in enumerate(crops or []):
-                ok, png = cv2.imencode(".png", crop)
-                if not ok:
-                    raise GalleryError(f"update: crop {b} cannot be encoded as PNG")
                 self.conn.execute(
-                    "INSERT INTO view_crops VALUES (?, ?, ?)", (view_id, b, png.tobytes())
+                    "INSERT INTO view_crops VALUES (?, ?, ?)", (view_id, b, png_bytes(crop))
                 )
             self._event(
                 ident,
@@ -163,4 +168,4 @@ class ViewsMixin:
         return view_id
 
 
-__all__ = ["ViewsMixin"]
+__all__ = ["ViewsMixin", "png_bytes"]

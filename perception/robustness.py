@@ -27,10 +27,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-import cv2
 import numpy as np
 
 from perception.gallery import Gallery, Match
+from perception.gallery_views import png_bytes
 from perception.sequencer import Detection
 from perception.synth.ageing import Ageing, progressive
 from perception.synth.appearance import EPAL, SideStyle, split_identity
@@ -275,7 +275,7 @@ def enrol_gallery(
         scans.append(scan)
         if scan.complete:
             vec, vis = pipe.describe(scan.crops)  # type: ignore[arg-type]
-            pngs = [cv2.imencode(".png", c)[1].tobytes() for c in scan.crops]  # type: ignore[arg-type]
+            pngs = [png_bytes(c) for c in scan.crops]  # type: ignore[arg-type]
             g.enrol(name, vec, pngs, visibility=vis)
     return g, len(g), scans
 

@@ -18,13 +18,14 @@ not the block's own face: dark blots (new stains, ink and burnt marks: :data:`DA
 and anything far from the face's colour (a strap, film, a label: :data:`COLOUR_MADS`).
 
 A raw score depends on the block (a plain face correlates less with everything), so it is
-scaled by a *cohort*: the same query block's scores against other pallets' blocks (the
-gallery's other sides, topped up with the shipped cohort of synthetic blocks when the
-gallery is small) give a median and a robust spread, and ``z = (score - median) /
-spread``. A side's ``z`` is the mean of its three blocks' (weighted by how visible each
-block is, when the embedder says). Over the bench's never-enrolled sides the best
-candidate's ``z`` stays below about 3; the same side, aged or seen from 1.2 m, scores 3 to
-5 (docs/perception.md, "Texture verification").
+scaled by a *cohort*: the same query block's scores against other pallets' blocks (up to
+:data:`COHORT_FROM_GALLERY` of the gallery's other sides, the shipped cohort of synthetic
+blocks, and the candidates' other blocks) give, over the :data:`COHORT_TOP` best of them,
+a mean and a spread, and ``z = (score - mean) / spread``. A side's ``z`` is the mean of
+its three blocks' (weighted by how visible each block is, when the embedder says). In
+calibration the best candidate of a never-enrolled side stayed below ``z`` 3; the same
+side aged or seen from 1.2 m mostly scores above 4 (docs/perception.md, "Texture
+verification").
 
 Pure numpy and OpenCV; :class:`perception.gallery.Gallery` calls :func:`verify`.
 """
@@ -133,10 +134,14 @@ def grey(crop: np.ndarray) -> np.ndarray:
     return img if img.dtype == np.float32 else img.astype(np.float32)
 
 
-def _band(g: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
-    g = cv2.resize(g, (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
+def _dog(g: np.ndarray) -> np.ndarray:
+    """The grey image band-passed (difference of Gaussians, :data:`BAND_SIGMAS`)."""
     lo, hi = BAND_SIGMAS
     return cv2.GaussianBlur(g, (0, 0), lo) - cv2.GaussianBlur(g, (0, 0), hi)
+
+
+def _band(g: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    return _dog(cv2.resize(g, (hw[1], hw[0]), interpolation=cv2.INTER_AREA))
 
 
 def _template(
@@ -148,8 +153,7 @@ def _template(
     strap, film, a label, a load hanging over it) are left out."""
     h, w = hw
     g = cv2.resize(query, (w, h), interpolation=cv2.INTER_AREA)
-    lo, hi = BAND_SIGMAS
-    b = cv2.GaussianBlur(g, (0, 0), lo) - cv2.GaussianBlur(g, (0, 0), hi)
+    b = _dog(g)
     r = cv2.GaussianBlur(g, (0, 0), 1.0) - cv2.GaussianBlur(g, (0, 0), max(h, w) / 6.0)
     off = r < -DARK_MADS * _mad(r)
     if colour is not None and colour.ndim == 3:

@@ -15,6 +15,7 @@ import pytest
 from perception.detector import BlockDetector
 from perception.embedder import BlockEmbedder
 from perception.gallery import Gallery
+from perception.gallery_views import png_bytes
 from perception.robustness import Condition, Pipeline, enrol_gallery, side_style
 from perception.synth.ageing import Ageing
 from perception.synth.dataset import identity_names
@@ -88,8 +89,7 @@ def test_an_embedding_answer_whose_texture_does_not_match_is_refused(pipe, enrol
     ids, rows = g.matrix()
     for k, ident in enumerate(ids):  # each side's embeddings with the next side's crops
         other = scans[(names.index(ident) + 1) % len(names)]
-        pngs = [__import__("cv2").imencode(".png", c)[1].tobytes() for c in other.crops]
-        swapped.enrol(ident, rows[k], pngs)
+        swapped.enrol(ident, rows[k], [png_bytes(c) for c in other.crops])
     m = swapped.match(vec, crops=crops)
     assert m.pallet_id == "unknown"
     assert "texture does not match" in m.reason or "disagree" in m.reason, m.reason

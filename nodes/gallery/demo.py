@@ -151,14 +151,6 @@ def scan_blocks(
     return [b.crop for b in seq.blocks]
 
 
-def png_bytes(crop: np.ndarray) -> bytes:
-    """A crop as PNG bytes (what the gallery stores as the source crop)."""
-    import cv2
-
-    ok, buf = cv2.imencode(".png", crop)
-    return buf.tobytes() if ok else b""
-
-
 def demo_gallery_path(
     world_path: str,
     detector: Any,
@@ -189,6 +181,7 @@ def build_gallery(
     """Enrol ``identities`` of the world from rendered scans into a new gallery at ``path``
     (written to a temporary file first, then renamed over ``path``)."""
     from perception.gallery import Gallery, GalleryError
+    from perception.gallery_views import png_bytes
 
     factors = tuple(float(f) for f in (camera or {}).get("white_balance", (1.0, 1.0, 1.0)))
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
