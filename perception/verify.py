@@ -15,7 +15,7 @@ the light), then the largest normalised cross-correlation (``cv2.matchTemplate``
 ``TM_CCOEFF_NORMED``) of ``q`` without a border of :data:`BORDER` (the block's edges
 look alike on every pallet) over every shift and scale, leaving out what on the query is
 not the block's own face: dark blots (new stains, ink and burnt marks: :data:`DARK_MADS`)
-and anything far from the face's colour (a strap, film, a label: :data:`COLOUR_MADS`).
+and anything far from the face's colour (a strap, film, a label: :data:`COLOUR_OFF`).
 
 A raw score depends on the block (a plain face correlates less with everything), so it is
 scaled by a *cohort*: the same query block's scores against other pallets' blocks (up to
@@ -49,9 +49,12 @@ BAND_SIGMAS = (0.7, 3.0)
 #: a query pixel this many robust deviations darker than its surroundings is a blot
 #: (stain, ink, burn) and is left out of the correlation
 DARK_MADS = 2.5
-#: a query pixel farther than this many robust deviations from the face's median colour
-#: (Lab), and at least MIN_COLOUR_OFF, is not the face (a strap, film, a label)
-COLOUR_MADS = 3.0
+#: a query pixel farther from the face's median colour (Lab) than this many times the
+#: median pixel's distance, and at least MIN_COLOUR_OFF, is not the face (a strap, film, a
+#: label, a load). The face's own grain and marks stay within about twice the median; a
+#: wider bar (4.4 times, until issue 17's second pass) let every strap of the bench
+#: through unmasked, and the one block it crossed dragged the whole side's score down
+COLOUR_OFF = 2.0
 MIN_COLOUR_OFF = 18.0
 #: ... unless fewer than this share of the template would be left
 MIN_KEPT = 0.4
@@ -162,7 +165,7 @@ def _template(
         )
         lab = cv2.GaussianBlur(lab.astype(np.float32), (0, 0), 1.0)
         dist = np.linalg.norm(lab - np.median(lab.reshape(-1, 3), axis=0), axis=2)
-        off |= dist > max(COLOUR_MADS * _mad(dist, centre=0.0), MIN_COLOUR_OFF)
+        off |= dist > max(COLOUR_OFF * float(np.median(dist)), MIN_COLOUR_OFF)
     off = cv2.dilate(off.astype(np.uint8), np.ones((3, 3), np.uint8))
     mh, mw = max(1, int(BORDER * h)), max(1, int(BORDER * w))
     keep = (1 - off[mh : h - mh, mw : w - mw]).astype(np.float32)
@@ -170,9 +173,9 @@ def _template(
     return b[mh : h - mh, mw : w - mw], mask
 
 
-def _mad(x: np.ndarray, centre: float | None = None) -> float:
-    c = float(np.median(x)) if centre is None else centre
-    return 1.4826 * float(np.median(np.abs(x - c))) + 1e-3
+def _mad(x: np.ndarray) -> float:
+    """Robust standard deviation of ``x`` (1.4826 times the median absolute deviation)."""
+    return 1.4826 * float(np.median(np.abs(x - np.median(x)))) + 1e-3
 
 
 def work_size(query_hw: tuple[int, int], enrolled_hw: tuple[int, int]) -> tuple[int, int]:
