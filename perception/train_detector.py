@@ -66,6 +66,7 @@ class TrainConfig:
     yaw_deg: float = 32.0
     colour_augment: float = 0.8  # share of samples given colour_augment
     rack_fraction: float = 0.3  # frames with the pallet on a rack beam (rack_context)
+    dark_paint: float = 0.08  # extra pallets painted black or very dark (varied_style)
     steps: int = 6000
     batch: int = 32
     lr: float = 3e-3
@@ -137,6 +138,7 @@ def train(
         distance_m=cfg.distance_m,
         yaw_deg=cfg.yaw_deg,
         rack_fraction=cfg.rack_fraction,
+        dark_paint=cfg.dark_paint,
         log=log,
     )
     render_s = time.perf_counter() - t0

@@ -188,3 +188,25 @@ def test_changed_weights_are_folded_again():
         after = det.forward(x)
         assert torch.allclose(after, det.model(x), atol=1e-4)
     assert torch.allclose(after[:, 0], before[:, 0] + 1.0, atol=1e-4)
+
+
+def test_dark_paint_repaints_a_share_of_training_pallets():
+    """``dark_paint`` repaints that share of the training pallets black or very dark (the
+    detector's hardest look) and leaves the others' looks exactly as random_look drew them."""
+    from perception.detector_data import varied_style
+    from perception.synth.dataset import identity_names
+    from perception.synth.looks import bgr_to_hsv
+
+    names = identity_names(400, "t")[::2]  # one side per pallet
+    plain = [varied_style(n, 0) for n in names]
+    dark = [varied_style(n, 0, dark_paint=0.5) for n in names]
+
+    def is_dark(s) -> bool:
+        return (
+            s.paint is not None and not isinstance(s.paint, str) and bgr_to_hsv(s.paint)[2] <= 0.3
+        )
+
+    changed = [d for p, d in zip(plain, dark, strict=True) if d != p]
+    assert 0.4 < len(changed) / len(names) < 0.6
+    assert all(is_dark(d) for d in changed)
+    assert sum(is_dark(p) for p in plain) / len(names) < 0.05
