@@ -47,6 +47,7 @@ MIN_TRI_RAYS = 6  # rays needed to triangulate a block
 MAX_TRI_MISS_M = 0.02  # rays missing the triangulated point by more (rms) are not one block
 MIN_TRI_SPREAD = 0.02  # mean sin^2 of the rays' spread (about 8 deg): enough to triangulate
 PAIR_BAND_M = 0.12  # blocks that set the facing were seen at most this much farther apart
+MIN_SIZED = 3  # central sightings a block needs before its depth from size sets the facing
 REFIT_TURN_DEG = 25.0  # a refit may turn the face this much from the first estimate
 MAX_FRAMES_CHECKED = 120  # the visibility test looks at this many latest frames
 
@@ -312,7 +313,10 @@ class FaceTracker:
             # Per block, a position to draw the line through: triangulated from its rays when
             # they were seen from places far enough apart (no size bias), else its nearest
             # central sightings (depth from size: only blocks seen about as near as the
-            # nearest, since the bias grows with distance).
+            # nearest, since the bias grows with distance, and in MIN_SIZED views at least:
+            # a box a pixel or two off at 20 px moves a block 5-10 cm, and a line through a
+            # triangulated block and one glimpsed twice turned the face 12 deg, bringing a
+            # scan 17 cm too near).
             tri: list[tuple[np.ndarray, float]] = []
             sized: list[tuple[np.ndarray, float, float]] = []
             for c in clusters:
@@ -324,6 +328,8 @@ class FaceTracker:
                 if len(cc):
                     near = depth[cc] <= float(np.percentile(depth[cc], 10)) + NEAR_BAND_M
                     b = cc[near]
+                    if len(b) < MIN_SIZED:
+                        continue
                     sized.append(
                         (np.median(pts[b, :2], axis=0), float(len(b)), float(np.median(depth[b])))
                     )

@@ -166,6 +166,25 @@ def test_face_from_a_far_look_then_a_pass_along_it(facing_deg):
     assert face.last_s == pytest.approx(face.along(last[0], last[1]), abs=0.02)
 
 
+def test_a_block_glimpsed_twice_does_not_turn_a_triangulated_face():
+    """One block triangulated from a pass, the next seen square-on in only two frames whose
+    boxes are 3 px too tall (depth from size 10 % near): two glimpses do not set the facing,
+    as they turned the face 12 deg and brought a scan 17 cm too near."""
+    cam, rng = CameraModel(), np.random.default_rng(3)
+    row = _row((9.30, 0.20, 0.255), 0.0)  # blocks at y = -0.3275, 0.20, 0.7275
+    tracker = FaceTracker(cam)
+    for y in np.linspace(-0.75, -0.05, 30):  # a pass: only the first block is in view
+        pos = (8.80 + 0.25 * (y + 0.75), y, 0.255)
+        tracker.add_frame(pos, _quat(0.0), _boxes(cam, pos, 0.0, row[:1], rng))
+    pos = (8.80, 0.20, 0.255)
+    for _ in range(2):
+        x1, y1, x2, y2 = _boxes(cam, pos, 0.0, row[1:2])[0]
+        tracker.add_frame(pos, _quat(0.0), [(x1, y1 - 1.5, x2, y2 + 1.5)])
+    face = tracker.fit(0.0, (9.30, 0.20, 0.255), window_m=0.6)
+    assert face is not None
+    assert math.degrees(face.facing_rad) == pytest.approx(0.0, abs=1.0)
+
+
 def test_two_blocks_seen_leave_two_placements_unless_the_view_rules_one_out():
     cam = CameraModel()
     row = _row((9.30, 0.30, 0.255), 0.0)  # blocks at y = -0.2275, 0.30, 0.8275
