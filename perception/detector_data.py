@@ -118,10 +118,8 @@ def render_set(
         lateral = 1.4 if rng.random() < wide_fraction else 0.7
         cond = None
         if variety:
-            if name not in styles:
-                styles = {
-                    name: varied_style(name, seed, dark_paint=dark_paint)
-                }  # one at a time: bounded memory
+            if name not in styles:  # one style at a time: bounded memory
+                styles = {name: varied_style(name, seed, dark_paint=dark_paint)}
             cond = random_conditions(rng)
         raw, bb = render_detection_sample(
             rng,

@@ -9,6 +9,7 @@ from __future__ import annotations
 import sqlite3
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -175,8 +176,6 @@ def test_the_texture_names_only_one_of_the_embeddings_closest(pipe, enrolled):
 def test_a_strap_across_a_block_is_left_out_of_the_template(enrolled, seed):
     """A strap of any of the occluder colours over 30 % of a block face is masked out of
     the correlation, and little of the face around it is."""
-    import cv2
-
     from perception.synth.ageing import occlude
     from perception.verify import BORDER, _template, grey
 
