@@ -97,13 +97,16 @@ def render_set(
     yaw_deg: float = 15.0,
     rack_fraction: float = 0.0,
     dark_paint: float = 0.0,
+    aim_fraction: float = 0.0,
     log: Log | None = None,
 ) -> FrameSet:
     """``n`` white-balanced renders, consecutive frames per identity (scene cache hits),
     deterministic in ``seed`` and ``names``. ``variety``: random looks, ageings and view
     conditions (see the module doc); ``rack_fraction``: the share of frames with the pallet
     on a rack beam among rack steel and neighbour pallets; ``dark_paint``: see
-    :func:`varied_style`."""
+    :func:`varied_style`; ``aim_fraction``: the share of frames aimed at one block as the
+    scan's views are (``aim_probability`` of
+    :func:`perception.synth.dataset.render_detection_sample`)."""
     rng = np.random.default_rng(seed)
     factors = _wb_factors(SensorModel())
     h, w = config.input_hw
@@ -130,6 +133,7 @@ def render_set(
             yaw_deg=yaw_deg,
             conditions=cond,
             rack_probability=rack_fraction,
+            aim_probability=aim_fraction,
         )
         bgr = develop(raw, factors, cond or ViewConditions())
         images[i] = cv2.resize(bgr, (w, h), interpolation=cv2.INTER_AREA)

@@ -5,15 +5,16 @@ Commands (figures in ``docs/detector.md``)::
     python -m perception.train_detector train --out perception/weights/detector.pt --seed 0
     python -m perception.train_detector evaluate --weights perception/weights/detector.pt \\
         --n 300 --seed 12345
+    python -m perception.train_detector calibrate --weights perception/weights/detector.pt
     python -m perception.train_detector train --smoke --out /tmp/smoke.pt   # CI: seconds
 
 Training frames come from :func:`perception.synth.dataset.render_detection_sample` for the
 identities ``t0001A``... (``identity_names(ids, "t")``), rendered once before training (one
 process; consecutive frames share an identity so the renderer's scene cache hits), white
-balanced, shrunk to the network input and kept in memory. Evaluation renders other
-identities (prefix ``e``: other textures) with another seed. A ground-truth block less than
-half inside the frame (``visible < 0.5``) is "don't care": no loss on the cells around it in
-training; a detection on it is neither a true nor a false positive in evaluation.
+balanced, shrunk to the network input and kept in memory. A ground-truth block less than
+half inside the frame (``visible < 0.5``) is "don't care": no loss on the cells around it.
+After training the operating point is calibrated and the model evaluated on other
+identities and seeds (:mod:`perception.detector_eval`).
 """
 
 from __future__ import annotations
@@ -30,25 +31,23 @@ import torch
 import torch.nn.functional as F
 
 from perception.detector import (
+    DEFAULT_WEIGHTS,
     FORMAT,
     FORMAT_VERSION,
     BlockDetector,
     BlockNet,
     DetectorConfig,
-    box_iou,
     config_to_dict,
     decode,
-    nms,
     to_input,
 )
 from perception.detector_data import (
-    MIN_VISIBLE,
-    MIN_WIDTH_PX,
     augment,
     build_targets,
     colour_augment,
     render_set,
 )
+from perception.detector_eval import calibrate, evaluate, format_calibration, format_metrics
 from perception.synth.dataset import identity_names
 
 Log = Callable[[str], None]
@@ -67,6 +66,7 @@ class TrainConfig:
     colour_augment: float = 0.8  # share of samples given colour_augment
     rack_fraction: float = 0.3  # frames with the pallet on a rack beam (rack_context)
     dark_paint: float = 0.08  # extra pallets painted black or very dark (varied_style)
+    aim_fraction: float = 0.0  # frames aimed at a block as the scan's are (docs/detector.md)
     steps: int = 6000
     batch: int = 32
     lr: float = 3e-3
@@ -139,6 +139,7 @@ def train(
         yaw_deg=cfg.yaw_deg,
         rack_fraction=cfg.rack_fraction,
         dark_paint=cfg.dark_paint,
+        aim_fraction=cfg.aim_fraction,
         log=log,
     )
     render_s = time.perf_counter() - t0
@@ -213,137 +214,26 @@ def train(
         "distance_m": list(cfg.distance_m),
         "yaw_deg": cfg.yaw_deg,
         "colour_augment": cfg.colour_augment,
+        "aim_fraction": cfg.aim_fraction,
     }
     return ema, info
 
 
-# --------------------------------------------------------------------------- evaluate
-def average_precision(scores: np.ndarray, tp: np.ndarray, n_gt: int) -> float:
-    """All-point interpolated AP of detections (scores, 1/0 true positive) over n_gt."""
-    if n_gt == 0:
-        return float("nan")
-    order = np.argsort(-scores, kind="stable")
-    tp = tp[order].astype(np.float64)
-    ctp, cfp = np.cumsum(tp), np.cumsum(1 - tp)
-    recall = ctp / n_gt
-    precision = ctp / np.maximum(ctp + cfp, 1e-12)
-    r = np.concatenate(([0.0], recall, [recall[-1] if len(recall) else 0.0]))
-    p = np.concatenate(([1.0], precision, [0.0]))
-    p = np.maximum.accumulate(p[::-1])[::-1]
-    return float(np.sum((r[1:] - r[:-1]) * p[1:]))
-
-
-def match_frame(
-    det: np.ndarray, scores: np.ndarray, gt: np.ndarray, thr: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Greedy matching by score. Returns tp (0/1), ignore (detections on "don't care"
-    blocks only) per detection, and the IoU of each true positive (0 otherwise)."""
-    care = (gt[:, 4] >= MIN_VISIBLE) & (gt[:, 2] - gt[:, 0] >= MIN_WIDTH_PX)
-    g_care, g_dc = gt[care, :4], gt[~care, :4]
-    tp = np.zeros(len(det), np.int64)
-    ign = np.zeros(len(det), bool)
-    ious = np.zeros(len(det))
-    used = np.zeros(len(g_care), bool)
-    iou = box_iou(det, g_care) if len(g_care) else np.zeros((len(det), 0))
-    for i in np.argsort(-scores, kind="stable"):
-        if iou.shape[1]:
-            cand = np.where(used, -1.0, iou[i])
-            j = int(np.argmax(cand))
-            if cand[j] >= thr:
-                tp[i], used[j], ious[i] = 1, True, cand[j]
-                continue
-        if len(g_dc):
-            d = det[i]
-            ix = np.clip(np.minimum(d[2], g_dc[:, 2]) - np.maximum(d[0], g_dc[:, 0]), 0, None)
-            iy = np.clip(np.minimum(d[3], g_dc[:, 3]) - np.maximum(d[1], g_dc[:, 1]), 0, None)
-            area = max((d[2] - d[0]) * (d[3] - d[1]), 1e-6)
-            ign[i] = bool(((ix * iy) / area >= 0.5).any())
-    return tp, ign, ious
-
-
-def evaluate(
-    detector: BlockDetector,
-    n: int,
-    seed: int,
-    log: Log,
-    min_score: float = 0.5,
-    variety: bool = False,
-    racks: bool = False,
-) -> dict:
-    """Precision / recall at ``min_score``, AP@0.5, AP@0.5:0.95 and IoU figures on ``n``
-    held-out renders (identities ``e0001A``.., five frames each). ``variety``: the varied
-    looks, ageings and conditions of training (other identities), 0.25..1.2 m, yaw 30 deg.
-    ``racks``: every pallet on a rack beam among rack steel and neighbour pallets."""
-    names = identity_names(max(1, math.ceil(n / 5)), "e")
-    t0 = time.perf_counter()
-    extra: dict = {"variety": True, "distance_m": (0.25, 1.2), "yaw_deg": 30.0} if variety else {}
-    if racks:
-        extra["rack_fraction"] = 1.0
-    data = render_set(names, n, seed, detector.config, keep_full=True, **extra)
-    log(
-        f"rendered {n} held-out frames of {len(names)} identities in {time.perf_counter() - t0:.0f} s"
-    )
-    assert data.full is not None
-    dets, scores = [], []
-    t1 = time.perf_counter()
-    for frame in data.full:
-        b, s = detector.raw_boxes([frame])
-        sel = np.flatnonzero(s[0] >= 0.01)
-        keep = nms(b[0][sel], s[0][sel], detector.config.nms_iou, detector.config.max_detections)
-        dets.append(b[0][sel][keep])
-        scores.append(s[0][sel][keep])
-    infer_ms = (time.perf_counter() - t1) / n * 1000
-    n_gt = sum(
-        int(((g[:, 4] >= MIN_VISIBLE) & (g[:, 2] - g[:, 0] >= MIN_WIDTH_PX)).sum())
-        for g in data.boxes
-    )
-    out: dict = {"frames": n, "seed": seed, "blocks": n_gt, "min_score": min_score}
-    out["variety"] = variety
-    out["racks"] = racks
-    aps = []
-    for thr in np.arange(0.5, 0.951, 0.05):
-        all_s, all_tp, all_iou = [], [], []
-        for d, s, g in zip(dets, scores, data.boxes, strict=True):
-            tp, ign, ious = match_frame(d, s, g, float(thr))
-            all_s.append(s[~ign])
-            all_tp.append(tp[~ign])
-            all_iou.append(ious[~ign])
-        s_, tp_, iou_ = np.concatenate(all_s), np.concatenate(all_tp), np.concatenate(all_iou)
-        aps.append(average_precision(s_, tp_, n_gt))
-        if abs(thr - 0.5) < 1e-9:
-            kept = s_ >= min_score
-            n_tp = int(tp_[kept].sum())
-            out["precision"] = n_tp / max(1, int(kept.sum()))
-            out["recall"] = n_tp / max(1, n_gt)
-            out["false_positives"] = int(kept.sum()) - n_tp
-            matched = iou_[kept & (tp_ == 1)]
-            out["mean_iou"] = float(matched.mean()) if len(matched) else 0.0
-            out["iou_p10"] = float(np.percentile(matched, 10)) if len(matched) else 0.0
-            out["iou_over_0.8"] = float((matched > 0.8).mean()) if len(matched) else 0.0
-    out["ap50"] = aps[0]
-    out["ap75"] = aps[5]
-    out["ap50_95"] = float(np.mean(aps))
-    out["ms_per_frame"] = infer_ms
-    return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in out.items()}
-
-
-def format_metrics(m: dict) -> str:
-    """One readable line per figure group."""
-    return (
-        f"held-out{' (varied)' if m.get('variety') else ''}: {m['frames']} frames, "
-        f"{m['blocks']} blocks (seed {m['seed']})\n"
-        f"  precision {m['precision']:.3f}  recall {m['recall']:.3f}  "
-        f"false positives {m['false_positives']}  (min_score {m['min_score']}, IoU >= 0.5)\n"
-        f"  AP@0.5 {m['ap50']:.3f}  AP@0.75 {m['ap75']:.3f}  AP@0.5:0.95 {m['ap50_95']:.3f}\n"
-        f"  matched IoU: mean {m['mean_iou']:.3f}  p10 {m['iou_p10']:.3f}  "
-        f"> 0.8: {100 * m['iou_over_0.8']:.1f} %\n"
-        f"  {m['ms_per_frame']:.2f} ms/frame (batch 1, {torch.get_num_threads()} thread(s))"
-    )
-
-
 # -------------------------------------------------------------------------------- CLI
+def _with_operating_point(blob: dict, path: str, n: int, log: Log) -> dict:
+    """Calibrate the checkpoint at ``path`` (:func:`perception.detector_eval.calibrate`),
+    store its threshold and sweep in ``blob`` and write ``blob`` back to ``path``."""
+    cal = calibrate(BlockDetector.load(path), n, log)
+    log(format_calibration(cal))
+    blob["score_threshold"] = cal["score_threshold"]
+    blob.setdefault("trained", {})["calibration"] = cal
+    torch.save(blob, path)
+    return blob
+
+
 def cmd_train(args: argparse.Namespace, log: Log) -> int:
-    """Render, train, evaluate on held-out renders, write the checkpoint."""
+    """Render, train, calibrate the operating point, evaluate on held-out renders, write
+    the checkpoint."""
     cfg = SMOKE if args.smoke else TrainConfig()
     overrides = {"steps": args.steps, "frames": args.frames}
     cfg = replace(cfg, **{k: v for k, v in overrides.items() if v is not None})
@@ -361,6 +251,7 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
     }
     torch.save(blob, args.out)
     if cfg.eval_frames:
+        blob = _with_operating_point(blob, args.out, cfg.eval_frames, log)
         detector = BlockDetector.load(args.out)
         metrics = evaluate(detector, cfg.eval_frames, 12345, log)
         blob["trained"]["metrics"] = metrics
@@ -374,6 +265,20 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
     blob["trained"]["wall_seconds"] = round(time.perf_counter() - t0, 1)
     torch.save(blob, args.out)
     log(f"wrote {args.out} ({blob['trained']['wall_seconds']:.0f} s)")
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace, log: Log) -> int:
+    """Choose a checkpoint's operating point and write it into the checkpoint (or a copy)."""
+    src = args.weights or DEFAULT_WEIGHTS
+    BlockDetector.load(src)  # a clear error for a file that is not a detector checkpoint
+    blob = torch.load(src, map_location="cpu", weights_only=True)
+    out = args.out or src
+    if out != src:
+        torch.save(blob, out)
+    blob = _with_operating_point(blob, out, args.n, log)
+    detector = BlockDetector.load(out)
+    print(f"{detector.model_version} ({out}): score_threshold {detector.score_threshold}")
     return 0
 
 
@@ -404,10 +309,16 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--weights", default=None)
     ev.add_argument("--n", type=int, default=300)
     ev.add_argument("--seed", type=int, default=12345)
-    ev.add_argument("--min-score", type=float, default=0.5)
+    ev.add_argument(
+        "--min-score", type=float, default=None, help="default: the checkpoint's operating point"
+    )
     ev.add_argument("--variety", action="store_true", help="varied looks and conditions")
     ev.add_argument("--racks", action="store_true", help="every pallet on a rack beam")
-    for p in (tr, ev):
+    ca = sub.add_parser("calibrate", help="choose the operating point, write it into a checkpoint")
+    ca.add_argument("--weights", default=None, help="default: the shipped detector.pt")
+    ca.add_argument("--out", default=None, help="write a calibrated copy here (default: in place)")
+    ca.add_argument("--n", type=int, default=300, help="validation frames per set (4 sets)")
+    for p in (tr, ev, ca):
         p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
         p.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
@@ -419,7 +330,8 @@ def main(argv: list[str] | None = None) -> int:
         if not args.quiet:
             print(f"[{time.perf_counter() - t0:7.1f}s] {msg}", file=sys.stderr, flush=True)
 
-    return cmd_train(args, log) if args.cmd == "train" else cmd_evaluate(args, log)
+    commands = {"train": cmd_train, "evaluate": cmd_evaluate, "calibrate": cmd_calibrate}
+    return commands[args.cmd](args, log)
 
 
 if __name__ == "__main__":

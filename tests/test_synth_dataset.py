@@ -33,6 +33,25 @@ def test_detection_samples_are_deterministic():
     assert np.array_equal(a[0], b[0]) and a[1] == b[1]
 
 
+def test_aimed_samples_centre_one_block_at_every_distance_and_yaw():
+    """``aim_probability`` 1: every frame is aimed at a block as the scan's views are (its
+    box centred within a few pixels, end blocks included, out to 1.3 m and 30 deg); 0: the
+    random stream is untouched, so older training configurations render the same frames."""
+    rng = np.random.default_rng(7)
+    aimed_blocks = set()
+    for _ in range(12):
+        _, boxes = render_detection_sample(
+            rng, ["p0001A"], aim_probability=1.0, distance_m=(0.9, 1.3), yaw_deg=30.0
+        )
+        centred = [b for b in boxes if abs((b.x1 + b.x2) / 2 - 162) <= 12]
+        assert len(centred) == 1, boxes
+        aimed_blocks.add(centred[0].block)
+    assert aimed_blocks == {0, 1, 2}
+    a = render_detection_sample(np.random.default_rng(4), identities=["p0003A"])
+    b = render_detection_sample(np.random.default_rng(4), ["p0003A"], aim_probability=0.0)
+    assert np.array_equal(a[0], b[0]) and a[1] == b[1]
+
+
 def test_block_crops():
     crops = block_crops("p0001A", None, 2, np.random.default_rng(1), 5)
     assert len(crops) == 5

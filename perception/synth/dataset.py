@@ -121,6 +121,7 @@ def render_detection_sample(
     blur_probability: float = 0.3,
     conditions: ViewConditions | None = None,
     rack_probability: float = 0.0,
+    aim_probability: float = 0.0,
 ) -> tuple[np.ndarray, list[BlockBox]]:
     """A raw Bayer frame and its ground-truth block boxes, everything randomised.
 
@@ -132,6 +133,10 @@ def render_detection_sample(
     :func:`perception.synth.views.develop` for the lower resolution).
     ``rack_probability``: the share of frames with the pallet on a rack beam, among rack
     steel and neighbour pallets (:func:`_rack_scene`); 0 draws nothing more from ``rng``.
+    ``aim_probability``: the share of frames taken as the scan takes them, the camera aimed
+    at one block (any of the three, within 4 cm) instead of anywhere along the face; an end
+    block seen this way has open space on one side, which random poses rarely centre at a
+    long distance. 0 draws nothing more from ``rng``.
     """
     camera = camera or CameraModel()
     identities = identities or identity_names(100)
@@ -146,11 +151,19 @@ def render_detection_sample(
     else:
         scene = _scene(pallet_id, side, style, base_z)
     d = rng.uniform(*distance_m)
+    aimed = aim_probability > 0.0 and rng.random() < aim_probability
+    y = rng.uniform(-lateral_m, lateral_m)
+    z = _block_centre_z(base_z) + rng.uniform(-height_m, height_m)
+    yaw = math.radians(rng.uniform(-yaw_deg, yaw_deg))
+    x = -d
+    if aimed:  # on the ray through the block's centre, as the scan's views are
+        offset = EPAL.block_offsets_m()[int(rng.integers(3))]
+        x, y = -d * math.cos(yaw), -offset + rng.uniform(-0.04, 0.04) - d * math.sin(yaw)
     pose = CameraPose.from_yaw(
-        -d,
-        rng.uniform(-lateral_m, lateral_m),
-        _block_centre_z(base_z) + rng.uniform(-height_m, height_m),
-        math.radians(rng.uniform(-yaw_deg, yaw_deg)),
+        x,
+        y,
+        z,
+        yaw,
         pitch=math.radians(rng.normal(0.0, 2.0)),
         roll=math.radians(rng.normal(0.0, 2.0)),
     )
