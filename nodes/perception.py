@@ -29,7 +29,13 @@ from bt_engine.node import (
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from nodes.common import vehicle_of
-from nodes.perception_session import DEMO, BlockScan, PerceptionError, PerceptionSession
+from nodes.perception_session import (
+    DEMO,
+    MIN_SCORE_DOC,
+    BlockScan,
+    PerceptionError,
+    PerceptionSession,
+)
 from perception.errors import ModelError
 from perception.gallery import GalleryError
 
@@ -114,7 +120,7 @@ class DetectBlocks(StatefulActionNode):
     category = CATEGORY_PERCEPTION
     ports = (
         _DETECTOR,
-        input_port("min_score", FLOAT, 0.5, "detection score threshold (0..1)"),
+        input_port("min_score", FLOAT, None, MIN_SCORE_DOC),
         input_port("max_distance_left_px", FLOAT, 60.0, "keep crops this close left of centre"),
         input_port("min_distance_right_px", FLOAT, 20.0, "commit once this far right of centre"),
         input_port("blocks", INT, 3, "blocks to commit before SUCCESS"),

@@ -28,6 +28,7 @@ from perception.errors import ModelError
 FRAME_HW = (244, 324)  # the AI-deck camera: 324 x 244 pixels
 DEMO = "demo"  # gallery name of the built-in demo gallery (the world's pallets)
 MAX_RESULT_LINES = 5  # more identifications than this are counted, not listed
+MIN_SCORE_DOC = "detection score threshold (0..1; unset: the detector's calibrated one)"
 
 
 #: torch threads for the mission's models. One: the detector does a frame in about 4 ms on
@@ -295,7 +296,7 @@ class PerceptionSession:
             boxes = [(d.x1, d.y1, d.x2, d.y2) for d in dets]
             self.tracker.add_frame(pose.position, pose.quaternion, boxes)
 
-    def observe(self, frame: Any, detector: Any, min_score: float) -> list:
+    def observe(self, frame: Any, detector: Any, min_score: float | None) -> list:
         """Detect blocks in one camera frame for the face tracker only (no sequencer)."""
         t0 = time.perf_counter()
         bgr = frame_bgr(frame.image, (frame.meta or {}).get("format"), self.factors)
@@ -311,7 +312,7 @@ class PerceptionSession:
         frame: Any,
         detector: Any,
         sequencer: Any,
-        min_score: float,
+        min_score: float | None,
         max_row_offset_px: float | None = None,
     ) -> list:
         """Detect blocks in one camera frame and feed the sequencer (and the face tracker,

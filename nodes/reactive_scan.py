@@ -32,7 +32,7 @@ from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulAction
 from bt_engine.ports import ANY, DURATION, FLOAT, INT, STRING, VEC3, input_port, output_port
 from bt_engine.registry import register
 from nodes.common import vehicle_of
-from nodes.perception_session import PerceptionError, PerceptionSession
+from nodes.perception_session import MIN_SCORE_DOC, PerceptionError, PerceptionSession
 
 CATEGORY_SCAN = "reactive scan"
 FIXED_YAW = 2
@@ -40,7 +40,7 @@ GEOFENCE_CLEARANCE_M = 0.05  # a target must be this far inside the geofence wal
 STANDOFF_SLACK_M = 0.15  # stand off up to this much further to keep inside the geofence
 
 _DETECTOR = input_port("detector", STRING, "", "detector weights file (empty: the shipped model)")
-_MIN_SCORE = input_port("min_score", FLOAT, 0.5, "detection score threshold (0..1)")
+_MIN_SCORE = input_port("min_score", FLOAT, None, MIN_SCORE_DOC)
 _FACE_IN = input_port("face", ANY, description="LocatePallet's face estimate")
 _STANDOFF = input_port("standoff", FLOAT, 0.4, "distance to keep from the face while scanning, m")
 _SPEED = input_port("speed", FLOAT, 0.3, "speed of the positioning flights, m/s")

@@ -12,7 +12,9 @@ grid cell predicts
 
 Boxes above ``min_score`` are kept, overlapping ones suppressed (greedy NMS written here in
 numpy), mapped back to frame pixels and returned left to right by centre x as
-:class:`perception.sequencer.Detection`.
+:class:`perception.sequencer.Detection`. Without a ``min_score`` the checkpoint's own
+``score_threshold`` applies: the operating point calibrated for those weights on validation
+renders (``python -m perception.train_detector calibrate``; 0.5 for checkpoints without one).
 
 >>> det = BlockDetector.load()                   # doctest: +SKIP
 >>> blocks = det.detect(bgr)                     # doctest: +SKIP
@@ -41,6 +43,7 @@ from perception.errors import ModelError
 from perception.sequencer import Detection
 
 WEIGHTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "weights")
+DEFAULT_SCORE_THRESHOLD = 0.5  # detect()'s min_score for checkpoints without a calibrated one
 DEFAULT_WEIGHTS = os.path.join(WEIGHTS_DIR, "detector.pt")
 FORMAT, FORMAT_VERSION = "btrun-blockdet", 1
 
@@ -259,13 +262,19 @@ class BlockDetector:
     """
 
     def __init__(
-        self, model: BlockNet, model_version: str, metrics: dict | None = None, path: str = ""
+        self,
+        model: BlockNet,
+        model_version: str,
+        metrics: dict | None = None,
+        path: str = "",
+        score_threshold: float = DEFAULT_SCORE_THRESHOLD,
     ) -> None:
         self.model = model.eval()
         self.config: DetectorConfig = model.config
         self.model_version = model_version
         self.metrics = metrics or {}
         self.path = path
+        self.score_threshold = score_threshold  # detect()'s min_score when none is given
         # (model, its tensors, their versions, folded layers or None if not foldable)
         self._folded: tuple[BlockNet, list[torch.Tensor], list[int], list[_Conv] | None] | None
         self._folded = None
@@ -280,7 +289,8 @@ class BlockDetector:
 
         Raises:
             ModelError: the file is missing, unreadable, not a btrun-blockdet checkpoint,
-                of another format version, or its weights do not fit its architecture.
+                of another format version, its weights do not fit its architecture, or its
+                ``score_threshold`` is not a number in (0, 1).
         """
         path = path or DEFAULT_WEIGHTS
         blob = read_checkpoint(path, "detector weights", threads, f"{FORMAT} checkpoint")
@@ -303,8 +313,17 @@ class BlockDetector:
             raise ModelError(f"{path}: weights do not fit the detector ({first})") from None
         trained = blob.get("trained") or {}
         metrics = dict(trained.get("metrics") or {}) if isinstance(trained, dict) else {}
+        threshold = blob.get("score_threshold", DEFAULT_SCORE_THRESHOLD)
+        if (
+            isinstance(threshold, bool)
+            or not isinstance(threshold, int | float)
+            or not 0.0 < threshold < 1.0
+        ):
+            raise ModelError(
+                f"{path}: score_threshold {threshold!r} is not a detection score in (0, 1)"
+            )
         version = f"blockdet-v{FORMAT_VERSION}-{file_sha256(path)[:8]}"
-        return cls(model, version, metrics, path)
+        return cls(model, version, metrics, path, float(threshold))
 
     # -- inference ----------------------------------------------------------------------
     def check_frame(self, frame: object, index: int = 0) -> np.ndarray:
@@ -364,12 +383,14 @@ class BlockDetector:
         return x
 
     def detect_batch(
-        self, frames: Iterable[np.ndarray], min_score: float = 0.5
+        self, frames: Iterable[np.ndarray], min_score: float | None = None
     ) -> list[list[Detection]]:
         """:meth:`detect` for several frames in one network call (one list per frame)."""
         frames = list(frames)
         if not frames:
             return []
+        if min_score is None:
+            min_score = self.score_threshold
         boxes, scores = self.raw_boxes(frames)
         fh, fw = self.config.frame_hw
         out: list[list[Detection]] = []
@@ -387,12 +408,13 @@ class BlockDetector:
             out.append(sorted(dets, key=lambda d: d.cx))
         return out
 
-    def detect(self, bgr: np.ndarray, min_score: float = 0.5) -> list[Detection]:
+    def detect(self, bgr: np.ndarray, min_score: float | None = None) -> list[Detection]:
         """Blocks in one white-balanced BGR uint8 frame (244, 324, 3), left to right.
 
         Args:
             bgr: the frame, as :func:`perception.white_balance.preprocess` returns it.
-            min_score: drop boxes whose score (0..1) is below this.
+            min_score: drop boxes whose score (0..1) is below this (None: the checkpoint's
+                calibrated :attr:`score_threshold`).
 
         Returns:
             Detections after NMS, clipped to the frame, sorted by centre x.
@@ -407,6 +429,7 @@ class BlockDetector:
 
 
 __all__ = [
+    "DEFAULT_SCORE_THRESHOLD",
     "DEFAULT_WEIGHTS",
     "FORMAT",
     "FORMAT_VERSION",

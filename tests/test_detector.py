@@ -160,6 +160,63 @@ def test_smoke_training_writes_loadable_checkpoint(tmp_path):
     assert blob["format"] == FORMAT and blob["trained"]["seed"] == 3
     assert "metrics" in blob["trained"]
     assert isinstance(det.detect(np.zeros((244, 324, 3), np.uint8)), list)
+    # the operating point is calibrated and stored with the weights
+    assert (
+        blob["score_threshold"]
+        == det.score_threshold
+        == blob["trained"]["calibration"]["score_threshold"]
+    )
+    assert blob["trained"]["metrics"]["min_score"] == det.score_threshold
+
+
+def test_shipped_detector_carries_its_calibrated_operating_point(detector, frames):
+    """detect() without a min_score uses the threshold calibrated for these weights (below
+    the old fixed 0.5: far blocks scoring 0.3 - 0.5 were dropped), chosen on validation
+    renders by F1 and recorded with its sweep."""
+    blob = torch.load(DEFAULT_WEIGHTS, map_location="cpu", weights_only=True)
+    cal = blob["trained"]["calibration"]
+    assert detector.score_threshold == blob["score_threshold"] == cal["score_threshold"]
+    assert 0.2 <= detector.score_threshold < 0.5
+    best = max(cal["grid"], key=lambda r: (r["f1"], r["threshold"]))
+    assert best["threshold"] == detector.score_threshold
+    for bgr, _ in frames:
+        assert detector.detect(bgr) == detector.detect(bgr, min_score=detector.score_threshold)
+    assert [len(x) for x in detector.detect_batch([f for f, _ in frames])] == [
+        len(detector.detect(f)) for f, _ in frames
+    ]
+
+
+@pytest.mark.parametrize("bad", [1.5, 0.0, "0.3", True, None])
+def test_bad_operating_point_is_a_clear_error(tmp_path, bad):
+    path = tmp_path / "bad.pt"
+    blob = torch.load(DEFAULT_WEIGHTS, map_location="cpu", weights_only=True)
+    torch.save({**blob, "score_threshold": bad}, path)
+    with pytest.raises(ModelError, match="score_threshold") as err:
+        BlockDetector.load(str(path))
+    assert repr(bad) in str(err.value) and str(path) in str(err.value)
+
+
+def test_checkpoint_without_operating_point_keeps_the_old_threshold(tmp_path):
+    path = tmp_path / "old.pt"
+    blob = torch.load(DEFAULT_WEIGHTS, map_location="cpu", weights_only=True)
+    blob.pop("score_threshold")
+    torch.save(blob, path)
+    assert BlockDetector.load(str(path)).score_threshold == 0.5
+
+
+def test_operating_point_is_the_best_f1_of_the_grid():
+    """pick_threshold: precision against recall on a made-up sweep; ties go to the higher
+    threshold (fewer false positives for the same F1)."""
+    from perception.detector_eval import pick_threshold
+
+    # 10 true blocks: 8 found at 0.9, 2 only at 0.35; false positives at 0.25 and 0.45
+    scores = np.array([0.9] * 8 + [0.35, 0.35, 0.25, 0.45])
+    tp = np.array([1] * 10 + [0, 0])
+    thr, rows = pick_threshold(scores, tp, 10, grid=(0.2, 0.3, 0.4, 0.5))
+    assert thr == 0.3  # 10 TP + 1 FP beats 8 TP + 1 FP (0.4) and 8 TP + 0 FP (0.5)
+    assert [r["false_positives"] for r in rows] == [2, 1, 1, 0]
+    thr, _ = pick_threshold(np.array([0.9, 0.9]), np.array([1, 1]), 2, grid=(0.2, 0.3))
+    assert thr == 0.3
 
 
 def test_inference_path_equals_the_module_to_float_rounding(detector, frames):

@@ -136,7 +136,7 @@ def scan_blocks(
     frames: Iterator[tuple[np.ndarray, float]],
     detector: Any,
     factors: tuple[float, float, float],
-    min_score: float = 0.5,
+    min_score: float | None = None,
 ) -> list[np.ndarray]:
     """The crops the block sequencer commits over a stream of raw frames (stops at three)."""
     from perception.sequencer import BlockSequencer
