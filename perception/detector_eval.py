@@ -40,12 +40,17 @@ def average_precision(scores: np.ndarray, tp: np.ndarray, n_gt: int) -> float:
     return float(np.sum((r[1:] - r[:-1]) * p[1:]))
 
 
+def _counts(gt: np.ndarray) -> np.ndarray:
+    """Which ground-truth rows (x1, y1, x2, y2, visible) count; the others are "don't care"."""
+    return (gt[:, 4] >= MIN_VISIBLE) & (gt[:, 2] - gt[:, 0] >= MIN_WIDTH_PX)
+
+
 def match_frame(
     det: np.ndarray, scores: np.ndarray, gt: np.ndarray, thr: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Greedy matching by score. Returns tp (0/1), ignore (detections on "don't care"
     blocks only) per detection, and the IoU of each true positive (0 otherwise)."""
-    care = (gt[:, 4] >= MIN_VISIBLE) & (gt[:, 2] - gt[:, 0] >= MIN_WIDTH_PX)
+    care = _counts(gt)
     g_care, g_dc = gt[care, :4], gt[~care, :4]
     tp = np.zeros(len(det), np.int64)
     ign = np.zeros(len(det), bool)
@@ -84,10 +89,21 @@ def _scored(detector: BlockDetector, data: FrameSet) -> tuple[list, list, float]
 
 def _blocks(data: FrameSet) -> int:
     """Ground-truth blocks that count (not "don't care")."""
-    return sum(
-        int(((g[:, 4] >= MIN_VISIBLE) & (g[:, 2] - g[:, 0] >= MIN_WIDTH_PX)).sum())
-        for g in data.boxes
-    )
+    return sum(int(_counts(g).sum()) for g in data.boxes)
+
+
+def _pooled(
+    dets: list, scores: list, boxes: list, thr: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every frame matched at IoU ``thr`` (:func:`match_frame`), detections on "don't care"
+    blocks left out: scores, tp and IoU of all frames' detections, concatenated."""
+    all_s, all_tp, all_iou = [], [], []
+    for d, s, g in zip(dets, scores, boxes, strict=True):
+        tp, ign, ious = match_frame(d, s, g, thr)
+        all_s.append(s[~ign])
+        all_tp.append(tp[~ign])
+        all_iou.append(ious[~ign])
+    return np.concatenate(all_s), np.concatenate(all_tp), np.concatenate(all_iou)
 
 
 def render_eval_set(
@@ -131,13 +147,7 @@ def evaluate(
     out["racks"] = racks
     aps = []
     for thr in np.arange(0.5, 0.951, 0.05):
-        all_s, all_tp, all_iou = [], [], []
-        for d, s, g in zip(dets, scores, data.boxes, strict=True):
-            tp, ign, ious = match_frame(d, s, g, float(thr))
-            all_s.append(s[~ign])
-            all_tp.append(tp[~ign])
-            all_iou.append(ious[~ign])
-        s_, tp_, iou_ = np.concatenate(all_s), np.concatenate(all_tp), np.concatenate(all_iou)
+        s_, tp_, iou_ = _pooled(dets, scores, data.boxes, float(thr))
         aps.append(average_precision(s_, tp_, n_gt))
         if abs(thr - 0.5) < 1e-9:
             kept = s_ >= min_score
@@ -206,10 +216,9 @@ def calibrate(
         t0 = time.perf_counter()
         data = render_eval_set(detector, n, seed, variety, racks, prefix="dv")
         dets, scores, _ = _scored(detector, data)
-        for d, s, g in zip(dets, scores, data.boxes, strict=True):
-            tp, ign, _ = match_frame(d, s, g, 0.5)
-            all_s.append(s[~ign])
-            all_tp.append(tp[~ign])
+        s, tp, _ = _pooled(dets, scores, data.boxes, 0.5)
+        all_s.append(s)
+        all_tp.append(tp)
         n_gt += _blocks(data)
         log(
             f"validation set seed {seed} (variety {variety}, racks {racks}): {n} frames "

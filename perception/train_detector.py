@@ -220,10 +220,10 @@ def train(
 
 
 # -------------------------------------------------------------------------------- CLI
-def _with_operating_point(blob: dict, path: str, n: int, log: Log) -> dict:
-    """Calibrate the checkpoint at ``path`` (:func:`perception.detector_eval.calibrate`),
-    store its threshold and sweep in ``blob`` and write ``blob`` back to ``path``."""
-    cal = calibrate(BlockDetector.load(path), n, log)
+def _with_operating_point(blob: dict, detector: BlockDetector, path: str, n: int, log: Log) -> dict:
+    """Calibrate ``detector`` (the weights of ``blob``; :func:`perception.detector_eval.
+    calibrate`), store its threshold and sweep in ``blob`` and write ``blob`` to ``path``."""
+    cal = calibrate(detector, n, log)
     log(format_calibration(cal))
     blob["score_threshold"] = cal["score_threshold"]
     blob.setdefault("trained", {})["calibration"] = cal
@@ -251,7 +251,9 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
     }
     torch.save(blob, args.out)
     if cfg.eval_frames:
-        blob = _with_operating_point(blob, args.out, cfg.eval_frames, log)
+        blob = _with_operating_point(
+            blob, BlockDetector.load(args.out), args.out, cfg.eval_frames, log
+        )
         detector = BlockDetector.load(args.out)
         metrics = evaluate(detector, cfg.eval_frames, 12345, log)
         blob["trained"]["metrics"] = metrics
@@ -271,12 +273,10 @@ def cmd_train(args: argparse.Namespace, log: Log) -> int:
 def cmd_calibrate(args: argparse.Namespace, log: Log) -> int:
     """Choose a checkpoint's operating point and write it into the checkpoint (or a copy)."""
     src = args.weights or DEFAULT_WEIGHTS
-    BlockDetector.load(src)  # a clear error for a file that is not a detector checkpoint
+    detector = BlockDetector.load(src)  # a clear error for a file that is not a checkpoint
     blob = torch.load(src, map_location="cpu", weights_only=True)
     out = args.out or src
-    if out != src:
-        torch.save(blob, out)
-    blob = _with_operating_point(blob, out, args.n, log)
+    _with_operating_point(blob, detector, out, args.n, log)
     detector = BlockDetector.load(out)
     print(f"{detector.model_version} ({out}): score_threshold {detector.score_threshold}")
     return 0
