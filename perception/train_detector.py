@@ -48,6 +48,7 @@ from perception.detector_data import (
     render_set,
 )
 from perception.detector_eval import calibrate, evaluate, format_calibration, format_metrics
+from perception.errors import ModelError
 from perception.synth.dataset import identity_names
 
 Log = Callable[[str], None]
@@ -331,7 +332,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[{time.perf_counter() - t0:7.1f}s] {msg}", file=sys.stderr, flush=True)
 
     commands = {"train": cmd_train, "evaluate": cmd_evaluate, "calibrate": cmd_calibrate}
-    return commands[args.cmd](args, log)
+    try:
+        return commands[args.cmd](args, log)
+    except ModelError as exc:  # a missing, foreign or damaged weights file: say which
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

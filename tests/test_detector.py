@@ -196,6 +196,15 @@ def test_bad_operating_point_is_a_clear_error(tmp_path, bad):
     assert repr(bad) in str(err.value) and str(path) in str(err.value)
 
 
+@pytest.mark.parametrize("cmd", ["calibrate", "evaluate"])
+def test_detector_cli_names_a_bad_weights_file_without_a_traceback(tmp_path, capsys, cmd):
+    path = tmp_path / "nope.pt"
+    assert train_main([cmd, "--weights", str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and str(path) in err and "Traceback" not in err
+    assert not path.exists()
+
+
 def test_checkpoint_without_operating_point_keeps_the_old_threshold(tmp_path):
     path = tmp_path / "old.pt"
     blob = torch.load(DEFAULT_WEIGHTS, map_location="cpu", weights_only=True)
