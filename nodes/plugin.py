@@ -22,7 +22,9 @@ from typing import Any
 
 import nodes  # noqa: F401  (registers the leaves)
 from bt_engine.plugins import Command, Platform
+from bt_engine.runner import REST_TICK_BUDGET_S
 from bt_engine.spec import Loc, MissionError, Problem
+from drivers.guard.client import GuardClient
 from drivers.rig.factory import make_platform
 from drivers.rig.loader import Rig, load_rig
 from drivers.settings import ConfigError
@@ -48,11 +50,42 @@ class RigTarget:
         return {"rig": self.rig}
 
     def make_platform(self, clock: Any, seed: int) -> Platform:
-        """The platform of the rig (:func:`drivers.rig.factory.make_platform`)."""
+        """The platform of the rig (:func:`drivers.rig.factory.make_platform`), with a guard
+        process (:mod:`drivers.guard`) when ``btrun`` runs it (it sets ``run_dir``) and the
+        rig's ``guard.enabled`` is on."""
+        self.guard = self._make_guard()
         try:
-            return make_platform(self.rig, clock, seed)
+            platform = make_platform(self.rig, clock, seed, guard=self.guard)
         except ConfigError as exc:
             raise MissionError(config_problems(exc)) from None
+        if self.guard is not None:
+            self.guard.at_rest = lambda: self.at_rest(platform)
+        return platform
+
+    def _make_guard(self) -> GuardClient | None:
+        g = self.rig.data["guard"]
+        run_dir = getattr(self, "run_dir", None)
+        if not g["enabled"] or run_dir is None:
+            return None
+        # the tick watchdog raises at one budget and, in real time, lands at two: the guard
+        # acts only on a tick that outlived both
+        budget = float(getattr(self, "tick_budget_s", None) or 10.0)
+        return GuardClient(
+            run_dir,
+            record=getattr(self, "run_record", None),
+            silence_s=g["silence_s"],
+            rest_silence_s=g["rest_silence_s"],
+            land_speed_mps=g["land_speed_mps"],
+            land_max_s=g["land_max_s"],
+            tick_limit_s=2 * budget + g["tick_grace_s"],
+            rest_tick_limit_s=2 * max(budget, REST_TICK_BUDGET_S) + g["tick_grace_s"],
+        )
+
+    def finished(self, summary_written: bool = True) -> None:
+        """The run is over: let the guard process go (idempotent)."""
+        guard = getattr(self, "guard", None)
+        if guard is not None:
+            guard.finished(summary_written)
 
     def make_hooks(self, platform: Platform, mission: Any) -> list[Any]:
         """The safety supervisor's hook (first, so it lands before the platform stops), then
@@ -62,6 +95,9 @@ class RigTarget:
 
         hook = make_safety_hook(self.rig, platform, mission)
         hooks: list[Any] = [hook] if hook is not None else []
+        guard = getattr(self, "guard", None)
+        if guard is not None:  # first: its tick marks span the other hooks' work
+            hooks.insert(0, guard)
         recorder = None
         if getattr(self, "record_mcap", True):  # btrun run --no-mcap; campaign rows
             recorder = make_mcap_recorder(getattr(self, "run_dir", None), platform, mission, hook)
@@ -77,6 +113,8 @@ class RigTarget:
         for hook in hooks:
             if isinstance(hook, SafetyHook):
                 out["safety"] = hook.summary()
+            elif isinstance(hook, GuardClient):
+                out["guard"] = hook.summary()
         return out
 
 

@@ -41,6 +41,12 @@ FORBIDDEN: list[tuple[str, str, str]] = [
     ("drivers.safety", "drivers.rig", "safety works over the Vehicle API only"),
     ("drivers.safety", "perception", "safety works over the Vehicle API only"),
     ("drivers.settings", "drivers.", "the settings language is the bottom of drivers/"),
+    ("drivers.guard", "drivers.sim", "the guard owns a real link; it knows no simulator"),
+    ("drivers.guard", "drivers.rig", "the rig floor starts the guard, not the reverse"),
+    ("drivers.guard", "drivers.safety", "the guard's landing needs no policy: it is the last"),
+    ("drivers.guard", "perception", "the guard forwards no images"),
+    ("drivers.vehicle", "drivers.guard", "the Vehicle API imports no platform"),
+    ("drivers.crazyflie", "drivers.guard", "platforms take their link as an argument"),
 ]
 
 #: Narrow exceptions to FORBIDDEN, each with its reason.

@@ -93,6 +93,21 @@ def plan_log_blocks(
     return [b for b in blocks if b], missing
 
 
+def real_battery_service(kind: str) -> str:
+    """On a real Crazyflie a battery is swapped by hand (which restarts it and ends the
+    link): ``swap`` is refused with what to do instead. ``charge`` / ``stop_charging``
+    need no command: a Crazyflie with a Qi charging deck charges while it rests on its
+    pad, and the battery voltage shows it."""
+    if kind == "swap":
+        return (
+            "a real battery is swapped by hand: the run stops here; swap it and "
+            "continue with btrun MISSION --resume RUN_FOLDER"
+        )
+    if kind in ("charge", "stop_charging"):
+        return ""
+    return f"unknown battery service {kind!r} (swap, charge, stop_charging)"
+
+
 @dataclass
 class CrazyflieLinkConfig:
     """Settings of the cflib link (the rig's ``crazyflie:`` section)."""
@@ -378,18 +393,8 @@ class CrazyflieLink:
         return out
 
     def battery_service(self, kind: str) -> str:
-        """On a real Crazyflie a battery is swapped by hand (which restarts it and ends the
-        link): ``swap`` is refused with what to do instead. ``charge`` / ``stop_charging``
-        need no command: a Crazyflie with a Qi charging deck charges while it rests on its
-        pad, and the battery voltage shows it."""
-        if kind == "swap":
-            return (
-                "a real battery is swapped by hand: the run stops here; swap it and "
-                "continue with btrun MISSION --resume RUN_FOLDER"
-            )
-        if kind in ("charge", "stop_charging"):
-            return ""
-        return f"unknown battery service {kind!r} (swap, charge, stop_charging)"
+        """See :func:`real_battery_service`."""
+        return real_battery_service(kind)
 
     def close(self) -> None:
         """Stop the motors (stop set-point, notify stop) and close the link (idempotent)."""

@@ -22,6 +22,7 @@ from typing import Any
 from drivers.crazyflie.aideck_stream import AIDeckStream
 from drivers.crazyflie.cf_platform import CrazyfliePlatform
 from drivers.crazyflie.cflib_link import CrazyflieLink, CrazyflieLinkConfig
+from drivers.guard.client import GuardClient, GuardError
 from drivers.rig.loader import Rig
 from drivers.settings import ConfigError, SettingProblem
 from drivers.sim.emulators.aideck import AIDeckEmulator, default_pose, make_frame_source
@@ -32,21 +33,37 @@ from drivers.vehicle.faults import FaultInjector
 from drivers.vehicle.interfaces import PoseSource
 
 
-def make_platform(rig: Rig, clock: Any, seed: int, pose_source: PoseSource | None = None) -> Any:
+def make_platform(
+    rig: Rig,
+    clock: Any,
+    seed: int,
+    pose_source: PoseSource | None = None,
+    guard: GuardClient | None = None,
+) -> Any:
     """Build the platform of ``rig`` on ``clock`` (all randomness derived from ``seed``).
 
     ``pose_source`` replaces the rig's pose source of a Crazyflie (tests, other mocap
-    systems). Raises :class:`~drivers.settings.ConfigError` for a rig that cannot fly here.
+    systems). With a ``guard`` (not started yet), a Crazyflie's cflib link is opened and
+    owned by the guard process and the platform flies through a
+    :class:`~drivers.guard.client.GuardLink`; a simulator's guard only watches. Raises
+    :class:`~drivers.settings.ConfigError` for a rig that cannot fly here.
     """
     if rig.kind == "sim":
-        return SimPlatform(rig.load_world(seed), rig.data, seed, clock)
+        platform = SimPlatform(rig.load_world(seed), rig.data, seed, clock)
+        if guard is not None:
+            _start_guard(rig, guard, None)
+        return platform
     if rig.kind == "crazyflie":
-        return make_crazyflie_platform(rig, clock, seed, pose_source)
+        return make_crazyflie_platform(rig, clock, seed, pose_source, guard)
     raise ConfigError([SettingProblem(rig.path, 1, 1, f"link '{rig.kind}' is not available")])
 
 
 def make_crazyflie_platform(
-    rig: Rig, clock: Any, seed: int, pose_source: PoseSource | None = None
+    rig: Rig,
+    clock: Any,
+    seed: int,
+    pose_source: PoseSource | None = None,
+    guard: GuardClient | None = None,
 ) -> CrazyfliePlatform:
     """A :class:`CrazyfliePlatform` for a rig with ``link: crazyflie``.
 
@@ -101,10 +118,17 @@ def make_crazyflie_platform(
         stop = getattr(pose_source, "close", None) or getattr(pose_source, "stop", None)
         if stop is not None:
             on_close.append(stop)
-    link = CrazyflieLink(CrazyflieLinkConfig.from_rig(section, uri))
+    config = CrazyflieLinkConfig.from_rig(section, uri)
     connect_start = time.monotonic()
+    link: Any
     try:
-        link.open()
+        if guard is not None:
+            link = _start_guard(rig, guard, config)
+        else:
+            link = CrazyflieLink(config).open()
+    except ConnectionError as exc:  # nothing answers at the URI: a rig problem, not a crash
+        _close_all(on_close)
+        raise ConfigError([SettingProblem(rig.path, 1, 1, str(exc))]) from None
     except Exception:
         _close_all(on_close)
         raise
@@ -127,6 +151,16 @@ def make_crazyflie_platform(
     )
     platform.connect_started_monotonic_s = connect_start
     return platform
+
+
+def _start_guard(rig: Rig, guard: GuardClient, config: CrazyflieLinkConfig | None) -> Any:
+    """Start ``guard`` (with the link for a Crazyflie); its :class:`GuardLink` or None.
+    A guard that cannot start (or cannot open the link) is a located rig problem."""
+    try:
+        guard.start(config)
+    except GuardError as exc:
+        raise ConfigError([SettingProblem(rig.path, 1, 1, str(exc))]) from None
+    return guard.link
 
 
 def _close_all(on_close: list[Callable[[], None]]) -> None:

@@ -299,6 +299,44 @@ RIG_SCHEMA = _m(
                 ),
             }
         ),
+        "guard": _m(
+            {
+                "enabled": _f(
+                    "bool",
+                    True,
+                    "btrun run starts a guard process that owns the Crazyflie link and lands "
+                    "the drone if the mission process hangs, crashes or is killed (docs/safety.md)",
+                ),
+                "silence_s": _f(
+                    "float",
+                    0.5,
+                    "take over after the mission process is silent this long, drone airborne",
+                    min=0.05,
+                    max=60.0,
+                ),
+                "rest_silence_s": _f(
+                    "float",
+                    10.0,
+                    "the same with the drone on the ground, and for a simulated drone",
+                    min=0.5,
+                    max=3600.0,
+                ),
+                "tick_grace_s": _f(
+                    "float",
+                    2.0,
+                    "take over once a tick ran 2 x its watchdog budget + this (it never returned)",
+                    min=0.0,
+                    max=3600.0,
+                ),
+                "land_speed_mps": _f(
+                    "float", 0.3, "the guard's landing: descent speed", min=0.05, max=2.0
+                ),
+                "land_max_s": _f(
+                    "float", 15.0, "the guard's landing: give up after", min=1.0, max=120.0
+                ),
+            },
+            "the guard process (drivers/guard): what outlives the mission process",
+        ),
         "faults": _m(
             {
                 "link_drop": _fault("the radio link goes down"),

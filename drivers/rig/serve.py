@@ -37,10 +37,19 @@ def serve_crazyflie(argv: list[str] | None = None) -> int:
     ap.add_argument("--rig", default=None, help="rig file for the simulated drone (default sim)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--stats-every", type=float, default=0.0, help="print counters every N s")
+    ap.add_argument(
+        "--mocap",
+        action="store_true",
+        help="the firmware takes the simulated mocap pose itself (as extpose), as when a lab's "
+        "mocap bridge feeds the drone: fly it with crazyflie.pose_source=none",
+    )
     args = ap.parse_args(argv)
-    sitl = SitlSession(load_rig(args.rig).data, args.seed, host=args.host, port=args.port)
+    sitl = SitlSession(
+        load_rig(args.rig).data, args.seed, host=args.host, port=args.port, feed_mocap=args.mocap
+    )
     sitl.start()
-    print(f"CRTP emulator serving {sitl.uri} (Ctrl-C to stop)", flush=True)
+    fed = ", mocap fed to the firmware" if args.mocap else ""
+    print(f"CRTP emulator serving {sitl.uri}{fed} (Ctrl-C to stop)", flush=True)
     try:
         while True:
             time.sleep(args.stats_every or 3600)

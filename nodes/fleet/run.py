@@ -22,7 +22,7 @@ from typing import Any
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.files import atomic_write_text
 from bt_engine.fleet import FleetRunner
-from bt_engine.run_cmd import PreparedRun, finish, make_runner, prepare
+from bt_engine.run_cmd import PreparedRun, finish, make_runner, prepare, release
 from bt_engine.spec import Loc, MissionError, Problem
 from drivers.safety.airspace import Airspace, SeparationGuard
 from drivers.settings import ConfigError
@@ -137,6 +137,7 @@ def run(args: Any) -> int:
         for r in runs.values():
             if r.platform is not None:
                 r.platform.shutdown("another drone of the fleet could not be prepared")
+            release(r.target, *r.hooks, written=False)
         raise
     return _fly(spec, args, runs, merged, out, seed, printer)
 
@@ -253,8 +254,12 @@ def _fly(
             r.log.close()
     wall = time.perf_counter() - wall0
     codes = {}
-    for name, r in runs.items():
-        codes[name] = finish(r, runners[name], results[name], echo=False)
+    try:
+        for name, r in runs.items():
+            codes[name] = finish(r, runners[name], results[name], echo=False)
+    finally:  # each drone's guard process: its summary is written (or never will be)
+        for r in runs.values():
+            release(r.target, *r.hooks, written=r.summary is not None)
     summary = _summary(spec, runs, results, merged, airspace, guard, seed, wall, out)
     if not args.no_report:
         from nodes.fleet.report import write_fleet_report

@@ -43,6 +43,7 @@ class SitlSession:
         world: World | None = None,
         host: str = LOOPBACK,
         port: int = 0,
+        feed_mocap: bool = False,
     ) -> None:
         self.cf = EmulatedCrazyflie(build_sim_drone(rig_data, seed, world))
         m = rig_data["sensors"]["mocap"]
@@ -58,7 +59,7 @@ class SitlSession:
                     m["dropout_probability"],
                 )
             )
-        self.emulator = CrtpEmulator(self.cf, host, port, self.mocap)
+        self.emulator = CrtpEmulator(self.cf, host, port, self.mocap, feed_mocap)
         self.camera: Any = None  # the AIDeckEmulator once start_camera() ran
 
     @classmethod

@@ -31,6 +31,12 @@ class LocalizationPort:
         cf.extpose_count += 1
         cf.drone.estimator.external_pose(cf.t_s)
 
+    def feed(
+        self, x_m: float, y_m: float, z_m: float, quaternion: tuple[float, float, float, float]
+    ) -> None:
+        """A mocap frame handed to the firmware inside the emulator (no radio packet)."""
+        self._pose((x_m, y_m, z_m, *quaternion))
+
     def handle(self, pk: Packet) -> list[Packet]:
         d = pk.data
         if pk.channel == 0:

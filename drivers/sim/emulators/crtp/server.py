@@ -50,8 +50,12 @@ class CrtpEmulator:
         host: str = "127.0.0.1",
         port: int = 0,
         mocap: EmulatorMocap | None = None,
+        feed_mocap: bool = False,
     ) -> None:
         self.cf, self.mocap = cf, mocap
+        #: the firmware takes the simulated mocap's frames itself, as extpose (``btrun sim
+        #: serve crazyflie --mocap``: a drone in a lab whose mocap bridge is not btrun)
+        self.feed_mocap = feed_mocap and mocap is not None
         self.stats = LinkStats()
         self.log = LogPort(cf)
         self.param = ParamPort(cf)
@@ -145,6 +149,9 @@ class CrtpEmulator:
         cf.step_to(t)
         if self.mocap is not None:
             self.mocap.tick(cf.t_s, cf.drone.body)
+            if self.feed_mocap:
+                for f in self.mocap.poll(cf.t_s):
+                    self.localization.feed(f.x_m, f.y_m, f.z_m, f.quaternion)
         due = self.log.due(cf.t_s)
         if due:
             self._send(due, self.client)

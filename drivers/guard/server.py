@@ -1,0 +1,494 @@
+"""The guard process: what must outlive the mission process.
+
+``btrun`` starts one guard per run (``python -m drivers.guard --fd N``, in a session of its
+own so a Ctrl-C to the terminal or a ``kill`` of btrun's process group does not reach it) and
+talks to it over a Unix sequenced-packet socket pair (:mod:`drivers.guard.wire`).
+
+* **link** mode (a Crazyflie rig): the guard owns the cflib link. Set-points, external poses
+  and arming requests of the mission process's Vehicle are forwarded to the drone; the
+  drone's telemetry is forwarded back (:class:`drivers.guard.client.GuardLink`).
+* **watch** mode (the simulator): no link; the guard only watches the heartbeats, so that a
+  run that can never end by itself (a leaf holding the GIL in native code) still ends and
+  leaves its record. A simulated drone lives in the mission process and ends with it.
+
+The guard **takes over** when
+
+* the mission process is gone without saying goodbye (crash, OOM kill, ``kill -9``): its
+  end of the socket closes, which the guard sees at once;
+* it is silent (no set-point, heartbeat or anything) for longer than ``silence_s`` while the
+  drone is airborne (``rest_silence_s`` on the ground): blocked holding the GIL, stopped;
+* its heartbeat says one tick has been running for longer than its limit (the in-process
+  tick watchdog already fired and did not get the tree back: a leaf in ``time.sleep`` or one
+  that swallows the watchdog's exception);
+* it says goodbye with the drone still flying.
+
+Taking over: stop listening to the mission process; land the drone (position set-points
+straight down from where it is at ``land_speed_mps``, then a stop set-point and disarm); end
+the mission process if it is still there (SIGKILL: it may hold the GIL); write
+``summary.json`` with ``guard: {took_over: true, reason, ...}`` (merged into the mission's
+own summary if that was written); close the link and exit.
+
+Messages from the mission process: ``p`` position / ``v`` velocity set-point (with the
+sender's monotonic send time, for the latency figures), ``s`` stop set-point, ``e`` external
+pose, ``arm``, ``estop``, ``hb`` heartbeat, ``close`` (close the link; reply ``closed``),
+``stats`` (reply ``stats``), ``bye``. To the mission process: ``ready`` / ``error`` after
+the hello, ``T`` telemetry batches, ``H`` link health, ``took_over``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import math
+import os
+import select
+import signal
+import socket
+import sys
+import tempfile
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from drivers.guard.wire import MAX_MESSAGE_BYTES, decode, encode
+
+#: Telemetry fields on the wire, in :class:`drivers.vehicle.interfaces.LinkTelemetry` order.
+TELEMETRY_FIELDS = (
+    "t_s", "x_m", "y_m", "z_m", "vx_mps", "vy_mps", "vz_mps", "yaw_rad", "quaternion",
+    "battery_v", "armed", "motors_running", "crashed", "tumbled",
+)  # fmt: skip
+
+#: A drone below this height with its motors off is on the ground.
+GROUND_Z_M = 0.08
+
+
+@dataclass
+class GuardSettings:
+    """What the mission process tells the guard in its hello (rig ``guard:`` section)."""
+
+    run_dir: str
+    mission_pid: int
+    link: dict[str, Any] | None = None
+    silence_s: float = 0.5
+    rest_silence_s: float = 10.0
+    land_speed_mps: float = 0.3
+    land_max_s: float = 15.0
+    record: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_hello(cls, data: dict[str, Any]) -> GuardSettings:
+        """From the hello message's settings (unknown keys ignored)."""
+        known = {k: v for k, v in data.items() if k in cls.__dataclass_fields__}
+        return cls(**known)
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    if not values:
+        return None
+    s = sorted(values)
+    return s[min(len(s) - 1, int(q * (len(s) - 1) + 0.5))]
+
+
+class Guard:
+    """One guard: its socket to the mission process, and the link in link mode."""
+
+    def __init__(self, sock: socket.socket, settings: GuardSettings, link: Any = None) -> None:
+        self.sock = sock
+        self.s = settings
+        self.link = link
+        self.started = time.monotonic()
+        self.last_rx = self.started
+        self.last_tel: Any = None
+        self.last_hb: list[Any] | None = None
+        self.last_hb_rx = self.started
+        self.took_over: dict[str, Any] | None = None
+        self.said_bye = False
+        self.mission_gone = False
+        self.link_closed = link is None
+        self.latencies_s: deque[float] = deque(maxlen=50_000)
+        self.forward_times: deque[float] = deque(maxlen=50_000)
+        self.counts = {"setpoints": 0, "extposes": 0, "heartbeats": 0, "telemetry": 0}
+        self._next_health = 0.0
+
+    # ------------------------------------------------------------------ messages in
+    def _send(self, message: list[Any]) -> None:
+        if self.mission_gone:
+            return
+        try:
+            self.sock.send(encode(message))
+        except OSError:  # the mission process is gone; the read side will see it
+            self.mission_gone = True
+
+    def _handle(self, msg: list[Any], now: float) -> None:
+        kind = msg[0]
+        self.last_rx = now
+        if kind == "hb":
+            self.last_hb, self.last_hb_rx = msg, now
+            self.counts["heartbeats"] += 1
+            return
+        if kind == "stats":
+            self._send(["stats", self.stats()])
+            return
+        if kind == "bye":
+            self.said_bye = True
+            return
+        if self.took_over is not None:
+            return  # nothing the mission process says moves the drone any more
+        link = self.link
+        if kind == "close":
+            self._close_link()
+            self._send(["closed", self._health()])
+            return
+        if link is None or self.link_closed:
+            return
+        args = msg[1:]
+        if kind in ("p", "v") and len(args) >= 5 and all(_finite(a) for a in args[:5]):
+            (link.send_position_setpoint if kind == "p" else link.send_velocity_setpoint)(*args[:4])
+            self.latencies_s.append(now - float(args[4]))
+            self.forward_times.append(now)
+            self.counts["setpoints"] += 1
+        elif kind == "s":
+            link.send_stop_setpoint()
+        elif kind == "e" and len(args) >= 7 and all(_finite(a) for a in args[:7]):
+            link.send_external_pose(args[0], args[1], args[2], tuple(args[3:7]))
+            self.counts["extposes"] += 1
+        elif kind == "arm" and args:
+            link.arm(bool(args[0]))
+        elif kind == "estop":
+            link.emergency_stop()
+
+    def _read(self, now: float) -> None:
+        """Every message waiting on the socket; notes the mission process's end."""
+        while True:
+            try:
+                data = self.sock.recv(MAX_MESSAGE_BYTES, socket.MSG_DONTWAIT)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                data = b""
+            if not data:
+                self.mission_gone = True
+                return
+            msg = decode(data)
+            if msg is not None:
+                self._handle(msg, now)
+
+    # ------------------------------------------------------------------ telemetry out
+    def _pump_link(self, now: float) -> None:
+        link = self.link
+        if link is None or self.link_closed:
+            return
+        samples = link.poll(0.0)
+        if samples:
+            self.last_tel = samples[-1]
+            self.counts["telemetry"] += len(samples)
+            if self.took_over is None:
+                rows = [[getattr(t, f) for f in TELEMETRY_FIELDS] for t in samples]
+                self._send(["T", rows, bool(link.connected)])
+        if now >= self._next_health and self.took_over is None:
+            self._next_health = now + 0.25
+            self._send(["H", self._health()])
+
+    def _health(self) -> dict[str, Any]:
+        if self.link is None:
+            return {}
+        try:
+            return dict(self.link.health())
+        except Exception as exc:  # a half-closed cflib link
+            return {"connected": False, "lost_reason": f"health: {exc}"}
+
+    # ------------------------------------------------------------------ the watch
+    def airborne(self) -> bool:
+        """The drone is (as far as its last telemetry says) in the air."""
+        t = self.last_tel
+        if self.link is None or self.link_closed or t is None:
+            return False
+        return bool(t.motors_running) or t.z_m > GROUND_Z_M
+
+    def why_take_over(self, now: float) -> str | None:
+        """The reason to take over now, or None while the mission process is in charge."""
+        if self.mission_gone and not self.said_bye and self.airborne():
+            return "the mission process ended without a goodbye (killed or crashed)"
+        if self.mission_gone or self.said_bye:
+            return "the mission process ended with the drone flying" if self.airborne() else None
+        silent = now - self.last_rx
+        limit = self.s.silence_s if self.airborne() else self.s.rest_silence_s
+        if silent > limit:
+            return (
+                f"the mission process was silent for {silent:.2f} s (limit {limit:g} s): "
+                "blocked or stopped"
+            )
+        hb = self.last_hb
+        if hb is not None and len(hb) >= 4 and hb[2] is not None and hb[3] is not None:
+            running = float(hb[2]) + (now - self.last_hb_rx)
+            if running > float(hb[3]):
+                return (
+                    f"tick {hb[1]} has been running for {running:.1f} s (limit {hb[3]:g} s) "
+                    "and the tick watchdog could not end it"
+                )
+        return None
+
+    def run(self) -> int:
+        """Serve until the mission process says goodbye (or the guard took over); exit code."""
+        while True:
+            try:
+                select.select([self.sock], [], [], 0.005)
+            except (OSError, ValueError):
+                self.mission_gone = True
+            now = time.monotonic()
+            self._read(now)
+            self._pump_link(now)
+            why = self.why_take_over(now)
+            if why is not None:
+                self.take_over(why)
+                return 0
+            if self.mission_gone or self.said_bye:
+                self._finish_normally()
+                return 0
+
+    # ------------------------------------------------------------------ ending
+    def _finish_normally(self) -> None:
+        """The mission process ended with the drone on the ground. Without a goodbye (killed
+        or crashed) and without a summary.json, the guard writes the record."""
+        self._close_link()
+        summary = os.path.join(self.s.run_dir, "summary.json")
+        started = os.path.isdir(self.s.run_dir)  # a refused run made no folder
+        if not os.path.isfile(summary) and (started or not self.said_bye):
+            how = "said goodbye" if self.said_bye else "ended without a goodbye (killed or crashed)"
+            self.took_over = {
+                "reason": f"the mission process {how} and wrote no summary.json; "
+                "the drone on the ground",
+                "at_s": round(time.monotonic() - self.started, 3),
+            }
+            self._write_record({"mission_process": "gone", **self._final()})
+
+    def take_over(self, reason: str) -> None:
+        """Land, end the mission process, write the record, close the link."""
+        at = time.monotonic()
+        self.took_over = {"reason": reason, "at_s": round(at - self.started, 3)}
+        self._send(["took_over", reason])
+        print(f"btrun guard: taking over: {reason}", file=sys.stderr, flush=True)
+        landing = self.land()
+        ended = self._end_mission_process()
+        self._close_link()
+        self._write_record({**landing, "mission_process": ended})
+
+    def land(self) -> dict[str, Any]:
+        """Land the drone straight down from its last telemetry; what happened."""
+        link = self.link
+        if link is None:
+            return {"landing": "no link: the drone, if any, was simulated in the mission process"}
+        if self.link_closed:
+            return {"landing": "not needed: the mission process had closed the link"}
+        t0 = time.monotonic()
+        self._settle_telemetry(t0 + 0.1)
+        tel = self.last_tel
+        if tel is None:
+            return {"landing": "no telemetry from the drone: nothing sent"}
+        if not self.airborne():
+            link.send_stop_setpoint()
+            link.arm(False)
+            return {"landing": "not needed: on the ground", **self._final()}
+        x, y, yaw, z0 = tel.x_m, tel.y_m, tel.yaw_rad, tel.z_m
+        period = 0.02
+        touched: float | None = None
+        deadline = t0 + self.s.land_max_s
+        next_t = t0
+        while time.monotonic() < deadline:
+            now = time.monotonic()
+            z = max(0.0, z0 - self.s.land_speed_mps * (now - t0))
+            link.send_position_setpoint(x, y, z, yaw)
+            for t in link.poll(0.0):
+                self.last_tel = t
+            cur = self.last_tel
+            if z == 0.0 and cur.z_m < GROUND_Z_M:
+                touched = touched or now
+                if now - touched > 0.3:
+                    break
+            next_t += period
+            time.sleep(max(0.0, next_t - time.monotonic()))
+        link.send_stop_setpoint()
+        link.arm(False)
+        self._settle_telemetry(time.monotonic() + 0.5, until_disarmed=True)
+        return {
+            "landing": "landed" if touched is not None else "timed out",
+            "landing_s": round(time.monotonic() - t0, 2),
+            "from_z_m": round(z0, 3),
+            **self._final(),
+        }
+
+    def _settle_telemetry(self, until: float, until_disarmed: bool = False) -> None:
+        while time.monotonic() < until and self.link is not None:
+            for t in self.link.poll(0.0):
+                self.last_tel = t
+            if until_disarmed and self.last_tel is not None and not self.last_tel.armed:
+                return
+            time.sleep(0.01)
+
+    def _final(self) -> dict[str, Any]:
+        t = self.last_tel
+        if t is None:
+            return {}
+        return {
+            "final": {
+                "x_m": round(t.x_m, 3),
+                "y_m": round(t.y_m, 3),
+                "z_m": round(t.z_m, 3),
+                "armed": bool(t.armed),
+                "motors_running": bool(t.motors_running),
+                "battery_v": round(t.battery_v, 3),
+            }
+        }
+
+    def _end_mission_process(self) -> str:
+        pid = self.s.mission_pid
+        if not _alive(pid):
+            return "gone"
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)  # it may hold the GIL: nothing softer reaches it
+        end = time.monotonic() + 2.0
+        while _alive(pid) and time.monotonic() < end:
+            time.sleep(0.01)
+        return "killed by the guard"
+
+    def _close_link(self) -> None:
+        if self.link is not None and not self.link_closed:
+            self.link_closed = True
+            with contextlib.suppress(Exception):
+                self.link.close()
+
+    # ------------------------------------------------------------------ the record
+    def stats(self) -> dict[str, Any]:
+        """The guard's figures: IPC latency of set-points, their forwarding period."""
+        lat = [1000.0 * v for v in self.latencies_s]
+        ft = list(self.forward_times)
+        periods = [1000.0 * (b - a) for a, b in zip(ft, ft[1:], strict=False)]
+        out: dict[str, Any] = {
+            "pid": os.getpid(),
+            "mode": "link" if self.link is not None else "watch",
+            "took_over": self.took_over is not None,
+            **self.counts,
+        }
+        if lat:
+            out["setpoint_latency_ms"] = {
+                "p50": _r(_percentile(lat, 0.5)),
+                "p99": _r(_percentile(lat, 0.99)),
+                "max": _r(max(lat)),
+            }
+        if periods:
+            out["setpoint_period_ms"] = {
+                "p50": _r(_percentile(periods, 0.5)),
+                "p99": _r(_percentile(periods, 0.99)),
+                "max": _r(max(periods)),
+            }
+        return out
+
+    def _write_record(self, landing: dict[str, Any] | None) -> None:
+        section = {**self.stats(), **(self.took_over or {}), **(landing or {})}
+        section["took_over"] = True
+        path = os.path.join(self.s.run_dir, "summary.json")
+        summary = _read_summary(path)
+        hb = self.last_hb or []
+        if summary is None:
+            rec = self.s.record
+            summary = {
+                "status": "ABORTED",
+                "reason": f"guard: {section.get('reason', 'took over')}",
+                "mission": rec.get("mission"),
+                "seed": rec.get("seed"),
+                "rig": rec.get("rig"),
+                "ticks": hb[1] if len(hb) > 1 else 0,
+                "mission_time_s": hb[4] if len(hb) > 4 else None,
+                "wall_time_s": round(time.monotonic() - self.started, 3),
+                "written_by": "guard",
+            }
+        summary["guard"] = section
+        _atomic_write(path, json.dumps(summary, indent=2, default=str) + "\n")
+
+
+def _r(v: float | None) -> float | None:
+    return None if v is None else round(v, 3)
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            state = f.read().rsplit(")", 1)[-1].split()[0]
+        return state not in ("Z", "X")
+    except (OSError, IndexError):
+        try:
+            os.kill(pid, 0)
+        except OSError:
+            return False
+        return True
+
+
+def _read_summary(path: str) -> dict[str, Any] | None:
+    try:
+        with open(path, "rb") as f:
+            data = f.read(50_000_001)
+        if len(data) > 50_000_000:
+            return None
+        out = json.loads(data)
+    except (OSError, ValueError):
+        return None
+    return out if isinstance(out, dict) else None
+
+
+def _atomic_write(path: str, text: str) -> None:
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".summary-", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _open_link(config: dict[str, Any]) -> Any:
+    from drivers.crazyflie.cflib_link import CrazyflieLink, CrazyflieLinkConfig
+
+    return CrazyflieLink(CrazyflieLinkConfig(**config)).open()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m drivers.guard --fd N``: serve the mission process on socket ``N``."""
+    ap = argparse.ArgumentParser(prog="python -m drivers.guard")
+    ap.add_argument("--fd", type=int, required=True, help="the guard's end of the socket pair")
+    args = ap.parse_args(argv)
+    for sig in (signal.SIGINT, signal.SIGHUP):  # Ctrl-C and a closed terminal are btrun's
+        signal.signal(sig, signal.SIG_IGN)
+    # cflib logs link errors (with tracebacks) through logging's last-resort handler: the
+    # guard's stderr is btrun's terminal, where only the guard's own lines belong
+    logging.getLogger().addHandler(logging.NullHandler())
+    sock = socket.socket(fileno=args.fd)
+    ready = select.select([sock], [], [], 30.0)[0]
+    msg = decode(sock.recv(MAX_MESSAGE_BYTES)) if ready else None
+    if msg is None or msg[0] != "hello" or len(msg) < 2 or not isinstance(msg[1], dict):
+        print("btrun guard: no hello from the mission process", file=sys.stderr)
+        return 2
+    settings = GuardSettings.from_hello(msg[1])
+    link = None
+    info: dict[str, Any] = {"pid": os.getpid()}
+    if settings.link is not None:
+        try:
+            link = _open_link(settings.link)
+        except Exception as exc:  # cflib's own errors: tell the mission process, stop
+            sock.send(encode(["error", str(exc) or type(exc).__name__]))
+            return 1
+        info.update(connect_time_s=link.connect_time_s, protocol_version=link.protocol_version)
+    sock.send(encode(["ready", info]))
+    return Guard(sock, settings, link).run()

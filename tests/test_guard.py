@@ -1,0 +1,326 @@
+"""The guard process: nothing that happens to btrun leaves the drone flying, and every run
+leaves a summary.json.
+
+The flights here are the issue's own command line: a software Crazyflie served by ``btrun sim
+serve crazyflie --mocap`` in a process of its own, flown by ``btrun`` through the real cflib
+driver (which the guard owns). Then the mission process is blocked holding the GIL, or is
+``kill -9``-ed, in flight; afterwards the drone's state is read back through cflib by this
+test, independently of btrun.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+
+import pytest
+from helpers import REPO
+
+BTRUN = [sys.executable, "-c", "from bt_engine.cli import main; raise SystemExit(main())"]
+
+PLUGIN_MODULE = '''
+"""Guard test plug-in: a leaf blocked in native code that holds the GIL."""
+
+import ctypes
+
+from bt_engine.node import SUCCESS, NodeStatus, SyncActionNode
+from bt_engine.ports import INT, input_port
+from bt_engine.registry import register
+
+
+@register
+class HoldTheGil(SyncActionNode):
+    """Calls libc sleep() through ctypes.PyDLL: the GIL stays held the whole time."""
+
+    category = "test"
+    ports = (input_port("seconds", INT, 1000, "how long to block"),)
+
+    def tick_impl(self) -> NodeStatus:
+        ctypes.PyDLL(None).sleep(int(self.get_input("seconds")))
+        return SUCCESS
+
+
+class _Plugin:
+    name = "guard-test"
+
+    def load_target(self, rig_path, overrides):
+        return None
+
+    def write_report(self, run_dir, trace, summary, mission):
+        return None
+
+    def commands(self):
+        return {}
+
+
+PLUGIN = _Plugin()
+'''
+
+MISSION = """<root BTCPP_format="4" main_tree_to_execute="M">
+  <BehaviorTree ID="M">
+    <Sequence>
+      <TakeOff name="takeoff" height="1.0" speed="0.5"/>
+      {middle}
+      <Land name="land" speed="0.5"/>
+    </Sequence>
+  </BehaviorTree>
+</root>
+"""
+
+
+@pytest.fixture
+def plugin_env(tmp_path):
+    """An environment whose btrun loads the GIL-holding leaf."""
+    (tmp_path / "btrun_guard_probe.py").write_text(textwrap.dedent(PLUGIN_MODULE))
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(tmp_path), REPO) if p)
+    env["BTRUN_PLUGINS"] = "btrun_guard_probe:PLUGIN"
+    return env
+
+
+def _mission(tmp_path, middle: str) -> str:
+    path = tmp_path / "m.xml"
+    path.write_text(MISSION.format(middle=middle))
+    return str(path)
+
+
+def _wait_for(predicate, timeout_s: float, what: str):
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        got = predicate()
+        if got:
+            return got
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def _summary(run_dir: str) -> dict | None:
+    try:
+        with open(os.path.join(run_dir, "summary.json")) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+@pytest.fixture
+def emulator():
+    """``btrun sim serve crazyflie --mocap`` on a free port, in a process of its own."""
+    proc = subprocess.Popen(
+        [*BTRUN, "sim", "serve", "crazyflie", "--mocap", "--port", "0"],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        line = proc.stdout.readline()
+        assert "udp://" in line, line
+        uri = line.split()[3].rstrip(",")
+        yield uri
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def _fly_args(uri: str, mission: str, run_dir: str) -> list[str]:
+    return [
+        *BTRUN,
+        mission,
+        "--rig",
+        os.path.join(REPO, "rigs", "sitl.yaml"),
+        "--set",
+        "crazyflie.sitl=false",
+        "--set",
+        f"crazyflie.uri={uri}",
+        "--set",
+        "crazyflie.pose_source=none",
+        "--set",
+        "control.pose_source=onboard",
+        "--set",
+        "aideck.enabled=false",
+        "--out",
+        run_dir,
+        "--quiet",
+        "--no-report",
+    ]
+
+
+def read_drone(uri: str) -> dict:
+    """The drone's own state through a fresh cflib connection: height, armed, flying."""
+    import cflib.crtp
+    from cflib.crazyflie import Crazyflie
+    from cflib.crazyflie.log import LogConfig
+    from cflib.crazyflie.syncCrazyflie import SyncCrazyflie
+    from cflib.crazyflie.syncLogger import SyncLogger
+
+    cflib.crtp.init_drivers()
+    cache = tempfile.mkdtemp(prefix="guard-test-toc-")
+    with SyncCrazyflie(uri, cf=Crazyflie(rw_cache=cache)) as scf:
+        conf = LogConfig("check", 20)
+        conf.add_variable("stateEstimate.z", "float")
+        conf.add_variable("supervisor.info", "uint16_t")
+        with SyncLogger(scf, conf) as logger:
+            for _stamp, data, _conf in logger:
+                info = int(data["supervisor.info"])
+                return {
+                    "z_m": data["stateEstimate.z"],
+                    "armed": bool(info & (1 << 1)),
+                    "flying": bool(info & (1 << 4)),
+                }
+    raise AssertionError("no log data")
+
+
+def _airborne_in(run_dir: str) -> bool:
+    try:
+        with open(os.path.join(run_dir, "ticks.jsonl")) as f:
+            return '/takeoff":"SUCCESS"' in f.read()
+    except OSError:
+        return False
+
+
+@pytest.mark.slow
+@pytest.mark.sitl
+def test_a_leaf_holding_the_gil_in_flight_ends_landed_exited_and_recorded(
+    tmp_path, plugin_env, emulator
+) -> None:
+    run_dir = str(tmp_path / "run")
+    mission = _mission(tmp_path, '<HoldTheGil seconds="1000"/>')
+    t0 = time.monotonic()
+    proc = subprocess.run(
+        _fly_args(emulator, mission, run_dir),
+        cwd=REPO,
+        env=plugin_env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert time.monotonic() - t0 < 90
+    assert proc.returncode == -signal.SIGKILL, proc.stderr  # ended by the guard
+    assert "taking over" in proc.stderr
+    summary = _wait_for(lambda: _summary(run_dir), 20, "summary.json")
+    guard = summary["guard"]
+    assert guard["took_over"] is True
+    assert "silent" in guard["reason"]
+    assert guard["landing"] == "landed"
+    assert guard["mission_process"] == "killed by the guard"
+    assert summary["status"] == "ABORTED"
+    state = read_drone(emulator)
+    assert state["z_m"] < 0.1 and not state["armed"] and not state["flying"], state
+
+
+@pytest.mark.slow
+@pytest.mark.sitl
+def test_kill_9_of_btrun_in_flight_ends_landed_within_10_s_and_recorded(
+    tmp_path, plugin_env, emulator
+) -> None:
+    run_dir = str(tmp_path / "run")
+    mission = _mission(tmp_path, '<Sleep msec="60000"/>')
+    proc = subprocess.Popen(
+        _fly_args(emulator, mission, run_dir),
+        cwd=REPO,
+        env=plugin_env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        _wait_for(lambda: _airborne_in(run_dir), 60, "the take-off")
+        os.kill(proc.pid, signal.SIGKILL)
+        killed = time.monotonic()
+        proc.wait(10)
+        summary = _wait_for(lambda: _summary(run_dir), 15, "the guard's summary.json")
+        landed_after = time.monotonic() - killed
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert landed_after < 10.0
+    guard = summary["guard"]
+    assert guard["took_over"] is True and "without a goodbye" in guard["reason"]
+    assert guard["landing"] == "landed" and guard["from_z_m"] > 0.8
+    assert summary["written_by"] == "guard" and summary["status"] == "ABORTED"
+    state = read_drone(emulator)
+    assert state["z_m"] < 0.1 and not state["armed"] and not state["flying"], state
+
+
+@pytest.mark.slow
+def test_lock_step_run_blocked_holding_the_gil_is_ended_with_a_summary(
+    tmp_path, plugin_env
+) -> None:
+    """A simulated drone dies with its process; the run still ends and is recorded."""
+    run_dir = str(tmp_path / "run")
+    mission = _mission(tmp_path, '<HoldTheGil seconds="1000"/>')
+    proc = subprocess.run(
+        [*BTRUN, mission, "--set", "guard.rest_silence_s=1", "--out", run_dir, "--quiet"],
+        cwd=REPO,
+        env=plugin_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    summary = _wait_for(lambda: _summary(run_dir), 10, "summary.json")
+    assert summary["guard"]["took_over"] is True
+    assert summary["guard"]["mode"] == "watch"
+    assert "simulated in the mission process" in summary["guard"]["landing"]
+    assert summary["ticks"] > 0 and summary["mission_time_s"] > 0
+
+
+def test_a_run_that_ends_normally_reports_its_guard_and_leaves_no_process(tmp_path) -> None:
+    run_dir = str(tmp_path / "run")
+    proc = subprocess.run(
+        [*BTRUN, "missions/yaw_test.xml", "--out", run_dir, "--quiet", "--no-report"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    guard = _summary(run_dir)["guard"]
+    assert guard["enabled"] is True and guard["took_over"] is False and guard["heartbeats"] > 0
+    assert not _alive(guard["pid"]), "the guard process outlived its run"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[-1].split()[0] not in ("Z", "X")
+    except OSError:
+        return False
+
+
+def test_guard_can_be_turned_off(tmp_path) -> None:
+    run_dir = str(tmp_path / "run")
+    proc = subprocess.run(
+        [*BTRUN, "missions/yaw_test.xml", "--set", "guard.enabled=false"]
+        + ["--out", run_dir, "--quiet", "--no-report"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "guard" not in _summary(run_dir)
+
+
+@pytest.mark.sitl
+def test_a_link_the_guard_cannot_open_is_a_located_error(tmp_path) -> None:
+    run_dir = str(tmp_path / "run")
+    proc = subprocess.run(
+        [*BTRUN, "missions/square.xml", "--rig", "rigs/sitl.yaml"]
+        + ["--set", "crazyflie.sitl=false", "--set", "crazyflie.uri=udp://127.0.0.1:9"]
+        + ["--set", "crazyflie.pose_source=none", "--set", "crazyflie.connect_timeout_s=1"]
+        + ["--set", "aideck.enabled=false", "--out", run_dir, "--quiet"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert "rigs/sitl.yaml:1:1:" in proc.stderr and "udp://127.0.0.1:9" in proc.stderr
