@@ -11,6 +11,7 @@ reported where the campaign file wrote that setting.
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterable
 from typing import Any
 
 from bt_engine.campaign.rows import Row, value_text
@@ -21,9 +22,11 @@ from bt_engine.registry import REGISTRY
 from bt_engine.spec import Loc, MissionError, Problem
 
 
-def check_campaign(c: Campaign, rows: list[Row], include_paths: list[str] | None = None) -> int:
+def check_campaign(c: Campaign, rows: Iterable[Row], include_paths: list[str] | None = None) -> int:
     """Raise :class:`MissionError` with every located problem of the campaign's missions and
-    settings; return the number of settings combinations checked."""
+    settings; return the number of settings combinations checked. ``rows`` is iterated
+    once (the lazy :func:`~bt_engine.campaign.rows.expand` is never made a list); only the
+    distinct settings combinations are kept."""
     load_plugins()  # registers the plug-ins' leaves
     problems: list[Problem] = []
     for path in dict.fromkeys(c.mission_paths):

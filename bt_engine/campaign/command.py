@@ -64,9 +64,9 @@ def run(args: argparse.Namespace) -> int:
         checked = check_campaign(c, rows, args.include_path)
         selected = rows[: args.limit] if args.limit is not None else rows
         done = set(ResultStore(args.out).finished()) if args.out else set()
-        for line in dry_run_lines(c, selected, done):
+        for line in dry_run_lines(c, selected, done):  # generated line by line
             print(line)
-        n_done = sum(r.key in done for r in selected)
+        n_done = sum(r.key in done for r in selected) if done else 0
         print(
             f"{len(selected)} rows ({len(rows)} in the campaign), {n_done} already finished; "
             f"{checked} settings combinations checked; nothing was run."

@@ -5,6 +5,10 @@ saved the moment its result arrives (:class:`~bt_engine.campaign.results.ResultS
 the tables and the report are rebuilt from the saved rows at the end, also after Ctrl-C,
 which stops the workers and keeps the finished rows (running the same campaign into the
 same folder resumes it). A live progress line (done/total, failures, ETA) goes to stderr.
+
+The rows are never a list: they are generated as the pool asks for them (and once more
+for the tables), so memory follows the finished rows and the runs in flight, not the size
+of the campaign (which :func:`~bt_engine.campaign.rows.expand` bounds by ``max_rows``).
 """
 
 from __future__ import annotations
@@ -12,7 +16,10 @@ from __future__ import annotations
 import os
 import shutil
 import sys
+import threading
 import time
+from collections import deque
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
@@ -29,9 +36,10 @@ class CampaignRun:
 
     campaign: Campaign
     out_dir: str
-    rows: list[Row]
-    #: the rows asked for (``limit`` applied), in order
-    selected: list[Row]
+    #: every row of the campaign, in order (a lazy sequence: generated when read)
+    rows: Sequence[Row]
+    #: the rows asked for (``limit`` applied), in order (lazy too)
+    selected: Sequence[Row]
     #: names of the rows that ran in this call (the others were already finished)
     ran: list[str] = field(default_factory=list)
     #: the table, one dict per finished row of the campaign, in row order
@@ -141,7 +149,7 @@ def run_campaign(
     (default: one per core) or on the Dask cluster at ``scheduler``, write the tables and
     the report into ``out_dir``. Ctrl-C returns with ``interrupted`` set."""
     c = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
-    rows = expand(c)
+    rows = expand(c)  # lazy; raises first if there are more than c.max_rows
     include_paths = list(include_paths or ())
     check_campaign(c, rows, include_paths)
     keep = keep_runs or c.keep_runs
@@ -152,26 +160,42 @@ def run_campaign(
         shutil.copyfile(c.path, copy)
     store = ResultStore(out_dir)
     records = store.finished()
-    todo = [r for r in selected if r.key not in records]
+    finished = frozenset(records)  # what was there before: the rows to skip
+    n_todo = sum(r.key not in finished for r in selected)
     result = CampaignRun(c, out_dir, rows, selected)
-    prog = Progress(len(selected), len(selected) - len(todo), len(todo), progress)
+    prog = Progress(len(selected), len(selected) - n_todo, n_todo, progress)
     t0 = time.perf_counter()
     pool: LocalPool | DaskPool | None = None
-    if todo:
+    if n_todo:
         if scheduler:
             pool = DaskPool(scheduler)
         else:
             log_dir = os.path.join(out_dir, "logs")
             os.makedirs(log_dir, exist_ok=True)
             pool = LocalPool(workers or os.cpu_count() or 1, log_dir)
-        names = {r.key: r.name for r in todo}
-        payloads = [payload(c, r, out_dir, keep, include_paths) for r in todo]
+        # row key -> names of its rows handed out (two rows may share a key); the pool's
+        # threads add to it, this one takes from it
+        in_flight: dict[str, deque[str]] = {}
+        lock = threading.Lock()
+
+        def payloads() -> Iterator[dict[str, Any]]:
+            """The payloads of the rows to run, made when the pool asks for the next one."""
+            for r in selected:
+                if r.key not in finished:
+                    with lock:
+                        in_flight.setdefault(r.key, deque()).append(r.name)
+                    yield payload(c, r, out_dir, keep, include_paths)
+
         prog.update(force=True)
         try:
-            for rec in pool.results(payloads):
+            for rec in pool.results(payloads()):
                 if rec.get("run_dir"):
                     rec["run_dir"] = os.path.relpath(rec["run_dir"], out_dir)
-                rec["row"] = names[rec["key"]]
+                with lock:
+                    names = in_flight[rec["key"]]
+                    rec["row"] = names.popleft()
+                    if not names:
+                        del in_flight[rec["key"]]
                 rec["finished"] = time.time()
                 store.save(rec)
                 records[rec["key"]] = rec
@@ -186,9 +210,9 @@ def run_campaign(
                 pool.close()
         prog.close()
     result.wall_s = time.perf_counter() - t0
-    result.table = table_rows(c, rows, records)
-    keys = {r.key for r in rows}
-    result.records = {k: rec for k, rec in records.items() if k in keys}
+    done = [r for r in rows if r.key in records]  # one pass; as many as the records
+    result.table = table_rows(c, done, records)
+    result.records = {r.key: records[r.key] for r in done}
     result.parquet, result.csv = write_tables(out_dir, c, result.table)
     if report:
         from bt_engine.campaign.report import write_report

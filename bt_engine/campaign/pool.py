@@ -31,7 +31,7 @@ import sys
 import threading
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 from bt_engine.campaign.worker import ONE_THREAD_ENV, keep_folder
@@ -181,39 +181,49 @@ class LocalPool:
         self._procs: list[WorkerProcess] = []
         self._threads: list[threading.Thread] = []
 
-    def results(self, payloads: list[dict[str, Any]]) -> Iterator[dict[str, Any]]:
-        """Run every payload; yield the results as they finish (any order)."""
-        todo: queue.Queue = queue.Queue()
-        for p in payloads:
-            todo.put(p)
+    def results(self, payloads: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+        """Run every payload; yield the results as they finish (any order). ``payloads`` may
+        be a generator: each worker takes the next payload when it is free, so only the
+        payloads in flight exist at once. A worker process starts with its first payload."""
+        source = iter(payloads)
+        take = threading.Lock()  # one thread at a time advances the payloads' iterator
+        exhausted = threading.Event()
         done: queue.Queue = queue.Queue()
-        n = min(self.workers, len(payloads))
-        for i in range(n):
+        for i in range(self.workers):
             log = os.path.join(self.log_dir, f"worker-{i}.log") if self.log_dir else None
             wp = WorkerProcess(log)
             self._procs.append(wp)
-            t = threading.Thread(target=self._serve, args=(wp, todo, done), daemon=True)
+            args = (wp, source, take, exhausted, done)
+            t = threading.Thread(target=self._serve, args=args, daemon=True)
             self._threads.append(t)
             t.start()
-        remaining = len(payloads)
-        while remaining:
+        while True:
             try:
                 item = done.get(timeout=0.2)  # short waits: Ctrl-C is seen at once
             except queue.Empty:
                 if not any(t.is_alive() for t in self._threads) and done.empty():
+                    if exhausted.is_set():
+                        return  # every payload ran, every result was yielded
                     raise WorkerError("every campaign worker stopped") from None
                 continue
             if isinstance(item, BaseException):
                 raise item
-            remaining -= 1
             yield item
 
-    def _serve(self, wp: WorkerProcess, todo: queue.Queue, done: queue.Queue) -> None:
+    def _serve(
+        self,
+        wp: WorkerProcess,
+        source: Iterator[dict[str, Any]],
+        take: threading.Lock,
+        exhausted: threading.Event,
+        done: queue.Queue,
+    ) -> None:
         try:
             while not self._stop.is_set():
-                try:
-                    payload = todo.get_nowait()
-                except queue.Empty:
+                with take:
+                    payload = next(source, None)
+                if payload is None:
+                    exhausted.set()
                     break
                 result = wp.run(payload)
                 if not self._stop.is_set():
@@ -248,8 +258,9 @@ class DaskPool:
         self.client = Client(address, set_as_default=False)
         self._futures: list[Any] = []
 
-    def results(self, payloads: list[dict[str, Any]]) -> Iterator[dict[str, Any]]:
-        """Run every payload; yield the results as they finish (any order).
+    def results(self, payloads: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+        """Run every payload; yield the results as they finish (any order). ``payloads`` may
+        be a generator: it is advanced only as runs are submitted.
 
         One run in flight per worker thread of the cluster (counted again after every run,
         so a cluster that grows gets more): a finished run's thread takes the next one.

@@ -16,10 +16,12 @@ import csv
 import json
 import math
 import os
+from collections.abc import Iterable
 from typing import Any
 
 from bt_engine.campaign.rows import Row
 from bt_engine.campaign.spec import Campaign
+from bt_engine.files import read_bytes
 
 TIMING_KEY = b"btrun.timing_columns"
 
@@ -32,17 +34,21 @@ class ResultStore:
         self.rows_dir = os.path.join(out_dir, "rows")
 
     def finished(self) -> dict[str, dict[str, Any]]:
-        """Every saved record, by row key (unreadable files are ignored: they re-run)."""
+        """Every saved record, by row key (unreadable files are ignored: they re-run; so are
+        files that are not regular, such as a FIFO, or larger than ``MAX_FILE_BYTES``: a
+        record is read with the bounded reader of :mod:`bt_engine.files`)."""
         out: dict[str, dict[str, Any]] = {}
         if not os.path.isdir(self.rows_dir):
             return out
         for name in os.listdir(self.rows_dir):
             if not name.endswith(".json"):
                 continue
+            data = read_bytes(os.path.join(self.rows_dir, name), [], what="results")
+            if data is None:
+                continue
             try:
-                with open(os.path.join(self.rows_dir, name), encoding="utf-8") as f:
-                    rec = json.load(f)
-            except (OSError, ValueError):
+                rec = json.loads(data)
+            except ValueError:
                 continue
             if isinstance(rec, dict) and rec.get("key"):
                 out[rec["key"]] = rec
@@ -71,8 +77,9 @@ def columns(c: Campaign) -> tuple[list[str], list[str]]:
     return det, timing
 
 
-def table_rows(c: Campaign, rows: list[Row], records: dict[str, dict]) -> list[dict[str, Any]]:
-    """One dict per row that has a record, in row order, keyed by column."""
+def table_rows(c: Campaign, rows: Iterable[Row], records: dict[str, dict]) -> list[dict[str, Any]]:
+    """One dict per row that has a record, in row order, keyed by column (``rows`` is
+    iterated once: the lazy rows of :func:`~bt_engine.campaign.rows.expand` will do)."""
     det, timing = columns(c)
     out = []
     for r in rows:

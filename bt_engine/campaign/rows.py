@@ -6,19 +6,25 @@ fault, grid values, seed, setting key), not by its position: adding seeds or gri
 leaves the other rows' draws alone. A row's ``key`` hashes everything its result depends on
 (the mission, rig and world file contents included), so a resumed campaign reuses a finished
 row only when nothing it depends on changed.
+
+The rows are never held in a list: :class:`CampaignRows` counts them arithmetically (a
+campaign over its ``max_rows`` is refused before any row exists) and computes row ``i``
+from ``i`` alone, when it is asked for.
 """
 
 from __future__ import annotations
 
 import hashlib
-import itertools
 import json
 import math
 import random
+from collections.abc import Container, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, overload
 
 from bt_engine.campaign.spec import Campaign
+from bt_engine.files import read_bytes
+from bt_engine.spec import MissionError
 
 
 @dataclass(frozen=True)
@@ -88,76 +94,134 @@ def _float_text(x: float) -> str:
 
 
 def _file_digest(path: str | None, cache: dict[str, str]) -> str:
+    """The SHA-256 of a file's bytes (a bounded read: a FIFO, a device or a file over the
+    limit is ``unreadable``), once per path."""
     if not path:
         return ""
     if path not in cache:
-        try:
-            with open(path, "rb") as f:
-                cache[path] = hashlib.sha256(f.read()).hexdigest()
-        except OSError:
-            cache[path] = "unreadable"
+        data = read_bytes(path, [])
+        cache[path] = hashlib.sha256(data).hexdigest() if data is not None else "unreadable"
     return cache[path]
 
 
-def expand(c: Campaign) -> list[Row]:
-    """Every row of the campaign, in order."""
-    rows: list[Row] = []
-    digests: dict[str, str] = {}
-    cases = c.faults if c.faults is not None else [None]
-    grid_keys = list(c.grid)
-    combos = list(itertools.product(*(c.grid[k] for k in grid_keys))) if grid_keys else [()]
-    shared = {
-        "max_time_s": c.max_time_s,
-        "rate_hz": c.rate_hz,
-        "metrics": [[m.name, m.op, m.text, m.wall_clock] for m in c.metrics],
-    }
-    missions = zip(c.missions, c.mission_paths, strict=True)
-    for (m, mp), (rg, rp), (w, wp) in itertools.product(
-        missions, zip(c.rigs, c.rig_paths, strict=True), zip(c.worlds, c.world_paths, strict=True)
-    ):
-        for case in cases:
-            for combo in combos:
-                grid = dict(zip(grid_keys, combo, strict=True))
-                for k, seed in enumerate(c.seeds):
-                    params: dict[str, Any] = dict(grid)
-                    params.update({key: vals[k % len(vals)] for key, vals in c.cycle.items()})
-                    identity = json.dumps([m, rg, w, case.name if case else None, grid, seed])
-                    for key, draw in c.random.items():
-                        params[key] = draw.sample(_rng(c.draw_seed, identity, key))
-                    if case is not None:
-                        params.update(case.sets)
-                        for key, draw in case.draws.items():
-                            params[key] = draw.sample(_rng(c.draw_seed, identity, key))
-                    settings = {**c.fixed, **params}
-                    timeout = case.timeout_s if case is not None and case.timeout_s else c.timeout_s
-                    content = {
-                        "mission": [m, _file_digest(mp, digests)],
-                        "rig": [rg, _file_digest(rp, digests)],
-                        "world": [w, _file_digest(wp, digests)],
-                        "seed": seed,
-                        "settings": sorted((k, value_text(v)) for k, v in settings.items()),
-                        "timeout_s": timeout,
-                        **shared,
-                    }
-                    key = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
-                    rows.append(
-                        Row(
-                            index=len(rows),
-                            key=key,
-                            mission=m,
-                            mission_path=mp,
-                            rig=rg,
-                            rig_path=rp,
-                            world=w,
-                            world_path=wp,
-                            seed=seed,
-                            fault=case.name if case is not None else None,
-                            timeout_s=timeout,
-                            params=params,
-                            settings=settings,
-                        )
-                    )
-    return rows
+def check_row_count(c: Campaign) -> int:
+    """The campaign's row count, computed without generating a row; raises
+    :class:`MissionError` if it is over ``c.max_rows``."""
+    problem = c.row_count_problem()
+    if problem is not None:
+        raise MissionError([problem])
+    return c.row_count()
+
+
+class CampaignRows(Sequence[Row]):
+    """The rows of a campaign, in order, generated one at a time when asked for (never held
+    in a list): ``len()`` is arithmetic, ``rows[i]`` computes row ``i`` alone, a slice is
+    another lazy view, iteration yields the rows one by one."""
+
+    def __init__(self, c: Campaign, indices: range | None = None, _base: Any = None) -> None:
+        self.campaign = c
+        if _base is None:
+            check_row_count(c)
+            self._cases = c.faults if c.faults is not None else [None]
+            self._grid_keys = list(c.grid)
+            self._sizes = [n for _, n in c.dimensions()]
+            self._digests: dict[str, str] = dict(c.digests)
+            self._shared = {
+                "max_time_s": c.max_time_s,
+                "rate_hz": c.rate_hz,
+                "metrics": [[m.name, m.op, m.text, m.wall_clock] for m in c.metrics],
+            }
+        else:  # a view: the same campaign, other indices
+            self._cases, self._grid_keys = _base._cases, _base._grid_keys
+            self._sizes, self._digests, self._shared = _base._sizes, _base._digests, _base._shared
+        self.indices = range(c.row_count()) if indices is None else indices
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    @overload
+    def __getitem__(self, i: int) -> Row: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> CampaignRows: ...
+
+    def __getitem__(self, i: int | slice) -> Row | CampaignRows:
+        if isinstance(i, slice):
+            return CampaignRows(self.campaign, self.indices[i], self)
+        return self._row(self.indices[i])
+
+    def __iter__(self) -> Iterator[Row]:
+        for index in self.indices:
+            yield self._row(index)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, (CampaignRows, list, tuple)):
+            return NotImplemented
+        return len(self) == len(other) and all(a == b for a, b in zip(self, other, strict=True))
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return f"<CampaignRows {self.campaign.name}: {len(self)} rows>"
+
+    def _row(self, index: int) -> Row:
+        """Row ``index`` of the campaign (its place in every factor, seeds fastest)."""
+        c = self.campaign
+        places, rest = [], index
+        for size in reversed(self._sizes):
+            rest, place = divmod(rest, size)
+            places.append(place)
+        places.reverse()
+        i_m, i_r, i_w, i_f, *i_grid, k = places
+        m, mp = c.missions[i_m], c.mission_paths[i_m]
+        rg, rp = c.rigs[i_r], c.rig_paths[i_r]
+        w, wp = c.worlds[i_w], c.world_paths[i_w]
+        case = self._cases[i_f]
+        grid = {key: c.grid[key][j] for key, j in zip(self._grid_keys, i_grid, strict=True)}
+        seed = c.seeds[k]
+        params: dict[str, Any] = dict(grid)
+        params.update({key: vals[k % len(vals)] for key, vals in c.cycle.items()})
+        identity = json.dumps([m, rg, w, case.name if case else None, grid, seed])
+        for key, draw in c.random.items():
+            params[key] = draw.sample(_rng(c.draw_seed, identity, key))
+        if case is not None:
+            params.update(case.sets)
+            for key, draw in case.draws.items():
+                params[key] = draw.sample(_rng(c.draw_seed, identity, key))
+        settings = {**c.fixed, **params}
+        timeout = case.timeout_s if case is not None and case.timeout_s else c.timeout_s
+        content = {
+            "mission": [m, _file_digest(mp, self._digests)],
+            "rig": [rg, _file_digest(rp, self._digests)],
+            "world": [w, _file_digest(wp, self._digests)],
+            "seed": seed,
+            "settings": sorted((k, value_text(v)) for k, v in settings.items()),
+            "timeout_s": timeout,
+            **self._shared,
+        }
+        key = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+        return Row(
+            index=index,
+            key=key,
+            mission=m,
+            mission_path=mp,
+            rig=rg,
+            rig_path=rp,
+            world=w,
+            world_path=wp,
+            seed=seed,
+            fault=case.name if case is not None else None,
+            timeout_s=timeout,
+            params=params,
+            settings=settings,
+        )
+
+
+def expand(c: Campaign) -> CampaignRows:
+    """Every row of the campaign, in order, as a lazy sequence (nothing is generated until
+    asked for); raises :class:`MissionError` first if the campaign has more than
+    ``max_rows`` rows."""
+    return CampaignRows(c)
 
 
 def _rng(draw_seed: int, identity: str, key: str) -> random.Random:
@@ -165,20 +229,28 @@ def _rng(draw_seed: int, identity: str, key: str) -> random.Random:
     return random.Random(f"btrun-campaign/{draw_seed}/{identity}/{key}")
 
 
-def dry_run_lines(c: Campaign, rows: list[Row], done: set[str]) -> list[str]:
+def dry_run_lines(c: Campaign, rows: Iterable[Row], done: Container[str]) -> Iterator[str]:
     """The rows as text lines (``--dry-run``): name, mission, rig, world, seed, fault,
-    parameters, and whether a result is already in the output folder."""
+    parameters, and whether a result is already in the output folder. Two passes over
+    ``rows`` (the column widths, then the lines): pass a sequence, such as
+    :class:`CampaignRows`, that can be iterated twice; no list of the rows is made."""
     params = c.parameters()
     head = ["row", "mission", "rig", "world", "seed"] + (["fault"] if c.faults else []) + params
-    table = [head + ["done"]]
-    for r in rows:
-        cells = [r.name, r.mission, r.rig or "-", r.world or "-", str(r.seed)]
+
+    def cells(r: Row) -> list[str]:
+        out = [r.name, r.mission, r.rig or "-", r.world or "-", str(r.seed)]
         if c.faults:
-            cells.append(r.fault or "-")
-        cells += [value_text(r.params.get(p)) if p in r.params else "-" for p in params]
-        table.append(cells + ["yes" if r.key in done else ""])
-    widths = [max(len(row[i]) for row in table) for i in range(len(head) + 1)]
-    return [
-        "  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip()
-        for row in table
-    ]
+            out.append(r.fault or "-")
+        out += [value_text(r.params.get(p)) if p in r.params else "-" for p in params]
+        return out + ["yes" if r.key in done else ""]
+
+    widths = [len(h) for h in head + ["done"]]
+    for r in rows:
+        widths = [max(w, len(cell)) for w, cell in zip(widths, cells(r), strict=True)]
+
+    def line(row: list[str]) -> str:
+        return "  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip()
+
+    yield line(head + ["done"])
+    for r in rows:
+        yield line(cells(r))

@@ -9,8 +9,11 @@ node registry, settings against the rig schema) is checked in :mod:`bt_engine.ca
 
 from __future__ import annotations
 
+import hashlib
+import math
 import os
 import random
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,7 +22,7 @@ from yaml.nodes import MappingNode, Node, SequenceNode
 
 from bt_engine.campaign.metrics import Metric, metric_from_data
 from bt_engine.campaign.yaml_reader import SAFE, Reader, scan, show
-from bt_engine.files import read_text
+from bt_engine.files import read_bytes
 from bt_engine.registry import suggest_name
 from bt_engine.spec import Loc, MissionError, Problem
 
@@ -45,7 +48,12 @@ TOP_KEYS: dict[str, str] = {
     "flight_reports": "flight reports in kept folders: kept (default), failed or none",
     "mcap": "record run.mcap in each run (default false: a row re-flies identically with "
     "btrun run, which records it)",
+    "max_rows": "the most rows the campaign may have (default 100,000; at most 1,000,000)",
 }
+#: The most rows a campaign may have unless its file raises it with ``max_rows:``.
+MAX_ROWS = 100_000
+#: The most ``max_rows:`` may raise it to (the results tables are built in memory).
+MAX_ROWS_CEILING = 1_000_000
 DRAWS = ("uniform", "randint", "normal", "choice")
 KEEP_RUNS = ("failed", "all", "none")
 FLIGHT_REPORTS = ("kept", "failed", "none")
@@ -113,7 +121,8 @@ class Campaign:
     rig_paths: list[str | None] = field(default_factory=lambda: [None])
     worlds: list[str | None] = field(default_factory=lambda: [None])
     world_paths: list[str | None] = field(default_factory=lambda: [None])
-    seeds: list[int] = field(default_factory=lambda: [0])
+    #: the seeds (``{start, count}`` is a ``range``: never expanded into a list)
+    seeds: Sequence[int] = field(default_factory=lambda: [0])
     fixed: dict[str, Any] = field(default_factory=dict)
     grid: dict[str, list] = field(default_factory=dict)
     cycle: dict[str, list] = field(default_factory=dict)
@@ -127,6 +136,9 @@ class Campaign:
     keep_runs: str = "failed"
     flight_reports: str = "kept"
     mcap: bool = False
+    max_rows: int = MAX_ROWS
+    #: SHA-256 of each mission / rig / world file, by resolved path (read once, bounded)
+    digests: dict[str, str] = field(default_factory=dict)
     #: where each setting key was written (for the plug-in's problems with its value)
     key_locs: dict[str, Loc] = field(default_factory=dict)
     #: where each mission / rig / world entry was written, by resolved path
@@ -139,6 +151,36 @@ class Campaign:
             keys += [k for k in [*case.sets, *case.draws] if k not in keys]
         return list(dict.fromkeys(keys))
 
+    def dimensions(self) -> list[tuple[str, int]]:
+        """(what, how many) of each factor of the rows, in row order (seeds fastest)."""
+        dims = [("missions", len(self.missions)), ("rigs", len(self.rigs))]
+        dims += [("worlds", len(self.worlds))]
+        dims += [("faults", len(self.faults) if self.faults is not None else 1)]
+        dims += [(f"grid.{k}", len(v)) for k, v in self.grid.items()]
+        return dims + [("seeds", len(self.seeds))]
+
+    def row_count(self) -> int:
+        """How many rows the campaign has: the product of :meth:`dimensions`, computed
+        without generating any row."""
+        return math.prod(n for _, n in self.dimensions())
+
+    def row_count_problem(self, loc: Loc | None = None) -> Problem | None:
+        """The problem of a campaign with more rows than ``max_rows`` (None if it has not),
+        naming the count, its factors and the limit; at ``loc`` (default: the file's start)."""
+        n = self.row_count()
+        if n <= self.max_rows:
+            return None
+        factors = " x ".join(f"{k} {v:,}" for k, v in self.dimensions() if v != 1) or "1"
+        how = (
+            f"max_rows: raises it, up to {MAX_ROWS_CEILING:,}"
+            if self.max_rows < MAX_ROWS_CEILING
+            else "the most a campaign may have"
+        )
+        return Problem(
+            loc or Loc(self.path, 1, 1),
+            f"the campaign has {n:,} rows ({factors}); the limit is {self.max_rows:,} ({how})",
+        )
+
 
 def setting_key(key: str) -> str:
     """A ``--set`` key as the run reads it (a leading ``rig.`` is dropped)."""
@@ -150,13 +192,16 @@ def load_campaign(path: str) -> Campaign:
     problem (nothing runs). Missions and settings are checked later, with the plug-in
     (:func:`bt_engine.campaign.check.check_campaign`)."""
     problems: list[Problem] = []
-    text = read_text(path, problems)
+    text = _read_campaign_file(path, problems)
     if text is None:
         raise MissionError(problems)
     problems = scan(text, path)
     if problems:
         raise MissionError(problems)
-    root = yaml.compose(text, Loader=SAFE)
+    try:
+        root = yaml.compose(text, Loader=SAFE)
+    except yaml.YAMLError as exc:  # pragma: no cover - scan() parsed the same text
+        raise MissionError([Problem(Loc(path, 1, 1), f"YAML error: {exc}")]) from None
     r = Reader(path)
     if not isinstance(root, MappingNode):
         got = "the file is empty" if root is None else f"got {show(r, root)}"
@@ -166,8 +211,10 @@ def load_campaign(path: str) -> Campaign:
     c = Campaign(path=path, name=os.path.splitext(os.path.basename(path))[0])
     first: dict[str, tuple[str, Loc]] = {}  # setting key -> (section, where), for conflicts
     seen_top: set[str] = set()
+    sections: dict[str, Node] = {}  # top-level key -> its value node (where a count is)
     for key, knode, v in r.pairs(root, "campaign"):
         seen_top.add(key)
+        sections[key] = v
         if key not in TOP_KEYS:
             close = suggest_name(key, list(TOP_KEYS))
             hint = f" (did you mean '{close}'?)" if close else ""
@@ -182,6 +229,7 @@ def load_campaign(path: str) -> Campaign:
                 c.mission_paths.append(found or "")
                 if found:
                     c.file_locs.setdefault(found, r.loc(item))
+                    _check_file(r, c, item, found, "missions")
             if not c.missions:
                 r.bad(v, "missions: expected at least one mission file")
         elif key in ("rigs", "worlds"):
@@ -192,6 +240,7 @@ def load_campaign(path: str) -> Campaign:
                 found_list.append(found)
                 if found:
                     c.file_locs.setdefault(found, r.loc(item))
+                    _check_file(r, c, item, found, key)
             if not shown_list:
                 r.bad(v, f"{key}: expected at least one entry (null: the default)")
             else:
@@ -199,6 +248,12 @@ def load_campaign(path: str) -> Campaign:
                 setattr(c, key[:-1] + "_paths", found_list)
         elif key == "seeds":
             c.seeds = _seeds(r, v)
+        elif key == "max_rows":
+            n = r.integer(v, key)
+            if n is not None and not 1 <= n <= MAX_ROWS_CEILING:
+                r.bad(v, f"max_rows: expected 1 to {MAX_ROWS_CEILING:,}, got {n:,}")
+            elif n is not None:
+                c.max_rows = n
         elif key == "draw_seed":
             c.draw_seed = r.integer(v, key) or 0
         elif key in ("timeout_s", "max_time_s", "rate_hz"):
@@ -244,12 +299,70 @@ def load_campaign(path: str) -> Campaign:
     _check_columns(r, c, root)
     if "world.path" in first and c.worlds != [None]:
         r.bad(first["world.path"][1], "world.path is set here and by worlds: keep one")
+    too_many = c.row_count_problem(_largest_factor(r, c, sections, root))
+    if too_many is not None:
+        r.problems.append(too_many)
     if r.problems:
         raise MissionError(r.problems)
     return c
 
 
-def _seeds(r: Reader, node: Node) -> list[int]:
+def _read_campaign_file(path: str, problems: list[Problem]) -> str | None:
+    """The campaign file's text: a regular file (never a FIFO or a device: refused before
+    it is opened), at most ``MAX_FILE_BYTES``, UTF-8 (a byte that is not is located)."""
+    data = read_bytes(path, problems, what="campaign files")
+    if data is None:
+        return None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        before = data[: exc.start]
+        line, column = before.count(b"\n") + 1, exc.start - (before.rfind(b"\n") + 1) + 1
+        problems.append(Problem(Loc(path, line, column), f"not UTF-8 text (byte {exc.start})"))
+        return None
+
+
+def _largest_factor(r: Reader, c: Campaign, sections: dict[str, Node], root: Node) -> Loc:
+    """Where the campaign file writes its largest factor of rows (the seeds' count, a grid
+    key's list, ...): where a row count over the limit is reported."""
+    name, _ = max(c.dimensions(), key=lambda d: d[1])
+    if name.startswith("grid."):
+        return c.key_locs.get(name[5:], r.loc(sections.get("grid", root)))
+    node = sections.get(name, root)
+    if name == "seeds" and isinstance(node, MappingNode):
+        node = next((vn for k, _, vn in r.pairs(node, "seeds") if k == "count"), node)
+    return r.loc(node)
+
+
+def _check_file(r: Reader, c: Campaign, node: Node, path: str, key: str) -> None:
+    """A mission, rig or world file the campaign names is read once, before anything runs:
+    a regular file (not a FIFO, a device, ...), at most ``MAX_FILE_BYTES``, UTF-8 text
+    without NUL bytes; its SHA-256 goes into ``c.digests`` (the rows' keys)."""
+    if path in c.digests:
+        return
+    shown = r.value(node)
+    found: list[Problem] = []
+    data = read_bytes(path, found, r.loc(node), what=key)
+    for p in found:
+        r.bad(p.loc, f"{key}: '{shown}': {p.message}")
+    if data is None:
+        return
+    why = None
+    nul = data.find(b"\0")
+    if nul >= 0:
+        why = f"holds a NUL byte (byte {nul}); {key} are text files"
+    else:
+        try:
+            data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            why = f"is not UTF-8 text (byte {exc.start})"
+    if why is not None:
+        r.bad(node, f"{key}: '{shown}' {why}")
+        return
+    c.digests[path] = hashlib.sha256(data).hexdigest()
+
+
+def _seeds(r: Reader, node: Node) -> Sequence[int]:
     if isinstance(node, MappingNode):
         got = {k: vn for k, _, vn in r.pairs(node, "seeds")}
         extra = set(got) - {"start", "count"}
@@ -261,7 +374,7 @@ def _seeds(r: Reader, node: Node) -> list[int]:
         if count is not None and count < 1:
             r.bad(got["count"], f"seeds.count: expected at least 1, got {count}")
             return [0]
-        return list(range(start or 0, (start or 0) + (count or 1)))
+        return range(start or 0, (start or 0) + (count or 1))  # never a list: it may be huge
     seeds = [r.integer(item, "seeds") for item in r.items(node)]
     if not seeds:
         r.bad(node, "seeds: expected at least one seed")

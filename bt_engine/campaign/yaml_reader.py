@@ -14,6 +14,7 @@ from typing import Any
 import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
+from bt_engine.files import file_kind
 from bt_engine.spec import Loc, Problem
 
 CORE = "tag:yaml.org,2002:"
@@ -102,7 +103,11 @@ class Reader:
             self.bad(node, f"{where}: expected {want}, got {show(self, node)}")
             return "", None
         tried = [os.path.normpath(os.path.join(b, v)) for b in (self.base, os.getcwd())]
-        found = next((p for p in tried if os.path.isfile(p)), None)
+        found = next((p for p in tried if os.path.exists(p)), None)
+        kind = file_kind(found) if found is not None else None
+        if kind is not None:  # a FIFO, a device, a folder: never opened
+            self.bad(node, f"{where}: '{v}' is {kind}, not a regular file")
+            return v, None
         if found is None:
             self.bad(
                 node,
@@ -133,8 +138,27 @@ def scan(text: str, path: str) -> list[Problem]:
             if isinstance(ev, (yaml.ScalarEvent, yaml.CollectionStartEvent)) and tag:
                 if tag not in _ALLOWED_TAGS:
                     return [Problem(where, f"YAML tag '{tag}' is not allowed (plain values only)")]
+    except yaml.reader.ReaderError as exc:  # a NUL byte or another control character
+        return [Problem(_position(text, path, exc.position), _character_text(exc))]
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = Loc(path, mark.line + 1, mark.column + 1) if mark else Loc(path, 1, 1)
         return [Problem(where, f"YAML syntax error: {exc.problem}")]
+    except yaml.YAMLError as exc:  # pragma: no cover - any other refusal of the parser
+        return [Problem(Loc(path, 1, 1), f"YAML error: {str(exc).splitlines()[0]}")]
     return []
+
+
+def _position(text: str, path: str, position: int) -> Loc:
+    """The place of character ``position`` of ``text``."""
+    before = text[: max(position, 0)]
+    line = before.count("\n") + 1
+    return Loc(path, line, len(before) - (before.rfind("\n") + 1) + 1)
+
+
+def _character_text(exc: yaml.reader.ReaderError) -> str:
+    char = exc.character
+    if char == 0:
+        return "the file holds a NUL byte; a campaign file is YAML text"
+    shown = f"#x{char:04x}" if isinstance(char, int) else repr(char)
+    return f"character {shown} is not allowed in YAML ({exc.reason})"
