@@ -9,12 +9,17 @@ run folder, a crashed or hung run recorded as such). The fault is injected at a 
 * ``camera_stall``: the rig's own ``pallet`` renderer streams (as in the default rig), then
   the camera stops delivering frames.
 
-Three faults need a process of their own, and keep one ``btrun run`` process per run:
+Five faults need a process of their own, and keep one ``btrun run`` process per run:
 
 * ``leaf_exception``: the child process makes ``GoTo`` raise once the mission time passes;
 * ``sigint`` / ``sigterm``: the real ``btrun`` executable, paced at ``--realtime`` times real
   time, receives the signal at a random wall time after its tick log appears (a signal during
   Python start-up, before the runner exists, kills the process with nothing flying yet).
+* ``gil_hold`` / ``kill9``: what only the guard process can survive. A software Crazyflie in
+  a process of its own (``btrun sim serve crazyflie --mocap``) flies ``missions/square.xml``
+  through btrun in real time; 3-20 s into the flight ``GoTo`` blocks in native code holding
+  the GIL, or btrun is SIGKILLed. Landed = the drone's own state read back through a fresh
+  cflib connection (below 10 cm, not flying); logs complete = the guard's summary.json.
 
 For every run the table counts: ended landed and disarmed / crashed / still flying (ground
 truth of the simulator), and logs complete (``ticks.jsonl`` parses line by line, its last
@@ -60,10 +65,15 @@ FAULT_TYPES: dict[str, str] = {
     "sigint": "SIGINT 0.1-2.8 s after start",
     "sigterm": "SIGTERM 0.1-2.8 s after start",
     "link_loss_long": "link down for good (limit)",
+    "gil_hold": "a leaf holds the GIL in flight (SITL, guard)",
+    "kill9": "SIGKILL of btrun in flight (SITL, guard)",
 }
 DEFAULT_FAULTS = [f for f in FAULT_TYPES if f != "link_loss_long"]
 #: faults that need a process of their own (the others are campaigns/faults.yaml)
-PROCESS_FAULTS = ("leaf_exception", "sigint", "sigterm")
+PROCESS_FAULTS = ("leaf_exception", "sigint", "sigterm", "gil_hold", "kill9")
+#: process faults flown on a software Crazyflie in a process of its own, which outlives
+#: btrun: the guard process lands it (docs/safety.md); its state is read back through cflib
+GUARD_FAULTS = ("gil_hold", "kill9")
 
 
 def plan(fault: str, i: int, base_seed: int) -> dict[str, Any]:
@@ -76,6 +86,8 @@ def plan(fault: str, i: int, base_seed: int) -> dict[str, Any]:
     if fault in ("sigint", "sigterm"):
         job["at_s"] = None
         job["wall_s"] = round(rng.uniform(0.1, 2.8), 2)
+    if fault in GUARD_FAULTS:  # square.xml in real time: in flight between 3 and 20 s
+        job["at_s"] = round(rng.uniform(3.0, 20.0), 2)
     job["sets"] = []
     return job
 
@@ -155,8 +167,105 @@ def check_logs(run_dir: str) -> tuple[bool, dict | None, str]:
     return True, summary, ""
 
 
+def drone_state(uri: str) -> dict[str, Any]:
+    """The drone's own state through a fresh cflib connection (independent of btrun):
+    height, armed, flying (supervisor.info bits 1 and 4)."""
+    import cflib.crtp
+    from cflib.crazyflie import Crazyflie
+    from cflib.crazyflie.log import LogConfig
+    from cflib.crazyflie.syncCrazyflie import SyncCrazyflie
+    from cflib.crazyflie.syncLogger import SyncLogger
+
+    cflib.crtp.init_drivers()
+    cache = tempfile.mkdtemp(prefix="btrun-check-toc-")
+    with SyncCrazyflie(uri, cf=Crazyflie(rw_cache=cache)) as scf:
+        conf = LogConfig("check", 20)
+        conf.add_variable("stateEstimate.z", "float")
+        conf.add_variable("supervisor.info", "uint16_t")
+        with SyncLogger(scf, conf) as logger:
+            for _stamp, data, _conf in logger:
+                info = int(data["supervisor.info"])
+                return {
+                    "z_m": data["stateEstimate.z"],
+                    "armed": bool(info & (1 << 1)),
+                    "flying": bool(info & (1 << 4)),
+                }
+    raise RuntimeError(f"{uri}: no log data")
+
+
+def run_guarded(job: dict[str, Any], out: str) -> dict[str, Any]:
+    """A :data:`GUARD_FAULTS` job: ``btrun sim serve crazyflie --mocap`` in a process of its
+    own, ``btrun`` flying missions/square.xml on it through the guard; at ``at_s`` a leaf
+    holds the GIL (child mode) or btrun is SIGKILLed; then the drone's state is read back
+    through cflib."""
+    run_dir = os.path.join(out, f"{job['fault']}-{job['i']:03d}")
+    btrun = [sys.executable, "-c", "from bt_engine.cli import main; raise SystemExit(main())"]
+    emu = subprocess.Popen(
+        [*btrun, "sim", "serve", "crazyflie", "--mocap", "--port", "0"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    t0 = time.monotonic()
+    res: dict[str, Any] = {"job": job, "complete": False, "why": ""}
+    try:
+        uri = emu.stdout.readline().split()[3].rstrip(",")  # type: ignore[union-attr]
+        common = ["run", os.path.join(REPO, "missions", "square.xml"), "--rig", "rigs/sitl.yaml"]
+        for item in ("crazyflie.sitl=false", f"crazyflie.uri={uri}", "aideck.enabled=false",
+                     "crazyflie.pose_source=none", "control.pose_source=onboard"):  # fmt: skip
+            common += ["--set", item]
+        common += ["--out", run_dir, "--quiet", "--no-report", "--seed", str(job["seed"])]
+        if job["fault"] == "gil_hold":
+            cmd = [sys.executable, os.path.abspath(__file__), "--child", json.dumps(job), "--"]
+        else:
+            cmd = btrun
+        proc = subprocess.Popen(cmd + common, cwd=REPO, stderr=subprocess.PIPE, text=True,
+                                stdout=subprocess.DEVNULL)  # fmt: skip
+        if job["fault"] == "kill9":
+            log = os.path.join(run_dir, "ticks.jsonl")
+            while not os.path.exists(log) and proc.poll() is None:
+                time.sleep(0.05)
+            try:
+                proc.wait(timeout=job["at_s"])
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        try:
+            _, err = proc.communicate(timeout=120)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+        end = time.monotonic() + 20.0
+        summary = None
+        while summary is None and time.monotonic() < end:  # the guard lands, then writes
+            try:
+                with open(os.path.join(run_dir, "summary.json")) as f:
+                    summary = json.load(f)
+            except (OSError, ValueError):
+                time.sleep(0.1)
+        state = drone_state(uri)
+        guard = (summary or {}).get("guard", {})
+        landed = state["z_m"] < 0.1 and not state["flying"]
+        res.update(
+            rc=proc.returncode,
+            complete=summary is not None and guard.get("took_over") is True,
+            why="" if summary is not None else "no summary.json",
+            status=(summary or {}).get("status"),
+            reason=guard.get("reason"),
+            final="landed" if landed else "flying",
+            disarmed=not state["armed"],
+            drone=state,
+            traceback_on_screen="Traceback" in err,
+            stderr=err[-2000:],
+        )
+    finally:
+        emu.terminate()
+        emu.wait(10)
+    res["wall_s"] = time.monotonic() - t0
+    return res
+
+
 def run_one(job: dict[str, Any], out: str, realtime: float) -> dict[str, Any]:
     """Run one job as a child process; return its outcome."""
+    if job["fault"] in GUARD_FAULTS:
+        return run_guarded(job, out)
     run_dir = os.path.join(out, f"{job['fault']}-{job['i']:03d}")
     common = [
         "run",
@@ -248,6 +357,20 @@ def child(job: dict[str, Any], argv: list[str]) -> int:
             return original(self)
 
         flight.GoTo.on_running = on_running  # type: ignore[method-assign]
+    if job["fault"] == "gil_hold":
+        import ctypes
+
+        import nodes.flight as flight
+
+        original_goto = flight.GoTo.on_running
+        at_s = float(job["at_s"])
+
+        def hold(self):  # type: ignore[no-untyped-def]
+            if self.now() >= at_s:  # native code that keeps the GIL: nothing in-process runs
+                ctypes.PyDLL(None).sleep(600)
+            return original_goto(self)
+
+        flight.GoTo.on_running = hold  # type: ignore[method-assign]
     return int(main(argv) or 0)
 
 

@@ -88,7 +88,7 @@ def run_row(payload: dict[str, Any]) -> dict[str, Any]:
     (empty when the folder was not kept). An exception is a ``CRASHED`` row
     (its traceback in the folder's ``campaign_error.log``)."""
     from bt_engine.loading import default_include_paths
-    from bt_engine.run_cmd import finish, fly, prepare
+    from bt_engine.run_cmd import finish, fly, prepare, release
 
     t0 = time.perf_counter()
     _one_torch_thread()
@@ -117,6 +117,7 @@ def run_row(payload: dict[str, Any]) -> dict[str, Any]:
                 finally:
                     if run.groot is not None:  # pragma: no cover - never set here
                         run.groot.close()
+                    release(run.target, *run.hooks, written=run.summary is not None)
                 run_s = time.perf_counter() - t_run
             with open(os.path.join(run_dir, "summary.json"), encoding="utf-8") as f:
                 summary = json.load(f)
