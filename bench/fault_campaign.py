@@ -248,7 +248,7 @@ def run_guarded(job: dict[str, Any], out: str) -> dict[str, Any]:
             complete=summary is not None and guard.get("took_over") is True,
             why="" if summary is not None else "no summary.json",
             status=(summary or {}).get("status"),
-            reason=guard.get("reason"),
+            reason=guard.get("reason") or (summary or {}).get("reason"),
             final="landed" if landed else "flying",
             disarmed=not state["armed"],
             drone=state,
