@@ -88,6 +88,13 @@ class WallClock:
         """Return the scaled seconds elapsed since the clock was created."""
         return (time.monotonic() - self._t0) * self._factor
 
+    def restart_at(self, t_s: float) -> None:
+        """Read ``t_s`` now: the time spent since then (loading models, building a gallery
+        before the first tick, with the drone on the ground) is not mission time, so the
+        first tick does not find the simulator, the tick log and the summary that far
+        behind. Threads pacing themselves on this clock must resynchronise on a jump back."""
+        self._t0 = time.monotonic() - t_s / self._factor
+
     def sleep_until(self, t_s: float) -> None:
         """Sleep until mission time ``t_s`` (returns at once if it has passed)."""
         remaining = (t_s - self.now()) / self._factor

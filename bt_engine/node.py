@@ -24,7 +24,7 @@ FAILURE                FAILURE
 from __future__ import annotations
 
 import enum
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -108,6 +108,9 @@ class MissionContext:
     #: set by the tick watchdog when a tick overran its budget: the loops that can keep one
     #: tick going (Repeat, RetryUntilSuccessful, the wake-up re-ticks) stop at their next turn
     stop_reason: str | None = None
+    #: set while the mission is prepared (models, galleries load before the first tick):
+    #: messages are shown at once, stamped with wall time, not at the first tick
+    echo: Callable[[str], None] | None = None
 
     def check_stop(self) -> None:
         """Raise :class:`~bt_engine.watchdog.TickOverrun` if the watchdog asked to stop."""
@@ -117,6 +120,8 @@ class MissionContext:
     def log(self, message: str) -> None:
         """Record a message from a node (shown by the runner, written to the tick log)."""
         self.messages.append(message)
+        if self.echo is not None:
+            self.echo(message)
 
 
 _LITERAL, _REF = 0, 1

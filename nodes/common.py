@@ -25,6 +25,13 @@ def vehicle_of(node: BTNode) -> Any:
     return v
 
 
+def is_realtime(node: BTNode) -> bool:
+    """True when the mission runs on a wall clock (a real or SITL drone, ``--realtime``):
+    then the drone does not wait for the tree, and slow work belongs off the tick thread."""
+    clock = node.ctx.clock if node.ctx is not None else None
+    return clock is not None and not getattr(clock, "is_simulated", True)
+
+
 def angle_input(node: BTNode, rad_port: str, deg_port: str) -> float:
     """Read an angle given either in radians (``rad_port``) or degrees (``deg_port``)."""
     deg = node.get_input(deg_port)

@@ -28,7 +28,7 @@ from bt_engine.node import (
 )
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
-from nodes.common import vehicle_of
+from nodes.common import is_realtime, vehicle_of
 from nodes.perception_session import (
     DEMO,
     MIN_SCORE_DOC,
@@ -85,18 +85,34 @@ class PerceptionReady(SyncActionNode):
         output_port("gallery_size", INT, "number of enrolled pallet sides"),
     )
 
-    def tick_impl(self) -> NodeStatus:
+    def preflight(self) -> list[Any]:
+        """Load the models and open the gallery (building the demo gallery) before the first
+        tick: in real time the drone does not wait for a tick that loads models. A problem
+        is reported before anything flies. Inputs only known in flight are left to the
+        tick."""
+        try:
+            self._load()
+        except PerceptionError as exc:
+            return [("gallery", str(exc))]
+        except Exception:  # an input only known in flight (a blackboard entry): the tick
+            return []
+        return []
+
+    def _load(self) -> Any:
         session = PerceptionSession.of(self.ctx)
+        detector = session.detector(self.get_input("detector"))
+        embedder = session.embedder(self.get_input("embedder"))
+        return session.gallery(
+            self.get_input("gallery"), embedder, create=self.get_input("enrol"), detector=detector
+        )
+
+    def tick_impl(self) -> NodeStatus:
         enrol = self.get_input("enrol")
         problem = _camera_problem(self.ctx.vehicle)
         if problem:
             return _fail(self, problem)
         try:
-            detector = session.detector(self.get_input("detector"))
-            embedder = session.embedder(self.get_input("embedder"))
-            g = session.gallery(
-                self.get_input("gallery"), embedder, create=enrol, detector=detector
-            )
+            g = self._load()  # loaded in preflight already: here it is a look-up
         except PerceptionError as exc:
             return _fail(self, str(exc))
         self.set_output("gallery_size", len(g))
@@ -158,7 +174,7 @@ class DetectBlocks(StatefulActionNode):
         self.started_s = self.last_frame_s = self.now()
         frame = self.vehicle.camera_frame()
         self.last_index = frame.index if frame is not None else None  # only frames from now on
-        self.gate = self.session.frame_gate()
+        self.feed = self.session.feed(self.vehicle, is_realtime(self))
         self.result = BlockScan(key=self.output_key("scan") or "", t_s=self.now())
         self.camera_index: dict[int, int] = {}  # sequencer frame number -> camera frame index
         self.session.scans.append(self.result)
@@ -170,12 +186,18 @@ class DetectBlocks(StatefulActionNode):
     def on_running(self) -> NodeStatus:
         now = self.now()
         frame = self.vehicle.camera_frame()
-        if frame is not None and frame.index != self.last_index:
+        if frame is not None and frame.index != self.last_index:  # the camera is alive
             self.last_index, self.last_frame_s = frame.index, now
-            if self.session.wants(self.gate, frame):
-                status = self._process(frame)
-                if status is not None:
-                    return status
+        try:
+            seen = self.session.observations(
+                self.feed, self.vehicle, self.detector, self.min_score, now
+            )
+        except PerceptionError as exc:
+            return _fail(self, str(exc))
+        for obs in seen:
+            status = self._process(obs)
+            if status is not None:
+                return status
         if now - self.last_frame_s >= self.stall_s - 1e-9:
             return _fail(
                 self,
@@ -190,15 +212,11 @@ class DetectBlocks(StatefulActionNode):
             )
         return RUNNING
 
-    def _process(self, frame: Any) -> NodeStatus | None:
-        """Detect and sequence one frame; SUCCESS once done, FAILURE on a bad frame."""
+    def _process(self, obs: Any) -> NodeStatus | None:
+        """Sequence one observation; SUCCESS once every block is committed."""
+        frame = obs.frame
         self.camera_index[self.sequencer.frames + 1] = frame.index
-        try:
-            new = self.session.process(
-                frame, self.detector, self.sequencer, self.min_score, self.row_offset_px
-            )
-        except PerceptionError as exc:
-            return _fail(self, str(exc))
+        new = self.session.process(obs, self.sequencer, self.row_offset_px)
         r = self.result
         r.frames_seen += 1
         for block in new:

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from nodes.perception_feed import FrameFeed, Observation, PerceptionWorker
 from perception.errors import ModelError
 
 FRAME_HW = (244, 324)  # the AI-deck camera: 324 x 244 pixels
@@ -146,6 +147,9 @@ class PerceptionSession:
         self.frames_skipped = 0  # new frames a leaf's frame gate skipped (view barely moved)
         self.tracker: Any = None  # perception.face.FaceTracker while a reactive scan runs
         self.faces: list[dict] = []  # face estimates of the reactive leaves, for the report
+        self.worker: PerceptionWorker | None = None  # real time: detection off the tick thread
+        self._detect_with: tuple[Any, float | None] | None = None  # the worker's detector
+        self.decision_ms: deque[float] = deque(maxlen=20_000)  # capture -> leaf used it
 
     @classmethod
     def of(cls, ctx: Any) -> PerceptionSession:
@@ -234,7 +238,9 @@ class PerceptionSession:
         return g
 
     def close(self) -> None:
-        """Close the open galleries."""
+        """Stop the perception worker; close the open galleries."""
+        if self.worker is not None:
+            self.worker.close()
         for g in self._galleries.values():
             g.close()
         self._galleries.clear()
@@ -296,40 +302,82 @@ class PerceptionSession:
             boxes = [(d.x1, d.y1, d.x2, d.y2) for d in dets]
             self.tracker.add_frame(pose.position, pose.quaternion, boxes)
 
-    def observe(self, frame: Any, detector: Any, min_score: float | None) -> list:
-        """Detect blocks in one camera frame for the face tracker only (no sequencer)."""
+    # -- observations: detection in the step (lock-step) or on the worker (real time) -------
+    def feed(self, vehicle: Any, realtime: bool) -> FrameFeed:
+        """A leaf's feed, from now on (frames already there are not its). In real time it
+        has no gate (the worker takes the newest frame whenever it is free)."""
+        frame = vehicle.camera_frame()
+        if realtime:
+            return FrameFeed(None, self.worker.seq if self.worker is not None else 0, None)
+        return FrameFeed(frame.index if frame is not None else None, 0, self.frame_gate())
+
+    def observations(
+        self, feed: FrameFeed, vehicle: Any, detector: Any, min_score: float | None, now_s: float
+    ) -> list[Observation]:
+        """What the detector saw since the feed's last call, oldest first. Lock-step
+        (``feed.seq`` unused): the newest frame, detected now, if it is new and the feed's
+        gate wants it. Real time: the worker's observations since the last call (the
+        worker is started on first use). Raises :class:`PerceptionError` for a frame the
+        models cannot take (a wrong size or format)."""
+        if feed.gate is None:  # real time
+            self._detect_with = (detector, min_score)
+            if self.worker is None:
+                self.worker = PerceptionWorker(vehicle.camera_frame, self._worker_detect)
+            errors = self.worker.errors
+            out = self.worker.since(feed.seq)
+            if out:
+                feed.seq = out[-1].seq
+            elif errors and self.worker.last_error and feed.last_index != -errors:
+                feed.last_index = -errors  # report each new bad frame once per feed
+                raise PerceptionError(self.worker.last_error)
+        else:
+            frame = vehicle.camera_frame()
+            if frame is None or frame.index == feed.last_index:
+                return []
+            feed.last_index = frame.index
+            if not self.wants(feed.gate, frame):
+                return []
+            t0 = time.perf_counter()
+            bgr, dets = self.detect_frame(frame, detector, min_score)
+            out = [Observation(frame, bgr, dets, 0, (time.perf_counter() - t0) * 1e3)]
+        for obs in out:
+            self.decision_ms.append(max(0.0, now_s - obs.frame.t_s) * 1e3)
+        return out
+
+    def _worker_detect(self, frame: Any) -> tuple[np.ndarray, list]:
+        detector, min_score = self._detect_with  # type: ignore[misc]
+        return self.detect_frame(frame, detector, min_score)
+
+    def detect_frame(
+        self, frame: Any, detector: Any, min_score: float | None
+    ) -> tuple[np.ndarray, list]:
+        """White-balance one camera frame and detect its blocks (counted for the summary)."""
         t0 = time.perf_counter()
         bgr = frame_bgr(frame.image, (frame.meta or {}).get("format"), self.factors)
         dets = detector.detect(bgr, min_score=min_score)
         self.latencies_ms.append((time.perf_counter() - t0) * 1e3)
         self.frames += 1
         self.detections += len(dets)
-        self._track(frame, dets)
-        return dets
+        return bgr, dets
+
+    def track(self, obs: Observation) -> list:
+        """Feed one observation to the face tracker only (no sequencer); its boxes."""
+        self._track(obs.frame, obs.dets)
+        return obs.dets
 
     def process(
-        self,
-        frame: Any,
-        detector: Any,
-        sequencer: Any,
-        min_score: float | None,
-        max_row_offset_px: float | None = None,
+        self, obs: Observation, sequencer: Any, max_row_offset_px: float | None = None
     ) -> list:
-        """Detect blocks in one camera frame and feed the sequencer (and the face tracker,
-        if one runs); return new commits. ``max_row_offset_px``: the sequencer only gets
-        boxes whose centre is at most this far above or below the image's middle row (the
-        scanned row; not the blocks of a pallet below or above it)."""
-        t0 = time.perf_counter()
-        bgr = frame_bgr(frame.image, (frame.meta or {}).get("format"), self.factors)
-        dets = detector.detect(bgr, min_score=min_score)
+        """Feed one observation to the sequencer (and the face tracker, if one runs); return
+        new commits. ``max_row_offset_px``: the sequencer only gets boxes whose centre is at
+        most this far above or below the image's middle row (the scanned row; not the
+        blocks of a pallet below or above it)."""
+        frame, bgr, dets = obs.frame, obs.bgr, obs.dets
         row = dets
         if max_row_offset_px is not None:
             mid = 0.5 * (bgr.shape[0] - 1)
             row = [d for d in dets if abs(0.5 * (d.y1 + d.y2) - mid) <= max_row_offset_px]
         committed = sequencer.update(bgr, row, frame.t_s)
-        self.latencies_ms.append((time.perf_counter() - t0) * 1e3)
-        self.frames += 1
-        self.detections += len(dets)
         self._track(frame, dets)
         if dets:
             boxes = [(d.x1, d.y1, d.x2, d.y2, d.score) for d in dets]
@@ -390,6 +438,15 @@ class PerceptionSession:
                 "p50": round(float(np.percentile(lat, 50)), 2),
                 "p95": round(float(np.percentile(lat, 95)), 2),
                 "max": round(float(lat.max()), 2),
+            }
+        w = self.worker
+        out["mode"] = "worker thread" if w is not None else "in the tick"
+        out["frames_dropped"] = w.dropped if w is not None else 0
+        if self.decision_ms:
+            dec = np.asarray(self.decision_ms)
+            out["capture_to_decision_ms"] = {
+                "p50": round(float(np.percentile(dec, 50)), 1),
+                "p95": round(float(np.percentile(dec, 95)), 1),
             }
         if self.identifications:
             out["identifications"] = [

@@ -31,7 +31,7 @@ from typing import Any
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode
 from bt_engine.ports import ANY, DURATION, FLOAT, INT, STRING, VEC3, input_port, output_port
 from bt_engine.registry import register
-from nodes.common import vehicle_of
+from nodes.common import is_realtime, vehicle_of
 from nodes.perception_session import MIN_SCORE_DOC, PerceptionError, PerceptionSession
 
 CATEGORY_SCAN = "reactive scan"
@@ -63,9 +63,7 @@ class _Reactive(StatefulActionNode):
         self.session = PerceptionSession.of(self.ctx)
         self.started_s = self.now()
         self.progress: Any = None
-        frame = self.vehicle.camera_frame()
-        self.last_index = frame.index if frame is not None else None
-        self.gate = self.session.frame_gate()
+        self.feed = self.session.feed(self.vehicle, is_realtime(self))
 
     def _not_a_face(self, face: Any) -> NodeStatus:
         return self._fail(f"face must be LocatePallet's face output, got {type(face).__name__}")
@@ -133,17 +131,15 @@ class _Reactive(StatefulActionNode):
         return ""
 
     def look(self, detector: Any, min_score: float) -> str:
-        """Process the newest camera frame (if new, and if the rig's frame gate lets it
-        through) into the face tracker; "" or why the frame could not be used (a frame of
-        the wrong size or format)."""
-        frame = self.vehicle.camera_frame()
-        if frame is None or frame.index == self.last_index:
-            return ""
-        self.last_index = frame.index
-        if not self.session.wants(self.gate, frame):
-            return ""  # the view barely moved since the last frame looked at
+        """Feed what the detector saw since the last look (lock-step: the newest frame, if
+        new and the rig's frame gate lets it through; real time: the perception worker's
+        observations) into the face tracker; "" or why a frame could not be used (a frame
+        of the wrong size or format)."""
         try:
-            self.session.observe(frame, detector, min_score)
+            for obs in self.session.observations(
+                self.feed, self.vehicle, detector, min_score, self.now()
+            ):
+                self.session.track(obs)
         except PerceptionError as exc:
             return str(exc)
         return ""

@@ -129,6 +129,9 @@ class CrazyfliePlatform:
         while not self._stop.is_set():
             next_t += period
             delay = next_t - clock.now()
+            if delay > 5 * period:  # the clock was set back (WallClock.restart_at): resync
+                next_t = clock.now() + period
+                delay = period
             if delay > 0:
                 if self._stop.wait(delay):
                     break

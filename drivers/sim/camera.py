@@ -15,6 +15,7 @@ generator advances only for rendered frames, in delivery order, which the seed f
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -28,6 +29,10 @@ class LazyCameraFrame:
 
     __slots__ = ("_image", "_render", "t_s", "pose", "index", "meta")
 
+    #: one render at a time: in real time the perception worker renders on its own thread,
+    #: and a second reader of the same frame must wait for the image, not read None
+    _lock = threading.Lock()
+
     def __init__(
         self, render: Callable[[], Any], t_s: float, pose: Pose, index: int, meta: dict
     ) -> None:
@@ -39,8 +44,10 @@ class LazyCameraFrame:
     def image(self) -> Any:
         """The frame's image (rendered now if it was not yet)."""
         if self._render is not None:
-            render, self._render = self._render, None
-            self._image = render()
+            with LazyCameraFrame._lock:
+                if self._render is not None:
+                    self._image = self._render()
+                    self._render = None
         return self._image
 
     @property
