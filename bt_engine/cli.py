@@ -84,7 +84,8 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         default=None,
         metavar="S",
         help="wall-clock seconds one tick may take before the watchdog stops the tree and "
-        "lands (default: 5 in real time, 300 lock-step)",
+        "lands (default: 5 in real time, 10 lock-step; 600 while the drone is on the "
+        "ground; 1 s after Ctrl-C)",
     )
     r.add_argument("--quiet", "-q", action="store_true", help="print only the result")
     r.add_argument("--no-report", action="store_true", help="skip the flight report")
@@ -135,6 +136,12 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     rp.add_argument("log", help="ticks.jsonl or the run folder")
     rp.add_argument("--tick", type=int, help="show the tree at this tick and exit")
     rp.add_argument("--all", action="store_true", help="print every tick that changed something")
+    rp.add_argument(
+        "--repair",
+        action="store_true",
+        help="only make the run's run.mcap readable again after a killed run (rebuild its "
+        "summary and index; replay does it by itself)",
+    )
     cp = sub.add_parser(
         "campaign",
         help="fly a campaign: missions x rigs x worlds x seeds x settings x faults "
@@ -149,11 +156,16 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``btrun`` command; returns the exit code."""
+def main(argv: list[str] | None = None, earlier_interrupts: list[str] | None = None) -> int:
+    """Entry point of the ``btrun`` command; returns the exit code.
+
+    ``earlier_interrupts``: SIGINT/SIGTERM the launcher (``btrun_launcher``, the console
+    script) caught while this package was being imported; a run then ends before it flies.
+    """
     from bt_engine.runner import catch_early_interrupts, release_early_interrupts
 
-    early = catch_early_interrupts()  # before anything slow: a Ctrl-C is never lost
+    # before anything slow: a Ctrl-C is never lost
+    early = catch_early_interrupts(earlier_interrupts)
     try:
         return _main(argv, early)
     finally:
@@ -300,7 +312,7 @@ def _cmd_campaign(args) -> int:
 def _cmd_replay(args) -> int:
     from bt_engine.replay import replay
 
-    return replay(args.log, args.tick, args.all)
+    return replay(args.log, args.tick, args.all, args.repair)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,11 +1,20 @@
 """``btrun replay``: step through a tick log (or a run's ``run.mcap``) and show the tree at
-each tick."""
+each tick; ``--repair`` makes a killed run's ``run.mcap`` readable by indexed readers.
+
+A run killed mid-way (SIGKILL, power loss) leaves ``run.mcap`` without its summary, index and
+footer, and usually with a torn last record: ``mcap.reader.make_reader(f).iter_messages()``
+(and viewers that seek) then fail. :func:`repair_mcap` rewrites it from every record that can
+still be read in order (as ``mcap recover`` does): same schemas, channels, messages, metadata
+and attachments, a new summary and index. ``btrun replay`` does this by itself for the run it
+is given; a file that a running ``btrun`` still writes (it holds a lock on it) is left alone.
+"""
 
 from __future__ import annotations
 
 import json
 import os
 import sys
+from dataclasses import dataclass
 
 from bt_engine.display import Row, tree_lines
 from bt_engine.ticklog import read_log
@@ -80,6 +89,148 @@ def read_mcap(path: str) -> tuple[dict, list[dict]]:
     return header, records
 
 
+@dataclass
+class McapRepair:
+    """What :func:`repair_mcap` did: ``repaired`` False when the file was already complete
+    (or in use: ``in_use``); the records kept; ``error`` the reason reading stopped."""
+
+    path: str
+    repaired: bool
+    messages: int = 0
+    channels: int = 0
+    metadata: int = 0
+    attachments: int = 0
+    in_use: bool = False
+    error: str = ""
+
+    def line(self) -> str:
+        """One line for the console."""
+        if self.in_use:
+            return f"{self.path}: being written by a running btrun; not repaired"
+        if not self.repaired:
+            return f"{self.path}: complete (summary and index present); nothing to repair"
+        return (
+            f"{self.path}: repaired: {self.messages} messages on {self.channels} channels "
+            f"kept, summary and index rebuilt (reading stopped at: {self.error or 'the end'})"
+        )
+
+
+def mcap_complete(path: str) -> bool:
+    """True if the indexed reader (``mcap.reader.make_reader``) can open ``path``: it has
+    its footer and summary."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            return make_reader(f).get_summary() is not None
+    except Exception:  # noqa: BLE001 - torn, truncated or garbage at the end
+        return False
+
+
+def _in_use(f) -> bool:
+    """True if another process holds the writer's lock on the open file ``f``."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - no advisory locks (Windows): assume not
+        return False
+    try:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    return False
+
+
+def _compression():
+    from mcap.writer import CompressionType
+
+    for module, kind in (("lz4.frame", CompressionType.LZ4), ("zstandard", CompressionType.ZSTD)):
+        try:
+            __import__(module)
+            return kind
+        except ImportError:
+            continue
+    return CompressionType.NONE
+
+
+def repair_mcap(path: str) -> McapRepair:
+    """Rewrite the MCAP file at ``path`` if the indexed reader cannot open it (a killed
+    run): every schema, channel, message, metadata and attachment record that reads back in
+    order is written again with a summary and index, to a temporary file that then replaces
+    ``path``. The unfinished last chunk of a killed writer is lost (it was never complete).
+    A file whose writer still holds its lock is left alone (``in_use``)."""
+    from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import Writer
+
+    with open(path, "rb") as src:
+        if _in_use(src):
+            return McapRepair(path, False, in_use=True)
+        if mcap_complete(path):
+            return McapRepair(path, False)
+        tmp = f"{path}.repair.tmp"
+        out = McapRepair(path, True)
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        with open(tmp, "wb") as dst:
+            writer = Writer(dst, compression=_compression())
+            started = False
+            try:
+                for rec in StreamReader(src, validate_crcs=True).records:
+                    if isinstance(rec, Header):
+                        writer.start(profile=rec.profile, library=rec.library)
+                        started = True
+                        continue
+                    if not started:
+                        writer.start()
+                        started = True
+                    if isinstance(rec, Schema) and rec.id not in schemas:
+                        schemas[rec.id] = writer.register_schema(rec.name, rec.encoding, rec.data)
+                    elif isinstance(rec, Channel) and rec.id not in channels:
+                        sid = schemas.get(rec.schema_id, 0)
+                        channels[rec.id] = writer.register_channel(
+                            rec.topic, rec.message_encoding, sid, dict(rec.metadata)
+                        )
+                    elif isinstance(rec, Message) and rec.channel_id in channels:
+                        writer.add_message(
+                            channels[rec.channel_id],
+                            rec.log_time,
+                            rec.data,
+                            rec.publish_time,
+                            rec.sequence,
+                        )
+                        out.messages += 1
+                    elif isinstance(rec, Metadata):
+                        writer.add_metadata(rec.name, dict(rec.metadata))
+                        out.metadata += 1
+                    elif isinstance(rec, Attachment):
+                        writer.add_attachment(
+                            rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data
+                        )
+                        out.attachments += 1
+            except Exception as exc:  # noqa: BLE001 - the torn end: keep what was read
+                out.error = f"{type(exc).__name__}: {exc}".strip()[:200]
+            if not started:
+                writer.start()
+            writer.finish()
+            dst.flush()
+            os.fsync(dst.fileno())
+        out.channels = len(channels)
+        if not mcap_complete(tmp):  # pragma: no cover - the writer's own output
+            os.unlink(tmp)
+            raise RuntimeError(f"{path}: the repaired copy does not read back")
+        os.replace(tmp, path)
+    return out
+
+
+def repair_run(path: str) -> McapRepair | None:
+    """:func:`repair_mcap` on a run folder's ``run.mcap`` (or an ``.mcap`` file); None if
+    there is none."""
+    mcap = os.path.join(path, "run.mcap") if os.path.isdir(path) else path
+    if not mcap.endswith(".mcap") or not os.path.isfile(mcap):
+        return None
+    return repair_mcap(mcap)
+
+
 def _rows(header: dict) -> list[Row]:
     return [Row(n[0], n[1], n[2], tuple(n[3])) for n in header.get("nodes", [])]
 
@@ -93,9 +244,29 @@ def _show(header: dict, records: list[dict], tick: int) -> None:
         print("blackboard: " + ", ".join(f"{k}={v!r}" for k, v in sorted(bb.items())))
 
 
-def replay(path: str, tick: int | None = None, show_all: bool = False) -> int:
+def replay(path: str, tick: int | None = None, show_all: bool = False, repair: bool = False) -> int:
     """Replay the log at ``path`` (a ``ticks.jsonl``, a run's ``run.mcap`` or a run folder);
-    return an exit code."""
+    return an exit code. The run's ``run.mcap`` is repaired first if a killed run left it
+    unreadable by indexed readers (a line on stderr says so); ``repair``: only that (the
+    result on stdout, exit 0; 2 if there is no MCAP file or it is in use)."""
+    if repair:
+        try:
+            done = repair_run(path)
+        except OSError as exc:
+            print(f"{path}:0:0: {exc.strerror or exc}", file=sys.stderr)
+            return 2
+        if done is None:
+            print(f"{path}:0:0: no run.mcap to repair", file=sys.stderr)
+            return 2
+        print(done.line())
+        return 2 if done.in_use else 0
+    try:
+        done = repair_run(os.path.dirname(path) if path.endswith("ticks.jsonl") else path)
+    except Exception as exc:  # noqa: BLE001 - the replay goes on without it
+        print(f"btrun replay: run.mcap not repaired: {type(exc).__name__}: {exc}", file=sys.stderr)
+    else:
+        if done is not None and done.repaired:
+            print(done.line(), file=sys.stderr)
     if os.path.isdir(path):
         path = os.path.join(path, "ticks.jsonl")
     if not os.path.exists(path):

@@ -96,9 +96,11 @@ class _PlainLog:
 
 
 #: Default wall-clock budget of one tick (``--tick-budget``): in real time the drone waits
-#: for the tree; in lock-step the simulated drone cannot drift, only a hang must end.
+#: for the tree; in lock-step the simulated drone cannot drift, only a hang must end, and
+#: soon (a campaign or CI waits for it). A slow first tick (models, the demo gallery) runs
+#: on the ground, where the runner allows REST_TICK_BUDGET_S (bt_engine/runner.py).
 REALTIME_TICK_BUDGET_S = 5.0
-LOCKSTEP_TICK_BUDGET_S = 300.0
+LOCKSTEP_TICK_BUDGET_S = 10.0
 
 
 @dataclass
@@ -240,12 +242,37 @@ def prepare(
 
 
 def make_runner(run: PreparedRun) -> Runner:
-    """The runner of a prepared run: its hooks, tick log, telemetry and tick watchdog."""
+    """The runner of a prepared run: its hooks, tick log, telemetry and tick watchdog.
+
+    If a tick never returns even after the watchdog stopped it (a leaf that swallows the
+    stop, sleeps or sits in native code), the runner gives up on the main thread: from the
+    watchdog thread the run is concluded (the drone lands), :func:`finish` writes
+    summary.json and the process ends with the run's exit code (the main thread cannot be
+    got back)."""
     args = run.args
     telemetry = run.platform.telemetry_row if run.platform is not None else None
     budget = getattr(args, "tick_budget", None)
     if budget is None:  # real time: the drone is waiting; lock-step: only a hang matters
         budget = REALTIME_TICK_BUDGET_S if run.factor else LOCKSTEP_TICK_BUDGET_S
+
+    def give_up(runner: Runner) -> None:
+        code = 1
+        try:
+            run.log.close()
+            assert runner.result is not None
+            code = finish(run, runner, runner.result)
+        except BaseException:  # noqa: BLE001 - the process ends either way
+            import traceback
+
+            traceback.print_exc()
+        finally:
+            for stream in (sys.stdout, sys.stderr):
+                try:
+                    stream.flush()
+                except Exception:  # noqa: BLE001
+                    pass
+            os._exit(code)
+
     return Runner(
         run.mission,
         args.rate,
@@ -258,6 +285,7 @@ def make_runner(run: PreparedRun) -> Runner:
             if run.target is not None and run.platform is not None
             else None
         ),
+        on_give_up=give_up,
     )
 
 

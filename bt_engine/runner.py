@@ -3,7 +3,9 @@
 On a :class:`~bt_engine.clock.SimClock` each step advances the clock by one period, calls
 the ``before_tick`` hooks (the simulator steps its physics up to the new time), ticks the
 tree, then calls ``after_tick`` hooks (the safety supervisor). On a wall clock the runner
-sleeps until the next period. Ctrl-C or SIGTERM halts the tree and runs the shutdown hooks.
+sleeps until the next period. Ctrl-C or SIGTERM halts the tree and runs the shutdown hooks;
+a tick that does not return is ended by the watchdog (at once after Ctrl-C), and given up
+(the run ends without the main thread, ``on_give_up``) if it still does not return.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import signal
 import threading
 import time
 import traceback
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -63,6 +66,12 @@ class Runner:
             None: no watchdog (``btrun`` always sets one).
         at_rest: True while a slow tick can harm nothing (the drone on the ground): the
             watchdog then allows :data:`REST_TICK_BUDGET_S` (e.g. building a gallery).
+        on_give_up: called with the runner, from the watchdog thread, when a tick did not
+            return even one more budget (at most :data:`GIVE_UP_S`) after the watchdog
+            stopped it: the run has been concluded there (halted, shutdown hooks run, log
+            flushed, :attr:`result` set) and the main thread may never come back; ``btrun``
+            writes summary.json and ends the process. None: the run is concluded the same
+            way and the main thread, if it returns, finds it ended.
     """
 
     def __init__(
@@ -75,6 +84,7 @@ class Runner:
         on_tick: Callable[[Runner], None] | None = None,
         tick_budget_s: float | None = None,
         at_rest: Callable[[], bool] | None = None,
+        on_give_up: Callable[[Runner], Any] | None = None,
     ) -> None:
         if not rate_hz > 0:
             raise ValueError(f"tick rate must be > 0 Hz, got {rate_hz}")
@@ -91,7 +101,12 @@ class Runner:
         self.on_tick = on_tick
         self.tick_budget_s = tick_budget_s
         self.at_rest = at_rest
+        self.on_give_up = on_give_up
         self.watchdog: TickWatchdog | None = None
+        #: set once the watchdog gave up on the main thread; done once that ending is over
+        self._given_up = threading.Event()
+        self._give_up_done = threading.Event()
+        self._end_lock = threading.Lock()
         self.trace: list[dict] = []
         self.keep_trace = True
         self.status: NodeStatus = mission.status
@@ -195,7 +210,11 @@ class Runner:
             self.begin(max_time_s)
             try:
                 while self.outcome is None:
-                    self.advance()
+                    try:
+                        self.advance()
+                    except KeyboardInterrupt:  # a second signal before the tick returned
+                        if self.outcome is None:
+                            self.outcome = self._interrupt_outcome()
             finally:
                 self.conclude()
         finally:
@@ -222,7 +241,10 @@ class Runner:
                 request_stop=self._request_stop,
                 at_rest=self.at_rest,
                 rest_budget_s=REST_TICK_BUDGET_S,
+                on_give_up=self._give_up,
+                give_up_s=min(GIVE_UP_S, self.tick_budget_s),
             )
+        _LIVE.add(self)
         if PENDING_INTERRUPTS:  # a signal arrived while btrun was still loading
             self.interrupt_source = PENDING_INTERRUPTS[-1]
             self._interrupted = 1
@@ -233,12 +255,19 @@ class Runner:
         :attr:`outcome`) how the run ended, or None while it goes on."""
         if self.outcome is not None:
             return self.outcome
-        self.outcome = self._step_outcome()
+        outcome = self._step_outcome()
+        if self._given_up.is_set():  # the watchdog ended the run meanwhile: its outcome stands
+            self._give_up_done.wait()
+            return self.outcome
+        self.outcome = outcome
         return self.outcome
+
+    def _interrupt_outcome(self) -> tuple[str, str]:
+        return "ABORTED", f"operator interrupt ({self.interrupt_source})"
 
     def _step_outcome(self) -> tuple[str, str] | None:
         if self._interrupted:
-            return "ABORTED", f"operator interrupt ({self.interrupt_source})"
+            return self._interrupt_outcome()
         try:
             status = self.step()
         except Abort as exc:
@@ -269,6 +298,13 @@ class Runner:
     def conclude(self) -> RunResult:
         """End a run: halt the tree unless it succeeded, run every shutdown hook (land the
         drone), flush the log; the :class:`RunResult` is kept in :attr:`result`."""
+        with self._end_lock:  # the watchdog's give-up may be ending the run: wait for it
+            if self._given_up.is_set() and self.result is not None:
+                return self.result
+            return self._conclude()
+
+    def _conclude(self) -> RunResult:
+        _LIVE.discard(self)
         result, reason = self.outcome or ("ABORTED", "the run was stopped")
         try:
             self._close_watchdog()
@@ -318,6 +354,32 @@ class Runner:
     def _request_stop(self, reason: str) -> None:
         self.mission.ctx.stop_reason = reason
 
+    def _give_up(self, reason: str) -> None:
+        """The watchdog's step 3, on its thread: the tick never returned after it was stopped.
+        Conclude this run (and land every other run of this process: a fleet's main thread
+        is just as stuck), then hand over to :attr:`on_give_up`."""
+        with self._end_lock:
+            if self.result is not None:  # the run ended meanwhile
+                return
+            self._given_up.set()
+            try:
+                self._end_given_up(reason)
+            finally:
+                self._give_up_done.set()
+
+    def _end_given_up(self, reason: str) -> None:
+        self.outcome = ("ABORTED", reason)
+        self._conclude()
+        for other in list(_LIVE):
+            if other is not self and other.result is None:
+                try:
+                    other.outcome = ("ABORTED", f"another run of this process: {reason}")
+                    other.conclude()
+                except Exception:  # noqa: BLE001 - the next one still lands
+                    self.error_traceback += traceback.format_exc()
+        if self.on_give_up is not None:
+            self.on_give_up(self)
+
     def _running_leaf(self) -> str:
         """`` in <node> (<loc>)`` for the deepest running node (the watchdog's report)."""
         nodes = list(self.mission.running_nodes())
@@ -340,8 +402,12 @@ class Runner:
                     self.shutdown_errors.append(f"{type(exc).__name__}: {exc}")
 
     def interrupt(self) -> None:
-        """Ask the run to stop at the next tick (what Ctrl-C does)."""
+        """Ask the run to stop at the next tick (what Ctrl-C does); a tick that does not
+        return is stopped by the watchdog :data:`~bt_engine.watchdog.HURRY_BUDGET_S` later."""
         self._interrupted += 1
+        wd = self.watchdog
+        if wd is not None:
+            wd.hurry(self._interrupt_outcome()[1])
 
 
 def _failure_reason(mission: Mission) -> str:
@@ -365,24 +431,36 @@ def _raising_node(exc: BaseException) -> str:
 #: Wall-clock budget of one tick while the run is at rest (the drone on the ground).
 REST_TICK_BUDGET_S = 600.0
 
+#: Seconds from the watchdog stopping a tick to giving it up (the run ends without the main
+#: thread), at most: the give-up comes at most one more budget later, so a tick is never
+#: waited for more than twice its budget.
+GIVE_UP_S = 5.0
+
+#: the runs of this process between :meth:`Runner.begin` and :meth:`Runner.conclude`
+_LIVE: weakref.WeakSet[Runner] = weakref.WeakSet()
+
 #: SIGINT/SIGTERM received before a run took the signals over (see :func:`catch_early_interrupts`)
 PENDING_INTERRUPTS: list[str] = []
 
 
-def catch_early_interrupts() -> dict | None:
+def catch_early_interrupts(earlier: list[str] | None = None) -> dict | None:
     """From now until a :class:`Runner` starts, remember SIGINT/SIGTERM instead of dying;
     returns the handlers this replaced (for :func:`release_early_interrupts`).
 
     ``btrun`` calls this first thing: a Ctrl-C while it loads (models, plug-ins, the rig) is
     then never lost or half-handled by a library; the run that follows starts interrupted
-    (it ends ABORTED at once, nothing flies, the summary says so). Main thread only.
+    (it ends ABORTED at once, nothing flies, the summary says so). ``earlier``: the signals
+    the launcher (``btrun_launcher``) caught before this module was imported, read after the
+    handler is swapped so that none falls between. Main thread only.
     """
 
     def handler(signum, frame):  # noqa: ARG001
         PENDING_INTERRUPTS.append("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
 
     PENDING_INTERRUPTS.clear()
-    return _route_signals(handler)
+    old = _route_signals(handler)
+    PENDING_INTERRUPTS[:0] = list(earlier or ())
+    return old
 
 
 def release_early_interrupts(old: dict | None) -> None:

@@ -12,10 +12,17 @@ watchdog
 2. if the main thread still has not come back after a second budget (stuck in native
    code) and the run is in real time, calls ``on_stuck`` itself (the runner passes the
    shutdown hooks: the safety supervisor lands the drone from this thread; the real-time
-   platform keeps sending set-points meanwhile).
+   platform keeps sending set-points meanwhile);
+3. if the main thread has still not come back ``give_up_s`` after step 1 (a leaf that
+   swallows :class:`TickOverrun`, ``time.sleep`` or a C call that never ends), calls
+   ``on_give_up`` once, from this thread: the owner ends the run without the main thread
+   (the runner lands, flushes and lets ``btrun`` write summary.json and exit).
 
 A lock-step simulation cannot drift while the tree is stuck (its clock does not move), so
-only step 1 applies there.
+step 2 does not apply there; steps 1 and 3 do.
+
+An operator interrupt (Ctrl-C, SIGTERM) makes the budget short (:meth:`TickWatchdog.hurry`):
+a stuck tick is then ended about a second after it, whatever the budget, at rest or not.
 """
 
 from __future__ import annotations
@@ -60,6 +67,10 @@ def stuck_in(thread_id: int) -> str:
         return ""
 
 
+#: seconds one tick may still take once an operator interrupt arrived (:meth:`TickWatchdog.hurry`)
+HURRY_BUDGET_S = 1.0
+
+
 class TickWatchdog:
     """Arm with :meth:`start_tick` before each tick and :meth:`end_tick` after it.
 
@@ -68,6 +79,14 @@ class TickWatchdog:
         real_time: the run is paced by a wall clock (then step 2 applies).
         on_stuck: called (once, from the watchdog thread) with the reason when the main
             thread did not return within a second budget after step 1.
+        running: the deepest running node as `` in <node> (<loc>)`` (the reason's "where").
+        request_stop: called with the reason when the watchdog fires (loops stop at once).
+        at_rest: True while a slow tick harms nothing (then ``rest_budget_s`` applies).
+        rest_budget_s: the budget of a tick while ``at_rest()`` holds.
+        on_give_up: called (once, from the watchdog thread) with the reason when the main
+            thread did not return within ``give_up_s`` after step 1 (step 3).
+        give_up_s: seconds from step 1 to step 3 (default: ``budget_s``, so a tick is given
+            up two budgets after it began).
     """
 
     def __init__(
@@ -79,9 +98,13 @@ class TickWatchdog:
         request_stop: Callable[[str], Any] | None = None,
         at_rest: Callable[[], bool] | None = None,
         rest_budget_s: float = 600.0,
+        on_give_up: Callable[[str], Any] | None = None,
+        give_up_s: float | None = None,
     ) -> None:
         if not budget_s > 0:
             raise ValueError(f"tick budget must be > 0 s, got {budget_s}")
+        if give_up_s is not None and not give_up_s > 0:
+            raise ValueError(f"give-up delay must be > 0 s, got {give_up_s}")
         self.budget_s = float(budget_s)
         self.real_time = real_time
         self.on_stuck = on_stuck
@@ -89,7 +112,12 @@ class TickWatchdog:
         self.request_stop = request_stop
         self.at_rest = at_rest
         self.rest_budget_s = max(float(rest_budget_s), self.budget_s)
+        self.on_give_up = on_give_up
+        self.give_up_s = float(give_up_s) if give_up_s is not None else self.budget_s
         self.reason: str | None = None
+        #: True once ``on_give_up`` was called (the main thread never came back)
+        self.gave_up = False
+        self._hurry: tuple[float, float, str] | None = None  # (since, budget, why)
         self._main = threading.main_thread().ident or threading.get_ident()
         self._target = threading.get_ident()
         self._tick = 0
@@ -114,53 +142,91 @@ class TickWatchdog:
         with self._lock:
             self._started = None
 
+    def hurry(self, why: str, budget_s: float = HURRY_BUDGET_S) -> None:
+        """An operator interrupt (``why``, e.g. ``operator interrupt (Ctrl-C)``) arrived: from
+        now on a tick may take only ``budget_s`` more (at rest too), and is given up soon
+        after. Safe from a signal handler (it takes no lock)."""
+        if self._hurry is None:
+            self._hurry = (time.monotonic(), max(float(budget_s), 0.01), why)
+
     def close(self) -> None:
         """Stop the watchdog thread."""
         self._stop.set()
-        self._thread.join(timeout=1.0)
+        if self._thread is not threading.current_thread():  # closed by its own give-up
+            self._thread.join(timeout=1.0)
+
+    def _budget(self, started: float, now: float) -> tuple[float, float, str]:
+        """(seconds allowed, measured from, why) for the tick that began at ``started``."""
+        hurry = self._hurry
+        if hurry is not None:
+            since, budget, why = hurry
+            return budget, max(since, started), why
+        budget = self.budget_s
+        if now - started > budget and self.at_rest is not None:
+            try:
+                if self.at_rest():
+                    budget = self.rest_budget_s
+            except Exception:  # pragma: no cover - read mid-update: keep the tight one
+                budget = self.budget_s
+        return budget, started, ""
 
     def _loop(self) -> None:
-        period = min(0.05, self.budget_s / 10.0)
+        period = min(0.05, self.budget_s / 10.0, HURRY_BUDGET_S / 10.0)
         while not self._stop.wait(period):
             with self._lock:
                 started, tick, target = self._started, self._tick, self._target
             now = time.monotonic()
             if started is None:
                 continue
-            budget = self.budget_s
-            if self._fired_at is None and now - started > budget and self.at_rest is not None:
-                try:
-                    if self.at_rest():
-                        budget = self.rest_budget_s
-                except Exception:  # pragma: no cover - read mid-update: keep the tight one
-                    budget = self.budget_s
-            if self._fired_at is None and now - started > budget:
-                where = ""
-                if self.running is not None:  # the deepest RUNNING node: stable over a loop
-                    try:
-                        where = self.running()
-                    except Exception:  # pragma: no cover - the tree is mid-change
-                        where = ""
-                where = where or stuck_in(target)
-                self.reason = (
-                    f"watchdog: tick {tick} did not return within {budget:g} s{where}; "
-                    "the tree was stopped and the drone landed"
-                )
-                self._fired_at = now
-                self._raised_at = now
-                if self.request_stop is not None:
-                    self.request_stop(self.reason)
-                _raise_in(target, TickOverrun)
+            if self._fired_at is None:
+                budget, since, why = self._budget(started, now)
+                if now - since > budget:
+                    self._fire(tick, target, budget, why, now)
                 continue
-            if self._fired_at is not None and now - self._raised_at > self.budget_s / 2:
+            every = self._hurry[1] if self._hurry is not None else self.budget_s
+            if now - self._raised_at > every / 2:
                 self._raised_at = now  # still in the same tick: raise again (never lost)
                 _raise_in(target, TickOverrun)
             if (
-                self._fired_at is not None
-                and self.real_time
+                self.real_time
                 and not self._stuck_called
                 and now - self._fired_at > self.budget_s
                 and self.on_stuck is not None
             ):
                 self._stuck_called = True
                 self.on_stuck(self.reason or "watchdog")
+            give_up_s = self.give_up_s
+            if self._hurry is not None:  # the operator is waiting
+                give_up_s = min(give_up_s, 2 * self._hurry[1])
+            if not self.gave_up and now - self._fired_at > give_up_s:
+                self.gave_up = True
+                self.reason = (self.reason or "watchdog") + (
+                    f"; the tick still had not returned {give_up_s:g} s later: given up"
+                )
+                if self.on_give_up is not None:
+                    self.on_give_up(self.reason)
+
+    def _fire(self, tick: int, target: int, budget: float, why: str, now: float) -> None:
+        """Step 1: name where the tree is stuck, ask loops to stop, raise in the main thread."""
+        where = ""
+        if self.running is not None:  # the deepest RUNNING node: stable over a loop
+            try:
+                where = self.running()
+            except Exception:  # pragma: no cover - the tree is mid-change
+                where = ""
+        where = where or stuck_in(target)
+        if why:
+            self.reason = (
+                f"{why}; watchdog: tick {tick} did not return within {budget:g} s of it"
+                f"{where}; the tree was stopped and the drone landed"
+            )
+        else:
+            self.reason = (
+                f"watchdog: tick {tick} did not return within {budget:g} s{where}; "
+                "the tree was stopped and the drone landed"
+            )
+        self._fired_at = now
+        self._raised_at = now
+        if self.request_stop is not None:
+            self.request_stop(self.reason)
+        _raise_in(target, TickOverrun)

@@ -17,6 +17,10 @@ Channels, schemas and message counts are listed in :data:`CHANNELS` (the schemas
 :mod:`nodes.mcap_schemas`) and docs/monitoring.md.
 All messages are JSON; log times are mission time (the simulator starts at 0 s, i.e. 1970).
 Chunks are written and flushed as they fill (a killed run keeps all but the last chunk).
+A killed run's file has no summary or index, so indexed readers cannot open it:
+``btrun replay --repair RUN`` (:func:`bt_engine.replay.repair_mcap`) rewrites it, and btrun
+does so by itself when it next reads the run (``btrun replay``, ``--resume``). The recorder
+holds an advisory lock on the file while it writes, so a repair never touches a live run.
 Any exception while recording is logged once as a tick-log message and recording stops;
 the run goes on.
 """
@@ -112,6 +116,7 @@ class McapRecorder:
         self._partial = b""
         self._header: dict | None = None
         self._f: IO[bytes] | None = open(self.path, "wb")
+        _lock(self._f)  # a repair (btrun replay) leaves a file being written alone
         self._w = Writer(self._f, chunk_size=CHUNK_BYTES, compression=_compression())
         self._w.start(profile="", library="btrun")
         self._add = self._w.add_message
@@ -461,11 +466,42 @@ class McapRecorder:
         self._put("/run/summary", self._last_t, json.dumps(out))
 
 
+def _lock(f: IO[bytes]) -> None:
+    """Hold an advisory lock on ``f`` until it is closed (or the process dies)."""
+    try:
+        import fcntl
+
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except (ImportError, OSError):  # no advisory locks here: nothing to guard against
+        pass
+
+
+def repair_previous(run_dir: str | None) -> str | None:
+    """Make the ``run.mcap`` of a previous run folder (``--resume RUN``) readable by indexed
+    readers if a killed run left it torn (:func:`bt_engine.replay.repair_mcap`); returns the
+    console line, None if there was nothing to do. Never raises."""
+    from bt_engine.replay import repair_run
+
+    if not run_dir:
+        return None
+    try:
+        done = repair_run(run_dir)
+    except Exception as exc:  # noqa: BLE001 - a repair is never a reason not to fly
+        return f"{os.path.join(run_dir, FILE_NAME)}: not repaired: {type(exc).__name__}: {exc}"
+    return done.line() if done is not None and done.repaired else None
+
+
 def make_mcap_recorder(
     run_dir: str | None, platform: Any, mission: Any, safety: Any = None
 ) -> McapRecorder | None:
     """The recorder of a run in ``run_dir`` (None without a run folder or tick log, or if the
     file cannot be opened: recording is never a reason not to fly)."""
+    ctx = getattr(mission, "ctx", None)
+    previous = (getattr(ctx, "resources", None) or {}).get("resume_from")
+    if previous and os.path.abspath(previous) != os.path.abspath(run_dir or ""):
+        line = repair_previous(previous)  # btrun touches the killed run's folder again
+        if line and ctx is not None:
+            ctx.log(line)
     if not run_dir or not os.path.exists(os.path.join(run_dir, "ticks.jsonl")):
         return None
     try:

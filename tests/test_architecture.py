@@ -15,6 +15,9 @@ import pytest
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PACKAGES = ("bt_engine", "nodes", "drivers", "perception")
+#: Modules at the top of the repository: btrun_launcher is the ``btrun`` console script,
+#: which must catch Ctrl-C before ``bt_engine`` is imported (so it cannot live inside it).
+TOP_MODULES = ("btrun_launcher",)
 
 #: (importer prefix, forbidden prefix, why): the rules docs/architecture.md states.
 FORBIDDEN: list[tuple[str, str, str]] = [
@@ -41,6 +44,9 @@ FORBIDDEN: list[tuple[str, str, str]] = [
     ("drivers.safety", "drivers.rig", "safety works over the Vehicle API only"),
     ("drivers.safety", "perception", "safety works over the Vehicle API only"),
     ("drivers.settings", "drivers.", "the settings language is the bottom of drivers/"),
+    ("btrun_launcher", "nodes", "the console script starts the engine, which loads plug-ins"),
+    ("btrun_launcher", "drivers", "the console script starts the engine, which loads plug-ins"),
+    ("btrun_launcher", "perception", "the console script starts the engine only"),
     ("drivers.guard", "drivers.sim", "the guard owns a real link; it knows no simulator"),
     ("drivers.guard", "drivers.rig", "the rig floor starts the guard, not the reverse"),
     ("drivers.guard", "drivers.safety", "the guard's landing needs no policy: it is the last"),
@@ -66,7 +72,7 @@ PERCEPTION_FOR_DRIVERS = {
 
 
 def _modules() -> dict[str, str]:
-    mods = {}
+    mods = {name: os.path.join(REPO, f"{name}.py") for name in TOP_MODULES}
     for pkg in PACKAGES:
         for root, dirs, files in os.walk(os.path.join(REPO, pkg)):
             dirs[:] = [d for d in dirs if not d.startswith((".", "__pycache__"))]
@@ -212,10 +218,28 @@ def import_cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
 
 
 def test_the_graph_sees_every_package_and_function_level_imports() -> None:
-    assert {m.split(".")[0] for m in MODULES} == set(PACKAGES)
+    assert {m.split(".")[0] for m in MODULES} == set(PACKAGES) | set(TOP_MODULES)
     assert len(MODULES) > 100
     # a function-level import is an edge too: the Rig's platform factory is imported late
     assert "drivers.sim.world" in GRAPH["drivers.rig.loader"]
+
+
+def test_every_top_level_module_is_known_here() -> None:
+    """A new ``.py`` file at the top of the repository gets its rules in this file."""
+    top = {f[:-3] for f in os.listdir(REPO) if f.endswith(".py")}
+    assert top == set(TOP_MODULES), top ^ set(TOP_MODULES)
+
+
+def test_the_launcher_imports_nothing_of_btrun_before_its_signal_handler() -> None:
+    """btrun_launcher's module level imports only the standard library; bt_engine.cli is
+    imported inside main(), after SIGINT/SIGTERM are routed to the recorder."""
+    with open(MODULES["btrun_launcher"], encoding="utf-8") as f:
+        tree = ast.parse(f.read())
+    top_level = [n for n in tree.body if isinstance(n, (ast.Import, ast.ImportFrom))]
+    names = {a.name for n in top_level if isinstance(n, ast.Import) for a in n.names}
+    names |= {n.module or "" for n in top_level if isinstance(n, ast.ImportFrom)}
+    assert not {n.split(".")[0] for n in names} & set(PACKAGES), names
+    assert set(GRAPH["btrun_launcher"]) == {"bt_engine.cli"}
 
 
 def test_no_module_imports_across_a_layer_it_must_not() -> None:

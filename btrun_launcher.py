@@ -1,0 +1,48 @@
+"""``btrun``'s console script: catch Ctrl-C before anything of btrun is imported.
+
+``import bt_engine`` imports the whole engine (and ``btrun`` then the plug-ins, torch ...).
+A SIGINT during those imports raised KeyboardInterrupt wherever the interpreter happened to
+be, and CPython swallows an exception raised inside a weakref callback (importlib runs one
+for its module locks): the Ctrl-C was then lost and the mission flew. This module imports
+only :mod:`signal` and :mod:`sys`, installs a handler that records SIGINT/SIGTERM, and only
+then imports :mod:`bt_engine.cli`, which takes the recorded signals over: a ``btrun run``
+interrupted while it loads ends ABORTED (``operator interrupt``) before the first tick,
+with summary.json, exit code 1; any other command prints ``interrupted`` and exits 1.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+
+#: "Ctrl-C" / "SIGTERM", in order, caught before bt_engine.cli took the signals over
+PENDING: list[str] = []
+
+
+def _remember(signum: int, frame: object) -> None:  # noqa: ARG001
+    PENDING.append("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
+
+
+def main() -> int:
+    """The ``btrun`` command: route SIGINT/SIGTERM to a recorder, then run
+    :func:`bt_engine.cli.main` with what it recorded; returns the exit code."""
+    old = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, _remember)
+    except ValueError:  # pragma: no cover - not the main thread: nothing to route
+        pass
+    try:
+        from bt_engine.cli import main as cli_main
+
+        return cli_main(earlier_interrupts=PENDING)
+    finally:
+        for sig, handler in old.items():
+            try:
+                signal.signal(sig, handler)
+            except (ValueError, TypeError):  # pragma: no cover
+                pass
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
