@@ -53,7 +53,8 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         default=[],
         metavar="KEY=VALUE",
         help="set a blackboard input (target=1;2;1) or a rig/world setting "
-        "(world.scan_pallet=3A, rig.realtime=1); repeatable",
+        "(world.scan_pallet=3A, clock.mode=realtime; every key: btrun rig settings); "
+        "repeatable",
     )
     r.add_argument(
         "--seed", type=int, default=None, help="random seed of the simulator (default 0)"

@@ -1,4 +1,12 @@
-"""Showing trees: text (with statuses), Graphviz dot, and the live terminal view."""
+"""Showing trees: text (with statuses), Graphviz dot, and the live terminal view.
+
+For a mission in Python, :func:`mission_tree_text` and :func:`blackboard_text` are btrun's
+equivalents of py_trees' ``unicode_tree`` and ``unicode_blackboard``. py_trees' blackboard
+displays list only the keys a py_trees ``Client`` registered (``Blackboard.keys()`` reads
+the clients' metadata), and btrun keeps each mission's entries in its own namespace of
+py_trees' storage without clients (``bt_engine.blackboard``), so they show nothing for a
+btrun mission.
+"""
 
 from __future__ import annotations
 
@@ -7,9 +15,13 @@ import subprocess
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from bt_engine.spec import MissionSpec, NodeSpec
 from bt_engine.xml_io import value_to_text
+
+if TYPE_CHECKING:
+    from bt_engine.mission import Mission
 
 STATUS_STYLE = {
     "RUNNING": "bold yellow",
@@ -78,6 +90,23 @@ def tree_lines(rows: list[Row], statuses: Iterable[str] | None = None) -> list[s
             + (f"  {st[i]}" if st is not None and i < len(st) and st[i] != "IDLE" else "")
         )
     return out
+
+
+def mission_tree_text(mission: Mission) -> str:
+    """The mission's tree as ``btrun show`` prints it, each node with its status now
+    (``[*] ... RUNNING``, ``[+] ... SUCCESS``, ``[x] ... FAILURE``, ``[~] ... SKIPPED``)."""
+    title = f"{mission.spec.main_tree_id()}  (tick {mission.ticks})"
+    rows = spec_rows(mission.spec)
+    return "\n".join([title, *tree_lines(rows, mission.statuses().values())])
+
+
+def blackboard_text(mission: Mission) -> str:
+    """The mission's blackboard, one ``key : value`` line per entry (the value's repr), sorted;
+    a SubTree instance's own entries are named by its path (``square/corner_1/pose``)."""
+    items = sorted(mission.scope.all_items().items())
+    width = max((len(k) for k, _ in items), default=0)
+    lines = [f"{k:<{width}} : {v!r}" for k, v in items]
+    return "\n".join(["Blackboard", *(f"  {line}" for line in lines)])
 
 
 def tree_rich(rows: list[Row], statuses: list[str]):

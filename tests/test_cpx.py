@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import random
 import struct
 
@@ -43,6 +44,24 @@ def test_encode_known_bytes_and_bit_layout() -> None:
 def test_roundtrip(dst: int, src: int, fn: int, data: bytes, last: bool) -> None:
     p = Packet(dst, src, fn, data, last)
     assert decode(encode(p)) == p
+
+
+def test_wire_format_is_cflibs() -> None:
+    """Every route (each target to each target, last or not) and function is coded byte for
+    byte as Bitcraze's ``cflib.cpx.CPXPacket`` codes it (with the socket transport's length
+    prefix), and decodes back (the module docstring says why cflib's codec is not used)."""
+    cpx = pytest.importorskip("cflib.cpx")
+    for dst, src, fn, last in itertools.product(
+        cpx.CPXTarget, cpx.CPXTarget, cpx.CPXFunction, (False, True)
+    ):
+        theirs = cpx.CPXPacket(function=fn, destination=dst, source=src, data=bytearray(b"xyz"))
+        theirs.lastPacket = last
+        wire = struct.pack("<H", theirs.length + 2) + bytes(theirs.wireData)
+        ours = Packet(dst.value, src.value, fn.value, b"xyz", last)
+        assert encode(ours) == wire, (dst, src, fn, last)
+        assert decode(wire) == ours
+    assert {t.name: t.value for t in cpx.CPXTarget} == {t.name: t.value for t in Target}
+    assert {f.name: f.value for f in cpx.CPXFunction} == {f.name: f.value for f in Function}
 
 
 def test_invalid_packets_rejected() -> None:

@@ -39,6 +39,7 @@ from collections.abc import Callable
 from typing import Any
 
 from drivers.crazyflie.cflib_link import CrazyflieLink
+from drivers.vehicle.battery import percent_from_voltage
 from drivers.vehicle.config import VehicleConfig
 from drivers.vehicle.faults import FaultInjector
 from drivers.vehicle.interfaces import PoseSource
@@ -243,14 +244,15 @@ class CrazyfliePlatform:
         """End state: vehicle view, link health, SITL ground truth (if any)."""
         v = self.vehicle
         periods = sorted(self.control_periods_s())
+        voltage_v = round(v.battery.voltage_v, 3)
         out: dict[str, Any] = {
             "state": v.flight_state.value,
             "landed": v.is_landed,
             "crashed": v.is_crashed,
             "armed": v.is_armed,
-            "battery": {
-                "voltage_v": round(v.battery.voltage_v, 3),
-                "percent_reported": round(v.battery.percent, 1),
+            "battery": {  # the measured voltage and its gauge reading (docs/vehicle.md)
+                "voltage_v": voltage_v,
+                "percent_from_voltage": round(percent_from_voltage(voltage_v), 1),
             },
             "link": self.link.health(),
             "control": {

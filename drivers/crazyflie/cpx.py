@@ -21,6 +21,21 @@ garbage, and :class:`FrameAssembler` to turn packets into complete images - it d
 rather than ever returning one that is not bit-exact what the deck sent, as far as the
 protocol can tell (a resynchronisation, a wrong route, an overflowing or missing chunk, a
 new header mid-frame or a stall all drop the frame in progress).
+
+Why not cflib's own ``cflib.cpx`` (checked against cflib 0.1.34): its ``CPXPacket`` writes the
+same route and function bytes (``tests/test_cpx.py`` compares every target, function and
+last flag byte for byte), but it is not a codec this parser can use. The packet has no
+length field: ``SocketTransport.writePacket`` prepends it in native byte order from
+``packet.length``, which only the constructor sets. Decoding (the ``wireData`` setter) ignores
+the reserved route bit 7 and any length over 1020 bytes, raises ``ValueError`` for an unknown
+target or function and logs an error and raises ``RuntimeError`` for another version: the
+header checks :class:`StreamParser` resynchronises on must run before it anyway, and each
+garbage byte would log. Targets and functions are plain ``enum.Enum`` members, so a
+3-bit value it does not list cannot be represented, and each packet costs about 40 % more
+to decode. Its transport cannot take the stream parser's place: ``readPacket`` trusts the
+length it reads (one corrupt byte desynchronises the stream for good) and ``_readData``
+spins forever once the peer closes (``recv`` returns ``b""``). So the two struct lines of
+:func:`encode` / :func:`decode` stay here, checked against cflib by the test.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ swapped for a fresh one or charged on a pad (inventory missions)."""
 
 from __future__ import annotations
 
-from drivers.vehicle.battery import ocv_from_soc
+from drivers.vehicle.battery import ocv_from_soc, percent_from_voltage
 
 
 class SimBattery:
@@ -38,3 +38,29 @@ class SimBattery:
         self.sag_v = 0.0
         self.swaps += 1
         self.voltage_v = ocv_from_soc(self.soc) - self.current_a * self.r_ohm
+
+    @property
+    def resting_voltage_v(self) -> float:
+        """The open-circuit voltage at the present state of charge: what the cell would read
+        with no current flowing."""
+        return ocv_from_soc(self.soc)
+
+    def report(self) -> dict[str, float | int]:
+        """The ``battery`` section of ``summary.json`` (``sim``), at the end of the run.
+
+        ``soc`` is the truth (0..1); ``voltage_v`` the terminal voltage then, low by
+        ``current_a`` times the internal resistance while the motors draw current (just
+        after a landing too); ``resting_voltage_v`` what it reads at rest; and
+        ``percent_from_voltage`` is ``voltage_v`` read on the LiPo curve, as a voltage-based
+        gauge shows it (the Crazyflie's own percentage is one): it reads far below ``soc``
+        under load. docs/vehicle.md, "The battery in summary.json".
+        """
+        voltage_v = round(self.voltage_v, 3)  # the gauge reads the voltage shown beside it
+        return {
+            "soc": round(self.soc, 4),
+            "voltage_v": voltage_v,
+            "current_a": round(self.current_a, 3),
+            "resting_voltage_v": round(self.resting_voltage_v, 3),
+            "percent_from_voltage": round(percent_from_voltage(voltage_v), 1),
+            "swaps": self.swaps,
+        }

@@ -287,12 +287,7 @@ class SimPlatform:
             "crashed": d.crashed,
             "flying": not b.on_ground,
             "armed": d.firmware.armed,
-            "battery": {
-                "voltage_v": round(bat.voltage_v, 3),
-                "soc": round(bat.soc, 4),
-                "swaps": bat.swaps,
-                "percent_reported": round(v.battery.percent, 1),
-            },
+            "battery": bat.report(),  # truth and gauge side by side (docs/vehicle.md)
             "max_tracking_error_m": round(self.max_tracking_error_m, 4),
             "max_speed_mps": round(d.max_speed_mps, 3),
             "collisions": list(d.collisions),
