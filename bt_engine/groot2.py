@@ -17,6 +17,16 @@ Wire format (facts of the protocol, little-endian):
   MessagePack;
 * errors: ``["error", message]`` (a wrong header, a missing second part, an unknown type).
 
+Peers are capped (a flood of idle TCP connections must not take btrun's file descriptors):
+each port serves at most ``max_peers`` connections at once (:data:`MAX_PEERS`); a socket
+monitor counts them (ZMQ_EVENT_ACCEPTED / ZMQ_EVENT_DISCONNECTED, whose value is the
+connection's descriptor) and the server thread shuts an excess connection down as soon as it
+is accepted (libzmq then closes it). A connection that has not finished ZeroMQ's handshake
+within :data:`HANDSHAKE_MS` is closed by libzmq (ZMQ_HANDSHAKE_IVL), and a peer that stops
+answering ZMTP heartbeats within :data:`HEARTBEAT_TIMEOUT_MS`, so idle connections free their
+place for Groot2. libzmq has no option to refuse connections past a count, and unbinding the
+port would drop the connected peers too.
+
 Breakpoints and hook replacement are not implemented: HOOK_INSERT, HOOK_REMOVE,
 BREAKPOINT_UNLOCK, TOGGLE_RECORDING and GET_TRANSITIONS are refused as BehaviorTree.CPP
 refuses an unknown request; HOOKS_DUMP answers ``[]`` and REMOVE_ALL_HOOKS /
@@ -25,6 +35,7 @@ DISABLE_ALL_HOOKS are acknowledged (there are never hooks to remove).
 
 from __future__ import annotations
 
+import socket
 import struct
 import threading
 import time
@@ -64,6 +75,15 @@ MAX_DEPTH = 8
 MAX_ITEMS = 10_000
 POLL_MS = 100
 MAX_PENDING = 100_000  # queued status changes before the tick's thread folds them itself
+#: TCP connections served at once on each of the two ports (Groot2 opens one on each)
+MAX_PEERS = 8
+#: a connection that has not completed ZeroMQ's handshake within this time is closed (ms)
+HANDSHAKE_MS = 2000
+#: ZMTP heartbeats: a PING every HEARTBEAT_IVL_MS; no answer within the timeout drops the peer
+HEARTBEAT_IVL_MS, HEARTBEAT_TIMEOUT_MS = 2000, 10_000
+#: connections the kernel queues before the server accepts them (ZMQ_BACKLOG)
+BACKLOG = 16
+_PEER_EVENTS = zmq.EVENT_ACCEPTED | zmq.EVENT_DISCONNECTED
 
 
 class Groot2Error(RuntimeError):
@@ -302,6 +322,8 @@ class Groot2Server:
         port: the request port (the publisher binds ``port + 1``); 0 picks a free pair.
         address: the interface to bind (default loopback only).
         max_heartbeat_delay_s: how long after its last request a client counts as connected.
+        max_peers: TCP connections served at once on each port; more are shut down as soon
+            as they are accepted (:attr:`refused` counts them).
 
     Raises:
         Groot2Error: if the ports cannot be bound.
@@ -313,10 +335,17 @@ class Groot2Server:
         port: int = DEFAULT_PORT,
         address: str = "127.0.0.1",
         max_heartbeat_delay_s: float = 5.0,
+        max_peers: int = MAX_PEERS,
     ) -> None:
         self.mission = mission
         self.address = address
         self.max_heartbeat_delay_s = max_heartbeat_delay_s
+        self.max_peers = max_peers
+        #: connections shut down because ``max_peers`` were already served on their port
+        self.refused = 0
+        #: descriptors of the connections served now, per monitored socket
+        self._peers: list[set[int]] = []
+        self._monitors: list[zmq.Socket] = []
         self.tree_xml, self.subtrees = describe_tree(mission)
         self._scopes = {s.fullpath or s.tree_id: s.scope for s in self.subtrees}
         order = [n for s in self.subtrees for n in s.nodes]
@@ -346,10 +375,16 @@ class Groot2Server:
         for _ in range(tries):
             server = self._ctx.socket(zmq.REP)
             publisher = self._ctx.socket(zmq.PUB)
+            monitors: list[zmq.Socket] = []
             for s in (server, publisher):
                 s.setsockopt(zmq.LINGER, 0)
                 s.setsockopt(zmq.SNDTIMEO, 1000)
                 s.setsockopt(zmq.MAXMSGSIZE, MAX_FRAME_BYTES)
+                s.setsockopt(zmq.HANDSHAKE_IVL, HANDSHAKE_MS)
+                s.setsockopt(zmq.HEARTBEAT_IVL, HEARTBEAT_IVL_MS)
+                s.setsockopt(zmq.HEARTBEAT_TIMEOUT, HEARTBEAT_TIMEOUT_MS)
+                s.setsockopt(zmq.BACKLOG, BACKLOG)
+                monitors.append(s.get_monitor_socket(_PEER_EVENTS))  # before any peer
             try:
                 if port == 0:
                     p = server.bind_to_random_port(f"tcp://{self.address}")
@@ -357,11 +392,15 @@ class Groot2Server:
                     server.bind(f"tcp://{self.address}:{port}")
                     p = port
                 publisher.bind(f"tcp://{self.address}:{p + 1}")
+                self._monitors = monitors
+                self._peers = [set() for _ in monitors]
                 return server, publisher, p
             except zmq.ZMQError as exc:
                 last = exc
-                server.close(0)
-                publisher.close(0)
+                for s, mon in zip((server, publisher), monitors, strict=True):
+                    s.disable_monitor()
+                    mon.close(0)
+                    s.close(0)
         self._ctx.term()
         raise Groot2Error(
             f"cannot bind Groot2 ports {port or 'any'} and the next one on {self.address}: {last}"
@@ -431,6 +470,31 @@ class Groot2Server:
             out[name] = dict(sorted(entries.items())) or None
         return out
 
+    # -- peers -----------------------------------------------------------------------------
+    @property
+    def peers(self) -> int:
+        """TCP connections served now, on both ports."""
+        return sum(len(p) for p in self._peers)
+
+    def _peer_events(self, monitor: zmq.Socket, live: set[int]) -> None:
+        """Count the monitor's accepted and closed connections; shut the excess down."""
+        for _ in range(10_000):  # bounded: the request socket is served between batches
+            try:
+                frames = monitor.recv_multipart(zmq.NOBLOCK)
+            except zmq.ZMQError:
+                return
+            if not frames or len(frames[0]) < 6:
+                continue
+            event, fd = struct.unpack("=HI", frames[0][:6])
+            if event == zmq.EVENT_ACCEPTED:
+                if len(live) < self.max_peers:
+                    live.add(fd)
+                else:
+                    self.refused += 1
+                    _shut_down(fd, (self.port, self.publisher_port))
+            elif event == zmq.EVENT_DISCONNECTED:
+                live.discard(fd)
+
     # -- requests --------------------------------------------------------------------------
     def handle(self, parts: list[bytes]) -> list[bytes]:
         """The reply to one request (multipart in, multipart out)."""
@@ -460,12 +524,18 @@ class Groot2Server:
         sock = self._server
         poller = zmq.Poller()
         poller.register(sock, zmq.POLLIN)
+        for monitor in self._monitors:
+            poller.register(monitor, zmq.POLLIN)
         while not self._stop.is_set():
             try:
-                if not poller.poll(POLL_MS):
+                ready = dict(poller.poll(POLL_MS))
+                for monitor, live in zip(self._monitors, self._peers, strict=True):
+                    if monitor in ready:
+                        self._peer_events(monitor, live)
+                if sock not in ready:
                     self.status_buffer()  # fold the queued changes (bounds the queue)
                     continue
-                parts = sock.recv_multipart()
+                parts = sock.recv_multipart(zmq.NOBLOCK)
             except zmq.ZMQError:
                 if self._stop.is_set():
                     return
@@ -493,6 +563,12 @@ class Groot2Server:
             return
         self._stop.set()
         self._thread.join(2.0)
+        for s, monitor in zip((self._server, self._publisher), self._monitors, strict=True):
+            try:
+                s.disable_monitor()
+            except zmq.ZMQError:
+                pass
+            monitor.close(0)
         self._server.close(0)
         self._publisher.close(0)
         self._ctx.term()
@@ -502,3 +578,24 @@ class Groot2Server:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _shut_down(fd: int, ports: tuple[int, ...]) -> bool:
+    """Shut down (not close: libzmq owns it) the TCP connection with descriptor ``fd`` if it
+    is still one of ours (its local port is one of ``ports``): the descriptor may have been
+    closed and reused since the monitor reported it. True if it was shut down."""
+    try:
+        conn = socket.socket(fileno=fd)
+    except OSError:  # closed meanwhile, or no socket
+        return False
+    try:
+        if conn.family not in (socket.AF_INET, socket.AF_INET6):
+            return False
+        if conn.type != socket.SOCK_STREAM or conn.getsockname()[1] not in ports:
+            return False
+        conn.shutdown(socket.SHUT_RDWR)
+        return True
+    except OSError:
+        return False
+    finally:
+        conn.detach()

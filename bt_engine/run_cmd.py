@@ -328,34 +328,86 @@ def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
 def finish(run: PreparedRun, runner: Runner, result: RunResult, echo: bool = True) -> int:
     """Write summary.json (atomically), error.log and the report; print the outcome and the
     plug-ins' headline lines (unless ``echo`` is false); return the exit code (0 only for
-    SUCCESS). The summary is kept in ``run.summary``."""
+    SUCCESS). The summary is kept in ``run.summary`` once written.
+
+    Nothing that fails here stops summary.json: a part that raises (the run target's or a
+    plug-in's sections, the report, error.log; MemoryError, OSError such as EMFILE, a
+    TypeError from forged data) is left out and named in the summary's ``errors`` (one line
+    each on stderr, never a traceback); if the summary itself cannot be built, its engine
+    keys are written (:func:`bt_engine.summary.minimal_summary`).
+    """
+    from collections.abc import Callable
+
+    from bt_engine.summary import add_error, error_line, minimal_summary
+
     args, mission = run.args, run.mission
+    errors: list[str] = []
+
+    def attempt(what: str, fn: Callable[[], Any], default: Any = None) -> Any:
+        try:
+            return fn()
+        except Exception as exc:  # named in summary.json's errors, never a traceback
+            errors.append(error_line(what, exc))
+            return default
+
     sections: dict[str, Any] = {}
     if run.target is not None and run.platform is not None:
-        sections = run.target.run_summary(run.platform, run.hooks)
-    for key, value in run_sections(runner.trace, mission).items():  # e.g. motions
+        target, platform = run.target, run.platform
+        sections = attempt(
+            "run target's sections", lambda: dict(target.run_summary(platform, run.hooks)), {}
+        )
+    extra = attempt("plug-in sections", lambda: dict(run_sections(runner.trace, mission)), {})
+    for key, value in extra.items():  # e.g. motions
         sections.setdefault(key, value)
-    summary = build_summary(
-        result,
-        mission,
-        mission_path=args.mission,
-        seed=args.seed,
-        rate_hz=args.rate,
-        sections=sections,
+    summary = attempt(
+        "summary",
+        lambda: build_summary(
+            result,
+            mission,
+            mission_path=args.mission,
+            seed=args.seed,
+            rate_hz=args.rate,
+            sections=sections,
+        ),
     )
+    if not isinstance(summary, dict):
+        summary = minimal_summary(
+            result, mission_path=args.mission, seed=args.seed, rate_hz=args.rate
+        )
     if runner.error_traceback:
-        with open(os.path.join(run.run_dir, "error.log"), "w") as f:
-            f.write(runner.error_traceback)
-        summary["error_log"] = "error.log"
-    report = None if args.no_report else write_report(run.run_dir, runner.trace, summary, mission)
-    if report:
-        summary["report"] = os.path.relpath(report, run.run_dir)
-    write_summary(run.run_dir, summary)
-    run.summary = summary
-    headlines = result_lines(mission) + handled_failure_lines(mission, result.reason)
-    mission.close()
+
+        def save_error_log() -> bool:
+            with open(os.path.join(run.run_dir, "error.log"), "w") as f:
+                f.write(runner.error_traceback)
+            return True
+
+        if attempt("error.log", save_error_log, False):
+            summary["error_log"] = "error.log"
+    report = None
+    if not args.no_report:
+        report = attempt(
+            "report", lambda: write_report(run.run_dir, runner.trace, summary, mission)
+        )
+        if report:
+            summary["report"] = attempt("report", lambda: os.path.relpath(report, run.run_dir))
+    for line in errors:
+        add_error(summary, line)
+    try:
+        write_summary(run.run_dir, summary)
+        run.summary = summary
+    except Exception as exc:  # even the engine's keys could not be written (e.g. no folder)
+        add_error(summary, error_line("summary.json not written", exc))
+    del errors[:]
+    headlines = attempt(
+        "headlines",
+        lambda: result_lines(mission) + handled_failure_lines(mission, result.reason),
+        [],
+    )
+    attempt("closing the mission", mission.close)
     if not echo:
         return 0 if result.status == "SUCCESS" else 1
+    for line in [*summary.get("errors", ()), *errors]:
+        print(f"btrun: {line}", file=sys.stderr)
     speed = result.mission_time_s / result.wall_time_s if result.wall_time_s > 0 else 0.0
     print(
         f"{result.status}: {result.reason} "

@@ -14,7 +14,8 @@ import os
 from typing import IO, Any
 
 #: A blackboard value or message longer than this (as JSON) is logged as a note with its size
-#: and SHA-1 instead (the full value stays on the blackboard and in summary.json).
+#: and SHA-1 instead (the full value stays on the blackboard; the in-memory trace and
+#: summary.json keep the same note: :func:`summarise_value`).
 VALUE_LIMIT_BYTES = 16_384
 #: Messages logged per tick at most (the rest are counted).
 MESSAGES_PER_TICK = 100
@@ -47,17 +48,50 @@ def to_jsonable(value: Any, depth: int = 0) -> Any:
     return repr(value)
 
 
+#: the bytes JSON writes as they are (printable ASCII but the quote and the backslash)
+_PLAIN = bytes(c for c in range(0x20, 0x7F) if c not in b'"\\')
+
+
 def _bounded(value: Any) -> Any:
     """``value`` (already JSON-friendly) or, past :data:`VALUE_LIMIT_BYTES`, a short note."""
     if isinstance(value, (bool, int, float)) or value is None:
         return value
-    if isinstance(value, str) and len(value) <= VALUE_LIMIT_BYTES // 4:
-        return value
+    if isinstance(value, str):
+        if len(value) <= VALUE_LIMIT_BYTES // 4:
+            return value
+        if value.isascii():  # plain ASCII: its JSON is itself in quotes (no json.dumps)
+            raw = value.encode("ascii")
+            if not raw.translate(None, _PLAIN):
+                if len(raw) + 2 <= VALUE_LIMIT_BYTES:
+                    return value
+                data = b'"' + raw + b'"'
+                return _note(value, len(data), data)
     text = json.dumps(value, separators=(",", ":"))
     if len(text) <= VALUE_LIMIT_BYTES:
         return value
-    digest = hashlib.sha1(text.encode("utf-8", "replace")).hexdigest()[:12]
-    return f"<{type(value).__name__} of {len(text)} bytes, sha1 {digest}: not logged>"
+    return _note(value, len(text), text.encode("utf-8", "replace"))
+
+
+def _note(value: Any, size: int, data: bytes) -> str:
+    digest = hashlib.sha1(data).hexdigest()[:12]
+    return f"<{type(value).__name__} of {size} bytes, sha1 {digest}: not logged>"
+
+
+def summarise_value(value: Any) -> Any:
+    """A blackboard value (or a message) as the tick log, the runner's trace and
+    ``summary.json`` keep it: JSON-friendly (:func:`to_jsonable`, as a record's entry) and,
+    past :data:`VALUE_LIMIT_BYTES` as JSON, a one-line note with its type, size and SHA-1."""
+    return _bounded(to_jsonable(value, 2))
+
+
+def summarise_messages(messages: list[Any]) -> list[Any]:
+    """A tick's messages as the tick log keeps them: the first :data:`MESSAGES_PER_TICK`,
+    each through :func:`summarise_value`, then a line counting the rest."""
+    out = [summarise_value(m) for m in messages[:MESSAGES_PER_TICK]]
+    extra = len(messages) - MESSAGES_PER_TICK
+    if extra > 0:
+        out.append(f"... {extra} more messages in this tick not logged")
+    return out
 
 
 class TickLog:
@@ -79,11 +113,7 @@ class TickLog:
             rec["bb"] = {k: _bounded(v) for k, v in rec["bb"].items()}
         msgs = rec.get("messages")
         if msgs:
-            extra = len(msgs) - MESSAGES_PER_TICK
-            msgs = [_bounded(m) for m in msgs[:MESSAGES_PER_TICK]]
-            if extra > 0:
-                msgs.append(f"... {extra} more messages in this tick not logged")
-            rec["messages"] = msgs
+            rec["messages"] = summarise_messages(msgs)
         if self.bytes_written > LOG_LIMIT_BYTES and "header" not in rec:
             slim = {k: rec[k] for k in ("tick", "t", "status") if k in rec}
             if not self.limited:
