@@ -12,8 +12,9 @@ Modules, in the order a campaign goes through them:
 * :mod:`~bt_engine.campaign.check` - missions and settings checked with the plug-in;
 * :mod:`~bt_engine.campaign.pool` and :mod:`~bt_engine.campaign.worker` - where runs execute;
 * :mod:`~bt_engine.campaign.metrics` - values read from each run's ``summary.json``;
-* :mod:`~bt_engine.campaign.results` - per-row records, ``results.parquet``/``.csv``;
-* :mod:`~bt_engine.campaign.report` - ``report.html``;
+* :mod:`~bt_engine.campaign.results` - per-row records, ``results.parquet``/``.csv`` (plain
+  column names; ``columns.csv`` maps them back);
+* :mod:`~bt_engine.campaign.report` - ``report.html`` and the terminal summary table;
 * :mod:`~bt_engine.campaign.execution` - :func:`run_campaign`, which ties them together;
 * :mod:`~bt_engine.campaign.command` - the ``btrun campaign`` command line.
 """

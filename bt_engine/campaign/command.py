@@ -2,15 +2,20 @@
 
 Exit codes: 0 every selected row has a result (whatever the runs' outcomes: the table says
 them), 1 interrupted (Ctrl-C; the finished rows are kept, the same command resumes),
-2 invalid input (located problems; nothing ran).
+2 invalid input (located problems, or a Dask scheduler that does not answer; nothing ran).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shlex
+import signal
 import sys
 from collections import Counter
+from typing import Any
+
+from bt_engine.campaign.pool import CONNECT_TIMEOUT_S
 
 KEEP_CHOICES = ("failed", "all", "none")
 
@@ -31,6 +36,13 @@ def setup(p: argparse.ArgumentParser) -> None:
         metavar="ADDRESS",
         help="run on a Dask cluster (e.g. tcp://HOST:8786) instead of local processes",
     )
+    p.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=CONNECT_TIMEOUT_S,
+        metavar="SECONDS",
+        help=f"how long the Dask scheduler has to answer (default {CONNECT_TIMEOUT_S:g})",
+    )
     p.add_argument("--limit", type=int, default=None, metavar="N", help="run only the first N rows")
     p.add_argument(
         "--dry-run", action="store_true", help="check the campaign and list its rows; fly nothing"
@@ -47,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the command; :class:`~bt_engine.spec.MissionError` propagates (exit code 2)."""
     from bt_engine.campaign.check import check_campaign
     from bt_engine.campaign.execution import run_campaign
-    from bt_engine.campaign.pool import WorkerError
+    from bt_engine.campaign.pool import SchedulerUnreachable, WorkerError
+    from bt_engine.campaign.report import print_summary
     from bt_engine.campaign.results import ResultStore
     from bt_engine.campaign.rows import dry_run_lines, expand
     from bt_engine.campaign.spec import load_campaign
@@ -57,6 +70,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.workers is not None and args.workers < 1:
         print("btrun campaign: --workers must be at least 1", file=sys.stderr)
+        return 2
+    if not args.connect_timeout > 0:
+        print("btrun campaign: --connect-timeout must be more than 0 s", file=sys.stderr)
         return 2
     c = load_campaign(args.campaign)
     if args.dry_run:
@@ -75,35 +91,73 @@ def run(args: argparse.Namespace) -> int:
     if not args.out:
         print("btrun campaign: --out DIR is required (results go there)", file=sys.stderr)
         return 2
+    old_handler = _take_ctrl_c()
     try:
         result = run_campaign(
             c,
             args.out,
             workers=args.workers,
             scheduler=args.scheduler,
+            connect_timeout_s=args.connect_timeout,
             limit=args.limit,
             keep_runs=args.keep_runs,
             include_paths=args.include_path,
         )
+    except SchedulerUnreachable as exc:  # a wrong address is a bad input: nothing ran
+        print(f"btrun campaign: {exc}", file=sys.stderr)
+        return 2
     except (WorkerError, OSError) as exc:  # the finished rows are saved: the command resumes
         print(f"btrun campaign: {exc}", file=sys.stderr)
         return 1
+    finally:
+        if old_handler is not None:
+            signal.signal(signal.SIGINT, old_handler)
     counts = Counter(r["status"] for r in result.table)
     outcome = ", ".join(f"{s} {n}" for s, n in counts.most_common()) or "no runs"
+    print_summary(result.campaign, result.table)
     print(
         f"{len(result.table)}/{len(result.selected)} rows finished ({len(result.ran)} ran now, "
         f"{result.wall_s:.1f} s): {outcome}"
     )
-    print(f"results: {result.parquet}, {result.csv}")
+    print(f"results: {result.parquet}, {result.csv} (columns: {result.out_dir}/columns.csv)")
     print(f"report: {result.report}")
     if result.interrupted or not result.complete:
-        again = ["btrun", "campaign", args.campaign, "--out", args.out]
-        if args.limit is not None:
-            again += ["--limit", str(args.limit)]
         print(
             f"interrupted: the {len(result.table)} finished rows are kept in {args.out}; "
-            f"resume with: {' '.join(again)}",
+            f"resume with: {resume_command(args)}",
             file=sys.stderr,
         )
         return 1
     return 0
+
+
+def _take_ctrl_c() -> Any:
+    """Make Ctrl-C raise KeyboardInterrupt while the campaign runs (it stops the workers,
+    keeps the finished rows and prints the resume line); return the handler it replaced
+    (None outside the main thread). The ``btrun`` launcher leaves a handler that only
+    records the signal (for ``btrun run``, whose runner acts on it): a campaign has no
+    runner of its own, and the Ctrl-C was lost."""
+    try:
+        return signal.signal(signal.SIGINT, signal.default_int_handler)
+    except ValueError:  # not the main thread
+        return None
+
+
+def resume_command(args: argparse.Namespace) -> str:
+    """The command line that resumes this campaign: the same campaign file and folder, and
+    every option that says where and how its rows run (``--scheduler`` and its time-out,
+    ``--workers``, ``--limit``, ``--keep-runs``, ``--include-path``), quoted for a shell."""
+    cmd = ["btrun", "campaign", args.campaign, "--out", args.out]
+    if args.scheduler:
+        cmd += ["--scheduler", args.scheduler]
+        if args.connect_timeout != CONNECT_TIMEOUT_S:
+            cmd += ["--connect-timeout", f"{args.connect_timeout:g}"]
+    elif args.workers is not None:
+        cmd += ["--workers", str(args.workers)]
+    if args.limit is not None:
+        cmd += ["--limit", str(args.limit)]
+    if args.keep_runs:
+        cmd += ["--keep-runs", args.keep_runs]
+    for path in getattr(args, "include_path", None) or ():
+        cmd += ["--include-path", path]
+    return shlex.join(cmd)

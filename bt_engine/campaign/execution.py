@@ -4,7 +4,8 @@
 saved the moment its result arrives (:class:`~bt_engine.campaign.results.ResultStore`);
 the tables and the report are rebuilt from the saved rows at the end, also after Ctrl-C,
 which stops the workers and keeps the finished rows (running the same campaign into the
-same folder resumes it). A live progress line (done/total, failures, ETA) goes to stderr.
+same folder resumes it). The progress (done/total, failures, ETA) goes to stderr: a
+``rich.progress`` bar on a terminal, plain lines in a log.
 
 The rows are never a list: they are generated as the pool asks for them (and once more
 for the tables), so memory follows the finished rows and the runs in flight, not the size
@@ -13,6 +14,7 @@ of the campaign (which :func:`~bt_engine.campaign.rows.expand` bounds by ``max_r
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import sys
@@ -24,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 from bt_engine.campaign.check import check_campaign
-from bt_engine.campaign.pool import DaskPool, LocalPool
+from bt_engine.campaign.pool import CONNECT_TIMEOUT_S, DaskPool, LocalPool
 from bt_engine.campaign.results import ResultStore, table_rows, write_tables
 from bt_engine.campaign.rows import Row, expand
 from bt_engine.campaign.spec import Campaign, load_campaign
@@ -81,50 +83,106 @@ def payload(c: Campaign, row: Row, out_dir: str, keep: str, include_paths: list[
 
 
 class Progress:
-    """The live progress line: rows done of total, failures, throughput and ETA."""
+    """The campaign's progress on ``stream`` (default stderr): rows done of total,
+    failures, throughput and ETA.
 
-    def __init__(self, total: int, done: int, todo: int, stream: TextIO | None = None) -> None:
+    On a terminal, a ``rich.progress`` bar redrawn in place; otherwise (a CI log, a file)
+    plain lines: one at the start, one per finished row at most every ``interval_s``
+    seconds, one at the end."""
+
+    def __init__(
+        self,
+        total: int,
+        done: int,
+        todo: int,
+        stream: TextIO | None = None,
+        interval_s: float = 10.0,
+    ) -> None:
         self.total, self.done, self.todo = total, done, todo
         self.stream = stream or sys.stderr
         self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.interval_s = interval_s
         self.failed = 0
         self.ran = 0
         self.t0 = time.monotonic()
-        self._last = 0.0
+        self._last = -math.inf
+        self._bar: Any = None  # rich.progress.Progress, on a terminal once started
+        self._task: Any = None
 
     def line(self) -> str:
-        """The current progress text."""
+        """The current progress text (a plain line)."""
         elapsed = time.monotonic() - self.t0
         eta = "-"
         if self.ran:
             rest = (self.todo - self.ran) * elapsed / self.ran
             eta = _duration(rest)
-        rate = self.ran / elapsed if elapsed > 0 else 0.0
         return (
             f"campaign: {self.done}/{self.total} done, {self.failed} failed, "
-            f"{rate:.2f} runs/s, ETA {eta}"
+            f"{self._rate():.2f} runs/s, ETA {eta}"
         )
 
+    def _rate(self) -> float:
+        elapsed = time.monotonic() - self.t0
+        return self.ran / elapsed if elapsed > 0 else 0.0
+
+    def _start_bar(self) -> None:
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+        from rich.progress import Progress as Bar
+
+        console = Console(file=self.stream, force_terminal=True)
+        self._bar = Bar(
+            TextColumn("campaign"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("[red]{task.fields[failed]} failed[/red]"),
+            TextColumn("{task.fields[rate]} runs/s"),
+            TimeElapsedColumn(),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+            console=console,
+        )
+        self._task = self._bar.add_task(
+            "campaign", total=self.total, completed=self.done, failed=0, rate="0.00"
+        )
+        self._bar.start()
+
     def update(self, status: str | None = None, force: bool = False) -> None:
-        """Count one finished row (if ``status``) and redraw (a terminal: in place; a log:
-        one line every 10 s)."""
+        """Count one finished row (if ``status``) and show it (a terminal: the bar; a log:
+        a line, at most one every ``interval_s`` seconds unless ``force``)."""
         if status is not None:
             self.done += 1
             self.ran += 1
             self.failed += status != "SUCCESS"
-        now = time.monotonic()
         if self.tty:
-            print("\r" + self.line() + "\x1b[K", end="", file=self.stream, flush=True)
-        elif force or now - self._last >= 10.0:
+            if self._bar is None:
+                self._start_bar()
+            self._bar.update(
+                self._task,
+                completed=self.done,
+                failed=self.failed,
+                rate=f"{self._rate():.2f}",
+            )
+            return
+        now = time.monotonic()
+        if force or now - self._last >= self.interval_s:
             print(self.line(), file=self.stream, flush=True)
             self._last = now
 
     def close(self) -> None:
-        """End the progress line."""
-        if self.tty:
-            print(file=self.stream, flush=True)
-        else:
+        """End the progress: the bar stays as it ended; a log gets a last line."""
+        if not self.tty:
             self.update(force=True)
+        elif self._bar is not None:
+            self._bar.refresh()
+            self._bar.stop()
+            self._bar = None
 
 
 def _duration(s: float) -> str:
@@ -138,6 +196,7 @@ def run_campaign(
     *,
     workers: int | None = None,
     scheduler: str | None = None,
+    connect_timeout_s: float = CONNECT_TIMEOUT_S,
     limit: int | None = None,
     keep_runs: str | None = None,
     include_paths: list[str] | None = None,
@@ -146,30 +205,40 @@ def run_campaign(
 ) -> CampaignRun:
     """Check the campaign (raises :class:`~bt_engine.spec.MissionError`: nothing runs), run
     its unfinished rows (the first ``limit`` only, if given) on ``workers`` local processes
-    (default: one per core) or on the Dask cluster at ``scheduler``, write the tables and
-    the report into ``out_dir``. Ctrl-C returns with ``interrupted`` set."""
+    (default: one per core) or on the Dask cluster at ``scheduler`` (raises
+    :class:`~bt_engine.campaign.pool.SchedulerUnreachable` if it does not answer within
+    ``connect_timeout_s``: nothing runs), write the tables and the report into ``out_dir``.
+    The progress, and the cluster's dashboard link, go to ``progress`` (default stderr).
+    Ctrl-C returns with ``interrupted`` set."""
     c = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
     rows = expand(c)  # lazy; raises first if there are more than c.max_rows
     include_paths = list(include_paths or ())
     check_campaign(c, rows, include_paths)
     keep = keep_runs or c.keep_runs
     selected = rows[:limit] if limit is not None else rows
-    os.makedirs(out_dir, exist_ok=True)
-    copy = os.path.join(out_dir, "campaign.yaml")  # what these results were made from
-    if os.path.abspath(c.path) != os.path.abspath(copy):
-        shutil.copyfile(c.path, copy)
     store = ResultStore(out_dir)
     records = store.finished()
     finished = frozenset(records)  # what was there before: the rows to skip
     n_todo = sum(r.key not in finished for r in selected)
-    result = CampaignRun(c, out_dir, rows, selected)
-    prog = Progress(len(selected), len(selected) - n_todo, n_todo, progress)
-    t0 = time.perf_counter()
+    stream = progress or sys.stderr
     pool: LocalPool | DaskPool | None = None
+    if n_todo and scheduler:  # before anything is written: a wrong address fails at once
+        pool = DaskPool(scheduler, connect_timeout_s)
+        print(f"campaign: {pool.describe()}", file=stream, flush=True)
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+        copy = os.path.join(out_dir, "campaign.yaml")  # what these results were made from
+        if os.path.abspath(c.path) != os.path.abspath(copy):
+            shutil.copyfile(c.path, copy)
+    except BaseException:
+        if pool is not None:
+            pool.close()
+        raise
+    result = CampaignRun(c, out_dir, rows, selected)
+    prog = Progress(len(selected), len(selected) - n_todo, n_todo, stream)
+    t0 = time.perf_counter()
     if n_todo:
-        if scheduler:
-            pool = DaskPool(scheduler)
-        else:
+        if pool is None:
             log_dir = os.path.join(out_dir, "logs")
             os.makedirs(log_dir, exist_ok=True)
             pool = LocalPool(workers or os.cpu_count() or 1, log_dir)
@@ -186,8 +255,8 @@ def run_campaign(
                         in_flight.setdefault(r.key, deque()).append(r.name)
                     yield payload(c, r, out_dir, keep, include_paths)
 
-        prog.update(force=True)
         try:
+            prog.update(force=True)
             for rec in pool.results(payloads()):
                 if rec.get("run_dir"):
                     rec["run_dir"] = os.path.relpath(rec["run_dir"], out_dir)
@@ -204,11 +273,11 @@ def run_campaign(
         except KeyboardInterrupt:
             result.interrupted = True
         finally:
+            prog.close()
             if result.interrupted:
                 pool.stop()
             else:
                 pool.close()
-        prog.close()
     result.wall_s = time.perf_counter() - t0
     done = [r for r in rows if r.key in records]  # one pass; as many as the records
     result.table = table_rows(c, done, records)

@@ -38,10 +38,30 @@ from bt_engine.campaign.worker import ONE_THREAD_ENV, keep_folder
 
 #: Seconds a new worker process may take to import everything and say it is ready.
 STARTUP_TIMEOUT_S = 300.0
+#: Seconds the Dask scheduler has to answer (``btrun campaign --connect-timeout``).
+CONNECT_TIMEOUT_S = 5.0
 
 
 class WorkerError(RuntimeError):
     """A worker process could not be started."""
+
+
+class SchedulerUnreachable(Exception):
+    """The Dask scheduler did not answer (or its address does not read): nothing ran. The
+    message says the address tried and how to start a scheduler."""
+
+    def __init__(self, address: str, timeout_s: float, cause: BaseException) -> None:
+        self.address, self.timeout_s, self.cause = address, timeout_s, cause
+        if isinstance(cause, OSError):  # Dask says "timed out" whatever went wrong
+            what = f"no Dask scheduler answered at {address} within {timeout_s:g} s"
+        else:
+            what = f"{address!r} is not a Dask scheduler address ({cause})"
+        super().__init__(
+            f"{what}.\n  A scheduler must be running there, reachable from this machine: "
+            "start one with `dask scheduler`\n  (it listens on tcp://HOST:8786) and workers "
+            "with `dask worker tcp://HOST:8786 --nthreads 1`;\n  --connect-timeout SECONDS "
+            "waits longer for a slow network."
+        )
 
 
 class WorkerProcess:
@@ -250,13 +270,44 @@ class LocalPool:
 
 
 class DaskPool:
-    """The runs as tasks of a ``dask.distributed`` cluster (its scheduler's address)."""
+    """The runs as tasks of a ``dask.distributed`` cluster (its scheduler's address).
 
-    def __init__(self, address: str) -> None:
+    Connecting waits at most ``connect_timeout_s`` (default :data:`CONNECT_TIMEOUT_S`, not
+    Dask's 30 s) and raises :class:`SchedulerUnreachable` with a hint."""
+
+    def __init__(self, address: str, connect_timeout_s: float = CONNECT_TIMEOUT_S) -> None:
         from dask.distributed import Client
+        from distributed.comm.addressing import get_address_host_port, parse_address
 
-        self.client = Client(address, set_as_default=False)
+        self.address = address
+        try:
+            if parse_address(address)[0] != "inproc":  # a bad address, before a Client exists
+                get_address_host_port(address)
+            self.client = Client(address, timeout=connect_timeout_s, set_as_default=False)
+        except (OSError, ValueError, TypeError) as exc:  # TimeoutError is an OSError
+            raise SchedulerUnreachable(address, connect_timeout_s, exc) from None
         self._futures: list[Any] = []
+
+    @property
+    def dashboard_link(self) -> str | None:
+        """The scheduler's dashboard (``client.dashboard_link``), or None if it serves none
+        (Dask serves it only where ``bokeh`` is installed)."""
+        try:
+            return self.client.dashboard_link
+        except Exception:  # KeyError: no dashboard service on the scheduler
+            return None
+
+    def describe(self) -> str:
+        """One line for the user: the scheduler, its worker threads, the dashboard link."""
+        threads = sum(self.client.nthreads().values())
+        link = self.dashboard_link
+        plural = "" if threads == 1 else "s"
+        text = f"Dask scheduler {self.client.scheduler.address}, {threads} worker thread{plural}"
+        if not threads:
+            text += f" (none yet: start some with `dask worker {self.address}`)"
+        if link:
+            return f"{text}; dashboard: {link}"
+        return f"{text}; no dashboard (the scheduler serves one where bokeh is installed)"
 
     def results(self, payloads: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
         """Run every payload; yield the results as they finish (any order). ``payloads`` may

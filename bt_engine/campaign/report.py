@@ -14,10 +14,12 @@ import html
 import math
 import os
 import re
+import statistics
+import sys
 from collections import Counter, defaultdict
-from typing import Any
+from typing import Any, TextIO
 
-from bt_engine.campaign.results import columns
+from bt_engine.campaign.results import table_columns
 from bt_engine.campaign.rows import value_text
 from bt_engine.campaign.spec import Campaign
 
@@ -37,6 +39,12 @@ img{max-width:100%;border:1px solid #eee;margin:.4em 0}.note{color:#555;font-siz
 """
 MAX_BINS = 5  # numeric settings with more distinct values than this are binned
 MAX_FAILED_LISTED = 200
+#: Statuses in the order the terminal summary shows them (others follow, by name).
+STATUSES = ("SUCCESS", "FAILURE", "ABORTED", "CRASHED", "TIMEOUT")
+#: The most metrics the terminal summary shows (the report shows every one).
+MAX_SUMMARY_METRICS = 4
+#: What a terminal summary line groups by (those that vary between the runs).
+SUMMARY_GROUPS = ("mission", "rig", "world", "fault")
 _NUMBER = re.compile(r"-?\d+(\.\d+)?")
 
 
@@ -260,7 +268,7 @@ def write_report(out_dir: str, c: Campaign, table: list[dict]) -> str:
     outcome = ", ".join(
         f'<span class="{esc(s)}">{esc(s)}</span> {n}' for s, n in counts.most_common()
     )
-    det, _ = columns(c)
+    names = [col.name for col in table_columns(c)]
     out = [
         "<!DOCTYPE html><html lang=en><head><meta charset=utf-8>",
         f"<title>btrun campaign: {esc(c.name)}</title><style>{_CSS}</style></head><body>",
@@ -282,10 +290,98 @@ def write_report(out_dir: str, c: Campaign, table: list[dict]) -> str:
         ]
     out.append(
         f'<p class="note">Written by btrun campaign (bt_engine/campaign/); columns: '
-        f"{esc(', '.join(det))}. See docs/campaigns.md.</p></body></html>"
+        f"{esc(', '.join(names))} (what each holds: columns.csv). "
+        "See docs/campaigns.md.</p></body></html>"
     )
     path = os.path.join(out_dir, "report.html")
     with open(path + ".tmp", "w", encoding="utf-8") as f:
         f.write("\n".join(out))
     os.replace(path + ".tmp", path)
     return path
+
+
+def _summary_metrics(c: Campaign, table: list[dict]) -> list[tuple[str, str]]:
+    """(name, "median" or "true") of the metrics the terminal summary shows: deterministic
+    ones whose values are all numbers or all true/false (lists and text are left to the
+    report), the first :data:`MAX_SUMMARY_METRICS`."""
+    out = []
+    for m in c.metrics:
+        values = [r[m.name] for r in table if r[m.name] is not None]
+        if m.wall_clock or not values:
+            continue
+        if all(isinstance(v, bool) for v in values):
+            out.append((m.name, "true"))
+        elif all(_num(v) for v in values):
+            out.append((m.name, "median"))
+    return out[:MAX_SUMMARY_METRICS]
+
+
+def summary_table(c: Campaign, table: list[dict]) -> Any:
+    """The terminal summary (a ``rich.table.Table``): one line per group of runs (each
+    combination of the mission, rig, world and fault schedule, those that vary; else one
+    line, and a total line under several), with the runs, the count of each status, the
+    success rate, the median of the numeric metrics and the true count of the true/false
+    ones (the first :data:`MAX_SUMMARY_METRICS`), and the median wall time of a run.
+    ``table`` is :attr:`CampaignRun.table <bt_engine.campaign.execution.CampaignRun.table>`."""
+    from rich.table import Table
+
+    keys = [k for k in SUMMARY_GROUPS if table and k in table[0]]
+    keys = [k for k in keys if len({r[k] for r in table}) > 1]
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for r in table:  # row order: the groups in the campaign's order
+        groups[tuple(r[k] for k in keys)].append(r)
+    present = Counter(r["status"] for r in table)
+    statuses = [s for s in STATUSES if s in present] + sorted(
+        str(s) for s in present if s not in STATUSES
+    )
+    metrics = _summary_metrics(c, table)
+    out = Table(title=f"campaign {c.name}: {len(table)} runs", title_justify="left")
+    for k in keys or ["group"]:
+        out.add_column(k, overflow="fold")
+    out.add_column("runs", justify="right", no_wrap=True)
+    for s in statuses:
+        out.add_column(s, justify="right", style=_status_style(s), no_wrap=True)
+    out.add_column("success", justify="right", no_wrap=True)
+    for name, how in metrics:
+        out.add_column(f"{name}\n{how}", justify="right", no_wrap=True)
+    out.add_column("wall_s\nmedian", justify="right", no_wrap=True)
+
+    def line(label: list[str], rs: list[dict]) -> list[str]:
+        counts = Counter(str(r["status"]) for r in rs)
+        cells = [*label, str(len(rs)), *(str(counts[s]) if counts[s] else "" for s in statuses)]
+        cells.append(f"{100 * counts['SUCCESS'] / len(rs):.0f} %")
+        for name, how in metrics:
+            values = [r[name] for r in rs if r[name] is not None]
+            if how == "true":
+                cells.append(f"{sum(values)}/{len(values)}" if values else "")
+            else:
+                cells.append(f"{statistics.median(values):.4g}" if values else "")
+        walls = [r["wall_s"] for r in rs if _num(r.get("wall_s"))]
+        cells.append(f"{statistics.median(walls):.2f}" if walls else "")
+        return cells
+
+    for group, rs in groups.items():
+        out.add_row(*line([value_text(v) if v != "" else "-" for v in group] or ["all"], rs))
+    if len(groups) > 1:
+        out.add_section()
+        out.add_row(*line(["total"] + [""] * (len(keys) - 1), table), style="bold")
+    return out
+
+
+def _status_style(status: str) -> str:
+    return "green" if status == "SUCCESS" else "red"
+
+
+def print_summary(c: Campaign, table: list[dict], file: TextIO | None = None) -> None:
+    """Print :func:`summary_table` (on ``file``, default standard output; colours only on a
+    terminal; not on a terminal, as wide as the table needs: a log has no width)."""
+    from rich.console import Console
+
+    if not table:
+        return
+    console = Console(file=file or sys.stdout)
+    summary = summary_table(c, table)
+    if not console.is_terminal:
+        wide = console.options.update_width(10_000)
+        console.width = max(console.width, console.measure(summary, options=wide).maximum)
+    console.print(summary)

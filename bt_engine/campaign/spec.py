@@ -13,6 +13,7 @@ import hashlib
 import math
 import os
 import random
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -59,6 +60,9 @@ KEEP_RUNS = ("failed", "all", "none")
 FLIGHT_REPORTS = ("kept", "failed", "none")
 #: Columns every results table has (parameter and metric names must differ from these).
 FIXED_COLUMNS = ("row", "mission", "rig", "world", "seed", "fault", "status", "reason")
+#: The other columns of the results tables, not named in the campaign file.
+OTHER_COLUMNS = ("run_dir", "mission_path", "rig_path", "world_path", "wall_s")
+_NOT_PLAIN = re.compile(r"[^A-Za-z0-9_]")
 
 
 @dataclass(frozen=True)
@@ -180,6 +184,14 @@ class Campaign:
             loc or Loc(self.path, 1, 1),
             f"the campaign has {n:,} rows ({factors}); the limit is {self.max_rows:,} ({how})",
         )
+
+
+def column_name(name: str) -> str:
+    """The results tables' column for a setting key or a metric name: a plain SQL identifier,
+    every character other than an ASCII letter, digit or underscore replaced by ``_``
+    (``wind.gust_std_mps`` -> ``wind_gust_std_mps``), ``_`` in front of a leading digit."""
+    plain = _NOT_PLAIN.sub("_", name)
+    return "_" + plain if plain[:1].isdigit() else plain
 
 
 def setting_key(key: str) -> str:
@@ -517,17 +529,39 @@ def _metrics(r: Reader, node: Node, locs: dict[str, Loc]) -> list[Metric]:
 
 
 def _check_columns(r: Reader, c: Campaign, root: Node) -> None:
-    """Parameter and metric names become columns: they must not clash."""
-    taken = set(FIXED_COLUMNS) | {"wall_s", "run_dir"}
+    """Parameter and metric names become columns: they must not clash, neither as written
+    nor as the plain column names of the tables (:func:`column_name`; compared without
+    case, as SQL compares unquoted names)."""
+    taken = set(FIXED_COLUMNS) | set(OTHER_COLUMNS)
+    owner = {n: f"the column '{n}'" for n in taken}  # plain column (lower case) -> whose
     for key in c.parameters():
+        where = c.key_locs.get(key, r.loc(root))
         if key in taken:
             r.bad(
-                c.key_locs.get(key, r.loc(root)),
+                where,
                 f"'{key}' is a column of its own; "
                 f"a setting may not be named {', '.join(sorted(taken))}",
             )
+            continue
+        col = column_name(key).lower()
+        if col in owner:
+            r.bad(
+                where,
+                f"the setting '{key}' and {owner[col]} would both be the results column "
+                f"'{column_name(key)}'; rename one",
+            )
+        owner.setdefault(col, f"the setting '{key}'")
     params = set(c.parameters())
     for m in c.metrics:
+        where = c.key_locs.get(f"metrics.{m.name}", r.loc(root))
         if m.name in taken or m.name in params:
-            where = c.key_locs.get(f"metrics.{m.name}", r.loc(root))
             r.bad(where, f"metrics: '{m.name}' is already a column (fixed or a setting); rename it")
+            continue
+        col = column_name(m.name).lower()
+        if col in owner:
+            r.bad(
+                where,
+                f"metrics: '{m.name}' and {owner[col]} would both be the results column "
+                f"'{column_name(m.name)}'; rename one",
+            )
+        owner.setdefault(col, f"the metric '{m.name}'")
