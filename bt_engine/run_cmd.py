@@ -178,9 +178,18 @@ def prepare(
         where = Loc(args.rig or "--set", 0, 0)
         raise MissionError([Problem(where, "no vehicle plug-in is installed to use a rig")])
     factor = args.realtime or (target.realtime_factor if target is not None else None)
+    external_clock = clock is not None  # a fleet's shared clock: the fleet keeps its time
     if clock is None:
         clock = WallClock(factor) if factor else SimClock()
     run_dir = _run_dir(args)
+    if target is not None:  # what a guard process needs before the platform is built
+        target.run_dir = run_dir  # type: ignore[attr-defined]
+        target.run_record = {  # type: ignore[attr-defined]
+            "mission": os.path.abspath(args.mission),
+            "seed": args.seed,
+            "rig": target.path,
+        }
+        target.tick_budget_s = tick_budget(args, factor)  # type: ignore[attr-defined]
     platform = target.make_platform(clock, args.seed) if target is not None else None
     mission = Mission(
         spec,
@@ -196,10 +205,22 @@ def prepare(
         },
         blackboard=bb,
     )
+    built_at = clock.now()
+    wall0 = time.monotonic()
+    if not getattr(args, "quiet", False):  # models and galleries load now: say so as it goes
+        mission.ctx.echo = lambda msg: print(
+            f"[wall {time.monotonic() - wall0:6.1f} s] {msg}", flush=True
+        )
     preflight = mission.preflight(set_keys=set(bb))
+    mission.ctx.echo = None
+    if hasattr(clock, "restart_at") and not external_clock:  # preflight is not mission time
+        clock.restart_at(built_at)
+    before_flight = list(mission.ctx.messages)  # shown already; kept in the tick log header
+    mission.ctx.messages.clear()
     if preflight:
         if platform is not None:
             platform.shutdown("pre-flight check failed")
+        release(target, written=False)
         raise MissionError(preflight)
     os.makedirs(run_dir, exist_ok=True)
     if target is not None:  # a target may write files of its own beside the tick log
@@ -213,6 +234,7 @@ def prepare(
         "rig_arg": args.rig,
         "sets": list(args.set),
         "rate_hz": args.rate,
+        "before_flight": before_flight,
         "nodes": [
             [n.path, r.label, r.depth, list(r.last_flags)]
             for n, r in zip(mission.nodes, rows, strict=False)
@@ -241,6 +263,29 @@ def prepare(
     )
 
 
+def tick_budget(args: Any, factor: float | None) -> float:
+    """The wall-clock budget of one tick: ``--tick-budget``, else the real-time or the
+    lock-step default."""
+    budget = getattr(args, "tick_budget", None)
+    if budget is None:  # real time: the drone is waiting; lock-step: only a hang matters
+        budget = REALTIME_TICK_BUDGET_S if factor else LOCKSTEP_TICK_BUDGET_S
+    return float(budget)
+
+
+def release(*holders: Any, written: bool = True) -> None:
+    """Tell every holder with a ``finished(summary_written)`` method (a run target, runner
+    hooks such as the guard) that the run is over: ``written`` says summary.json exists.
+    Each is called even if another raises."""
+    for h in holders:
+        fn = getattr(h, "finished", None)
+        if fn is None:
+            continue
+        try:
+            fn(written)
+        except Exception as exc:  # a holder that cannot close must not hide the others
+            print(f"btrun: closing {type(h).__name__}: {exc}", file=sys.stderr)
+
+
 def make_runner(run: PreparedRun) -> Runner:
     """The runner of a prepared run: its hooks, tick log, telemetry and tick watchdog.
 
@@ -266,6 +311,10 @@ def make_runner(run: PreparedRun) -> Runner:
 
             traceback.print_exc()
         finally:
+            try:  # the guard: the summary is written, the run is over (not a crash)
+                release(run.target, *run.hooks, written=run.summary is not None)
+            except BaseException:  # noqa: BLE001 - the process ends either way
+                pass
             for stream in (sys.stdout, sys.stderr):
                 try:
                     stream.flush()
@@ -431,3 +480,4 @@ def run_command(args) -> int:
     finally:
         if run.groot is not None:
             run.groot.close()
+        release(run.target, *run.hooks, written=run.summary is not None)

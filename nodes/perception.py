@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from typing import Any
 
 from bt_engine.node import (
@@ -254,7 +255,7 @@ def _scan_crops(node, scan) -> list:
 
 
 @register
-class IdentifyPallet(SyncActionNode):
+class IdentifyPallet(StatefulActionNode):
     """Embed the three block crops and match them against the gallery: ``pallet_id`` is the
     closest enrolled side, or ``unknown`` when its mean block distance is above
     ``max_distance`` or its margin to the runner-up is below ``min_margin`` (defaults: the
@@ -301,35 +302,112 @@ class IdentifyPallet(SyncActionNode):
         ),
     )
 
-    def tick_impl(self) -> NodeStatus:
+    #: real time: FAILURE if an identification on its thread takes longer than this, s
+    MAX_IDENTIFY_S = 60.0
+
+    def on_start(self) -> NodeStatus:
+        """Read the inputs; identify now (lock-step) or on a thread of its own (real time:
+        embedding and texture verification take a few hundred ms, which the tick thread,
+        and the drone hovering meanwhile, must not wait for)."""
+        self._job: dict[str, Any] | None = None
+        try:
+            inputs = self._inputs()
+        except (PerceptionError, GalleryError, ModelError) as exc:
+            return self._failed(exc)
+        if not is_realtime(self):
+            try:
+                found = self._compute(inputs)
+            except (PerceptionError, GalleryError, ModelError) as exc:
+                return self._failed(exc)
+            return self._finish(inputs, *found)
+        job: dict[str, Any] = {"inputs": inputs, "started_s": self.now()}
+        done = threading.Event()
+
+        def work() -> None:
+            try:
+                job["found"] = self._compute(inputs)
+            except BaseException as exc:  # handed to the tick thread
+                job["error"] = exc
+            finally:
+                done.set()
+
+        job["done"] = done
+        threading.Thread(target=work, name="identify", daemon=True).start()
+        self._job = job
+        return RUNNING
+
+    def on_running(self) -> NodeStatus:
+        """Real time: RUNNING until the identification thread is done."""
+        job = self._job
+        if job is None:  # pragma: no cover - halted and ticked again without a start
+            return FAILURE
+        if not job["done"].is_set():
+            if self.now() - job["started_s"] > self.MAX_IDENTIFY_S:
+                self._job = None
+                return self._failed(
+                    PerceptionError(f"identification took longer than {self.MAX_IDENTIFY_S:g} s")
+                )
+            return RUNNING
+        self._job = None
+        error = job.get("error")
+        if isinstance(error, (PerceptionError, GalleryError, ModelError)):
+            return self._failed(error)
+        if error is not None:
+            raise error
+        return self._finish(job["inputs"], *job["found"])
+
+    def on_halted(self) -> None:
+        """The thread (if any) finishes on its own; its answer is not used."""
+        self._job = None
+
+    def _inputs(self) -> dict[str, Any]:
         from perception.gallery import Thresholds
 
         session = PerceptionSession.of(self.ctx)
-        key = self.output_key("pallet_id") or ""
-        try:
-            crops = _scan_crops(self, self.get_input("scan"))
-            embedder = session.embedder(self.get_input("embedder"))
-            g = session.gallery(self.get_input("gallery"), embedder)
-            th = g.thresholds
-            md, mm = self.get_input("max_distance"), self.get_input("min_margin")
-            th = Thresholds(
+        crops = _scan_crops(self, self.get_input("scan"))
+        embedder = session.embedder(self.get_input("embedder"))
+        g = session.gallery(self.get_input("gallery"), embedder)
+        th = g.thresholds
+        md, mm = self.get_input("max_distance"), self.get_input("min_margin")
+        return {
+            "session": session,
+            "crops": crops,
+            "embedder": embedder,
+            "gallery": g,
+            "thresholds": Thresholds(
                 th.max_distance if md is None else md, th.min_margin if mm is None else mm
-            )
-            desc = embedder.describe(crops)
-            vis = desc.visibility if embedder.occlusion_aware else None
-            match = g.match(
-                desc.vectors,
-                top_k=self.get_input("top_k"),
-                thresholds=th,
-                visibility=vis,
-                crops=crops if self.get_input("verify_texture") else None,
-            )
-            update = self._update(session, g, match, desc.vectors, vis, th, crops)
-        except (PerceptionError, GalleryError, ModelError) as exc:
-            session.identifications.append(
-                {"t_s": self.now(), "key": key, "node": self.describe(), "failed": str(exc)}
-            )
-            return _fail(self, str(exc))
+            ),
+            "top_k": self.get_input("top_k"),
+            "verify": self.get_input("verify_texture"),
+            "update": self.get_input("update_gallery"),
+            "gallery_name": self.get_input("gallery"),
+        }
+
+    def _compute(self, i: dict[str, Any]) -> tuple[Any, str]:
+        """Embed and match (and update the gallery if asked): the slow part."""
+        crops, embedder, g, th = i["crops"], i["embedder"], i["gallery"], i["thresholds"]
+        desc = embedder.describe(crops)
+        vis = desc.visibility if embedder.occlusion_aware else None
+        match = g.match(
+            desc.vectors,
+            top_k=i["top_k"],
+            thresholds=th,
+            visibility=vis,
+            crops=crops if i["verify"] else None,
+        )
+        return match, self._update(i, match, desc.vectors, vis)
+
+    def _failed(self, exc: Exception) -> NodeStatus:
+        session = PerceptionSession.of(self.ctx)
+        key = self.output_key("pallet_id") or ""
+        session.identifications.append(
+            {"t_s": self.now(), "key": key, "node": self.describe(), "failed": str(exc)}
+        )
+        return _fail(self, str(exc))
+
+    def _finish(self, i: dict[str, Any], match: Any, update: str) -> NodeStatus:
+        session, th, crops = i["session"], i["thresholds"], i["crops"]
+        key = self.output_key("pallet_id") or ""
         ranking = [[ident, round(d, 4)] for ident, d, _ in match.ranking]
         session.identifications.append(
             {
@@ -376,15 +454,17 @@ class IdentifyPallet(SyncActionNode):
             self.ctx.log(f"gallery update: {update}")
         return SUCCESS
 
-    def _update(self, session, g, match, vectors, vis, th, crops) -> str:
+    def _update(self, i: dict[str, Any], match: Any, vectors: Any, vis: Any) -> str:
         """Add the scan to the gallery if asked and confident; what happened ("" if not asked)."""
-        if not self.get_input("update_gallery"):
+        if not i["update"]:
             return ""
-        if self.get_input("gallery") == DEMO:
+        if i["gallery_name"] == DEMO:
             return "not updated: the demo gallery is generated (use your own gallery file)"
         run = os.path.basename(str(self.ctx.resources.get("run_dir") or "")) or "mission"
         run = f"{run} t={self.now():.1f} s"
-        decision = g.update(match, vectors, vis, run=run, thresholds=th, crops=crops)
+        decision = i["gallery"].update(
+            match, vectors, vis, run=run, thresholds=i["thresholds"], crops=i["crops"]
+        )
         if decision.update:
             return f"added a view to {match.pallet_id} ({decision.reason})"
         return f"not updated: {decision.reason}"

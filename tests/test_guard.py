@@ -15,12 +15,11 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import textwrap
 import time
 
 import pytest
-from helpers import REPO
+from helpers import REPO, bench_module, wait_until
 
 BTRUN = [sys.executable, "-c", "from bt_engine.cli import main; raise SystemExit(main())"]
 
@@ -90,16 +89,6 @@ def _mission(tmp_path, middle: str) -> str:
     return str(path)
 
 
-def _wait_for(predicate, timeout_s: float, what: str):
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        got = predicate()
-        if got:
-            return got
-        time.sleep(0.05)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-
-
 def _summary(run_dir: str) -> dict | None:
     try:
         with open(os.path.join(run_dir, "summary.json")) as f:
@@ -152,28 +141,10 @@ def _fly_args(uri: str, mission: str, run_dir: str) -> list[str]:
 
 
 def read_drone(uri: str) -> dict:
-    """The drone's own state through a fresh cflib connection: height, armed, flying."""
-    import cflib.crtp
-    from cflib.crazyflie import Crazyflie
-    from cflib.crazyflie.log import LogConfig
-    from cflib.crazyflie.syncCrazyflie import SyncCrazyflie
-    from cflib.crazyflie.syncLogger import SyncLogger
-
-    cflib.crtp.init_drivers()
-    cache = tempfile.mkdtemp(prefix="guard-test-toc-")
-    with SyncCrazyflie(uri, cf=Crazyflie(rw_cache=cache)) as scf:
-        conf = LogConfig("check", 20)
-        conf.add_variable("stateEstimate.z", "float")
-        conf.add_variable("supervisor.info", "uint16_t")
-        with SyncLogger(scf, conf) as logger:
-            for _stamp, data, _conf in logger:
-                info = int(data["supervisor.info"])
-                return {
-                    "z_m": data["stateEstimate.z"],
-                    "armed": bool(info & (1 << 1)),
-                    "flying": bool(info & (1 << 4)),
-                }
-    raise AssertionError("no log data")
+    """The drone's own state through a fresh cflib connection (as the fault campaign reads
+    it): height, armed, flying."""
+    with bench_module("fault_campaign") as campaign:
+        return campaign.drone_state(uri)
 
 
 def _airborne_in(run_dir: str) -> bool:
@@ -203,7 +174,7 @@ def test_a_leaf_holding_the_gil_in_flight_ends_landed_exited_and_recorded(
     assert time.monotonic() - t0 < 90
     assert proc.returncode == -signal.SIGKILL, proc.stderr  # ended by the guard
     assert "taking over" in proc.stderr
-    summary = _wait_for(lambda: _summary(run_dir), 20, "summary.json")
+    summary = wait_until(lambda: _summary(run_dir), 20, "summary.json")
     guard = summary["guard"]
     assert guard["took_over"] is True
     assert "silent" in guard["reason"]
@@ -230,11 +201,11 @@ def test_kill_9_of_btrun_in_flight_ends_landed_within_10_s_and_recorded(
         text=True,
     )
     try:
-        _wait_for(lambda: _airborne_in(run_dir), 60, "the take-off")
+        wait_until(lambda: _airborne_in(run_dir), 60, "the take-off")
         os.kill(proc.pid, signal.SIGKILL)
         killed = time.monotonic()
         proc.wait(10)
-        summary = _wait_for(lambda: _summary(run_dir), 15, "the guard's summary.json")
+        summary = wait_until(lambda: _summary(run_dir), 15, "the guard's summary.json")
         landed_after = time.monotonic() - killed
     finally:
         if proc.poll() is None:
@@ -264,7 +235,7 @@ def test_lock_step_run_blocked_holding_the_gil_is_ended_with_a_summary(
         timeout=60,
     )
     assert proc.returncode == -signal.SIGKILL, proc.stderr
-    summary = _wait_for(lambda: _summary(run_dir), 10, "summary.json")
+    summary = wait_until(lambda: _summary(run_dir), 10, "summary.json")
     assert summary["guard"]["took_over"] is True
     assert summary["guard"]["mode"] == "watch"
     assert "simulated in the mission process" in summary["guard"]["landing"]

@@ -10,11 +10,12 @@ import os
 import subprocess
 import sys
 import threading
+import time
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from helpers import REPO, wait_until
+from helpers import REPO, wait_until, wrap, xml_mission
 
 from nodes.perception_feed import PerceptionWorker
 
@@ -125,3 +126,30 @@ def test_lock_step_detects_in_the_tick(tmp_path) -> None:
     assert proc.returncode == 0, proc.stderr
     p = json.loads((out / "summary.json").read_text())["perception"]
     assert p["mode"] == "in the tick" and p["frames_dropped"] == 0
+
+
+class SlowOnce:
+    """A runner hook whose fifth tick takes 0.3 s of wall time (a slow leaf's stand-in)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+
+    def before_tick(self, t_s: float) -> None:
+        self.n += 1
+        if self.n == 5:
+            time.sleep(0.3)  # wall time is the subject here: a real-time tick that overran
+
+
+def test_real_time_ticks_skip_missed_slots_instead_of_bursting() -> None:
+    """After a slow tick the runner resumes its rate: no burst of ticks microseconds apart
+    to catch up (the tick log showed ~1,800 ticks in 0.6 s after a 37 s first tick)."""
+    from bt_engine.clock import WallClock
+    from bt_engine.runner import Runner
+
+    m = xml_mission(wrap('<Sleep msec="600"/>'), clock=WallClock())
+    run = Runner(m, rate_hz=50, hooks=[SlowOnce()])
+    result = run.run(5.0)
+    assert result.status == "SUCCESS"
+    after = run.tick_periods_s[5:]
+    assert after and min(after) > 0.01, after  # 20 ms period: nothing back to back
+    assert result.ticks < 30  # 0.6 s at 50 Hz, less the slots the slow tick took
