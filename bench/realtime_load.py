@@ -69,6 +69,7 @@ def fly(out: str, seed: int, realtime: float, scan_pallet: str) -> dict:
     return {
         "rc": proc.returncode,
         "status": s["status"],
+        "reason": s.get("reason") if s["status"] != "SUCCESS" else "",
         "answer": ids[-1].get("pallet_id"),
         "right": ids[-1].get("pallet_id") == scan_pallet,
         "tick_p50_ms": round(pct(per, 0.5), 1),
