@@ -34,14 +34,23 @@ def main() -> int:
         pass
     try:
         from bt_engine.cli import main as cli_main
-
-        return cli_main(earlier_interrupts=PENDING)
+    except KeyboardInterrupt:  # pragma: no cover - raised by an import itself
+        print("interrupted", file=sys.stderr)
+        return 1
     finally:
+        # Python's own handlers back before bt_engine.cli takes the signals over: what it
+        # restores afterwards (every command but ``run``: gallery, fleet, campaign, sim
+        # serve) must be a Ctrl-C that interrupts, not this recorder
         for sig, handler in old.items():
             try:
                 signal.signal(sig, handler)
             except (ValueError, TypeError):  # pragma: no cover
                 pass
+    try:
+        return cli_main(earlier_interrupts=PENDING)
+    except KeyboardInterrupt:  # between the two handlers: nothing has started yet
+        print("interrupted", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -559,3 +559,23 @@ def test_resuming_a_killed_run_repairs_its_mcap(tmp_path) -> None:
     assert main([SQUARE, "--resume", first, "--out", second, "-q", "--no-report"]) == 0
     assert mcap_complete(mcap)
     _read_all(mcap)
+
+
+def test_ctrl_c_stops_a_command_other_than_run_through_the_console_script() -> None:
+    """The launcher's recorder must not outlive start-up: `btrun sim serve` (and gallery,
+    fleet, campaign) stop on Ctrl-C instead of recording it and running on."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys, btrun_launcher; sys.exit(btrun_launcher.main())"]
+        + ["sim", "serve", "crazyflie", "--port", "0"],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        assert "CRTP emulator serving" in proc.stdout.readline()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=15) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
