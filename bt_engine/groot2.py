@@ -14,7 +14,7 @@ Wire format (facts of the protocol, little-endian):
   tree UUID), part 2 the payload: FULLTREE the tree as XML with ``_uid`` / ``_fullpath``
   metadata, STATUS ``(uid u16, status u8)`` per node (IDLE after X is ``10 + X``),
   BLACKBOARD the requested blackboards (``;``-separated names) as a JSON object encoded in
-  MessagePack;
+  MessagePack (by the ``msgpack`` package; objects by their readable form: :func:`readable`);
 * errors: ``["error", message]`` (a wrong header, a missing second part, an unknown type).
 
 Peers are capped (a flood of idle TCP connections must not take btrun's file descriptors):
@@ -42,6 +42,7 @@ import time
 import uuid
 from typing import Any
 
+import msgpack
 import zmq
 
 from bt_engine.catalogue import groot_palette
@@ -49,6 +50,7 @@ from bt_engine.mission import Mission
 from bt_engine.node import IDLE, BTNode, NodeStatus
 from bt_engine.ports import NO_DEFAULT, number_text
 from bt_engine.registry import SUBTREE
+from bt_engine.ticklog import summarise_value
 
 #: the default request port (the publisher binds the next one), as BehaviorTree.CPP
 DEFAULT_PORT = 1667
@@ -208,109 +210,82 @@ def describe_tree(mission: Mission) -> tuple[str, list[_Subtree]]:
     return "\n".join(lines) + "\n", subtrees
 
 
-# -- MessagePack (the subset JSON needs), as nlohmann::json::to_msgpack writes it ------------
+# -- blackboard values as JSON (MessagePack-encoded by the msgpack package) ------------------
+#: the integers MessagePack holds (int64 .. uint64); others are sent as floats
+_INT_MIN, _INT_MAX = -(1 << 63), (1 << 64) - 1
+
+
+def _utf8(text: str) -> str:
+    """``text`` if it encodes as UTF-8, else with the lone surrogates replaced (MessagePack
+    strings are UTF-8; Groot2's JSON refuses anything else)."""
+    if text.isascii():
+        return text
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "replace").decode("utf-8")
+    return text
+
+
+def readable(value: Any) -> Any:
+    """An object without a JSON form (a plug-in's result: a face estimate, a block scan) as
+    Groot2 shows it: its ``as_dict()`` if it has one, else its repr as summary.json keeps
+    it, either through :func:`bt_engine.ticklog.summarise_value` (JSON-friendly, and past
+    :data:`~bt_engine.ticklog.VALUE_LIMIT_BYTES` as JSON a one-line note with type, size and
+    SHA-1). Never raises: an object whose ``as_dict()`` and repr both fail is named by its
+    type."""
+    try:
+        as_dict = getattr(value, "as_dict", None)
+        if callable(as_dict):
+            return summarise_value(as_dict())
+    except Exception:  # a broken as_dict: the repr below
+        pass
+    try:
+        return summarise_value(value)
+    except Exception:
+        return f"<{type(value).__name__} without a readable form>"
+
+
 def _to_json(value: Any, depth: int = 0, budget: list[int] | None = None) -> Any:
-    """A JSON-able copy of a blackboard value (bounded); None for what has no JSON form."""
+    """A JSON-able copy of a blackboard value (bounded: depth, items); objects by
+    :func:`readable`; None past the bounds."""
     budget = budget if budget is not None else [MAX_ITEMS]
     budget[0] -= 1
     if budget[0] < 0 or depth > MAX_DEPTH:
         return None
-    if value is None or isinstance(value, (bool, int, float, str)):
+    if value is None or isinstance(value, (bool, float)):
         return value
+    if isinstance(value, int):
+        return value if _INT_MIN <= value <= _INT_MAX else float(value)
+    if isinstance(value, str):
+        return _utf8(value)
     if isinstance(value, NodeStatus):
         return value.value
     if isinstance(value, (list, tuple)):
         return [_to_json(v, depth + 1, budget) for v in value[:MAX_ITEMS]]
     if isinstance(value, dict):
-        return {str(k): _to_json(v, depth + 1, budget) for k, v in list(value.items())[:MAX_ITEMS]}
+        return {
+            _utf8(str(k)): _to_json(v, depth + 1, budget)
+            for k, v in list(value.items())[:MAX_ITEMS]
+        }
     tolist = getattr(value, "tolist", None)  # numpy arrays and scalars
     if callable(tolist):
         try:
             return _to_json(tolist(), depth + 1, budget)
         except Exception:
             return None
-    return None
+    return _to_json(readable(value), depth + 1, budget)
 
 
-def msgpack_encode(obj: Any) -> bytes:
-    """Encode a JSON value in MessagePack (smallest forms; floats as float32 when exact)."""
-    out = bytearray()
-    _pack(obj, out)
-    return bytes(out)
+def encode_blackboards(blackboards: dict[str, Any]) -> bytes:
+    """The BLACKBOARD payload: ``blackboards`` (JSON values, :meth:`Groot2Server.blackboards`)
+    in MessagePack, encoded by the ``msgpack`` package (strings as str, never bin).
 
-
-def _pack(obj: Any, out: bytearray) -> None:
-    if obj is None:
-        out += b"\xc0"
-    elif obj is True:
-        out += b"\xc3"
-    elif obj is False:
-        out += b"\xc2"
-    elif isinstance(obj, int):
-        _pack_int(obj, out)
-    elif isinstance(obj, float):
-        single = struct.unpack("<f", struct.pack("<f", obj))[0] if abs(obj) < 3.4e38 else None
-        if single == obj or obj != obj:
-            out += b"\xca" + struct.pack(">f", obj)
-        else:
-            out += b"\xcb" + struct.pack(">d", obj)
-    elif isinstance(obj, str):
-        data = obj.encode("utf-8", "replace")
-        n = len(data)
-        if n < 32:
-            out.append(0xA0 | n)
-        elif n < 0x100:
-            out += b"\xd9" + bytes([n])
-        elif n < 0x10000:
-            out += b"\xda" + struct.pack(">H", n)
-        else:
-            out += b"\xdb" + struct.pack(">I", n)
-        out += data
-    elif isinstance(obj, list):
-        _pack_len(len(obj), 0x90, b"\xdc", b"\xdd", out)
-        for v in obj:
-            _pack(v, out)
-    elif isinstance(obj, dict):
-        _pack_len(len(obj), 0x80, b"\xde", b"\xdf", out)
-        for k, v in obj.items():
-            _pack(str(k), out)
-            _pack(v, out)
-    else:
-        out += b"\xc0"
-
-
-def _pack_len(n: int, fix: int, m16: bytes, m32: bytes, out: bytearray) -> None:
-    if n < 16:
-        out.append(fix | n)
-    elif n < 0x10000:
-        out += m16 + struct.pack(">H", n)
-    else:
-        out += m32 + struct.pack(">I", n)
-
-
-def _pack_int(n: int, out: bytearray) -> None:
-    if 0 <= n < 0x80:
-        out.append(n)
-    elif -32 <= n < 0:
-        out += struct.pack(">b", n)
-    elif 0 <= n < 0x100:
-        out += b"\xcc" + bytes([n])
-    elif 0 <= n < 0x10000:
-        out += b"\xcd" + struct.pack(">H", n)
-    elif 0 <= n < 0x100000000:
-        out += b"\xce" + struct.pack(">I", n)
-    elif 0 <= n < 1 << 64:
-        out += b"\xcf" + struct.pack(">Q", n)
-    elif -0x80 <= n:
-        out += b"\xd0" + struct.pack(">b", n)
-    elif -0x8000 <= n:
-        out += b"\xd1" + struct.pack(">h", n)
-    elif -0x80000000 <= n:
-        out += b"\xd2" + struct.pack(">i", n)
-    elif -(1 << 63) <= n:
-        out += b"\xd3" + struct.pack(">q", n)
-    else:
-        out += b"\xcb" + struct.pack(">d", float(n))
+    BehaviorTree.CPP writes it with nlohmann's ``to_msgpack`` and Groot2 reads it with
+    ``from_msgpack``: both use MessagePack's smallest integer forms, as msgpack does; a
+    float goes as float64 here where nlohmann writes float32 when that is exact, the same
+    value to Groot2."""
+    return msgpack.packb(blackboards, use_bin_type=True)
 
 
 # -- the server ------------------------------------------------------------------------------
@@ -511,7 +486,7 @@ class Groot2Server:
             if len(parts) != 2:
                 return [b"error", b"must be 2 parts message"]
             names = parts[1].decode("utf-8", "replace")
-            reply.append(msgpack_encode(self.blackboards(names)))
+            reply.append(encode_blackboards(self.blackboards(names)))
         elif kind == HOOKS_DUMP:
             reply.append(b"[]")
         elif kind in (REMOVE_ALL_HOOKS, DISABLE_ALL_HOOKS):

@@ -13,6 +13,7 @@ Everything is on 127.0.0.1, with free ports and bounded waits.
 
 from __future__ import annotations
 
+import dataclasses
 import glob
 import os
 import socket
@@ -23,9 +24,10 @@ import pytest
 from helpers import REPO, wait_until, wrap, xml_mission
 
 zmq = pytest.importorskip("zmq")
+msgpack = pytest.importorskip("msgpack")
 
 from bt_engine import Runner  # noqa: E402
-from bt_engine.groot2 import Groot2Server, msgpack_encode  # noqa: E402
+from bt_engine.groot2 import Groot2Server  # noqa: E402
 
 TIMEOUT_MS = 2000
 
@@ -90,52 +92,8 @@ def check_reply_header(part: bytes, kind: bytes, request_id: int = 0x1234ABCD) -
 
 
 def msgpack_decode(data: bytes):
-    """Decode MessagePack (the subset JSON uses); the whole buffer must be consumed."""
-
-    def dec(i: int):
-        b = data[i]
-        if b <= 0x7F:
-            return b, i + 1
-        if b >= 0xE0:
-            return b - 0x100, i + 1
-        if 0x80 <= b <= 0x8F or b in (0xDE, 0xDF):
-            n, i = (b & 0x0F, i + 1) if b <= 0x8F else _length(b == 0xDE, i)
-            out = {}
-            for _ in range(n):
-                k, i = dec(i)
-                out[k], i = dec(i)
-            return out, i
-        if 0x90 <= b <= 0x9F or b in (0xDC, 0xDD):
-            n, i = (b & 0x0F, i + 1) if b <= 0x9F else _length(b == 0xDC, i)
-            out = []
-            for _ in range(n):
-                v, i = dec(i)
-                out.append(v)
-            return out, i
-        if 0xA0 <= b <= 0xBF or b in (0xD9, 0xDA, 0xDB):
-            if b <= 0xBF:
-                n, i = b & 0x1F, i + 1
-            else:
-                size = {0xD9: 1, 0xDA: 2, 0xDB: 4}[b]
-                n, i = int.from_bytes(data[i + 1 : i + 1 + size], "big"), i + 1 + size
-            return data[i : i + n].decode(), i + n
-        simple = {0xC0: None, 0xC2: False, 0xC3: True}
-        if b in simple:
-            return simple[b], i + 1
-        fmt = {
-            0xCA: ">f", 0xCB: ">d", 0xCC: ">B", 0xCD: ">H", 0xCE: ">I", 0xCF: ">Q",
-            0xD0: ">b", 0xD1: ">h", 0xD2: ">i", 0xD3: ">q",
-        }[b]  # fmt: skip
-        size = struct.calcsize(fmt)
-        return struct.unpack(fmt, data[i + 1 : i + 1 + size])[0], i + 1 + size
-
-    def _length(short: bool, i: int):
-        size = 2 if short else 4
-        return int.from_bytes(data[i + 1 : i + 1 + size], "big"), i + 1 + size
-
-    value, end = dec(0)
-    assert end == len(data)
-    return value
+    """Decode a MessagePack payload (the msgpack package; trailing bytes are refused)."""
+    return msgpack.unpackb(data, raw=False, strict_map_key=True)
 
 
 def normal(value):
@@ -364,9 +322,159 @@ def test_status_codes_and_blackboard_values():
             2: 12,
             3: 11,
         }  # IDLE after X: 10 + X
-        bb = msgpack_decode(msgpack_encode(server.blackboards("Main;Main;unknown")))
+        bb = msgpack_decode(msgpack.packb(server.blackboards("Main;Main;unknown")))
         assert bb == {"Main": {"big": 70000, "f": 0.1, "neg": -3, "t": True, "txt": "é"}}
         assert not server.connected
+
+
+def _ask_blackboards(ctx, server: Groot2Server, names: bytes) -> bytes:
+    """The BLACKBOARD payload for ``names``, asked over the protocol as Groot2 asks."""
+    client = Client(ctx, server.port)
+    try:
+        reply = client.request(b"B", names)
+    finally:
+        client.close()
+    assert len(reply) == 2, reply
+    check_reply_header(reply[0], b"B")
+    return reply[1]
+
+
+def test_blackboard_payload_is_what_the_msgpack_package_writes(ctx):
+    """The BLACKBOARD payload is encoded by the maintained ``msgpack`` package (no encoder
+    of btrun's own): byte for byte ``msgpack.packb`` of the JSON object, which Groot2 (and
+    BT.CPP's nlohmann ``from_msgpack``) decodes to the same values as BT.CPP's own reply
+    (``test_replies_equal_btcpp_publisher``)."""
+    code = "b := 3.5; f := 0.1; n := 7; big := 70000; neg := -3; t := true; s := 'hi'; u := 'é'"
+    mission = xml_mission(wrap(f'<Script name="w" code="{code}"/>'))
+    with Groot2Server(mission, port=0) as server:
+        Runner(mission, 50.0, hooks=[server]).step()
+        payload = _ask_blackboards(ctx, server, b"Main;nope")
+    expected = {
+        "Main": {
+            "b": 3.5,
+            "big": 70000,
+            "f": 0.1,
+            "n": 7,
+            "neg": -3,
+            "s": "hi",
+            "t": True,
+            "u": "é",
+        }
+    }
+    assert payload == msgpack.packb(expected)
+    assert msgpack_decode(payload) == expected
+
+
+def test_msgpack_is_a_declared_dependency():
+    """A fresh ``pip install -e .`` installs the MessagePack library groot2.py imports."""
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+    with open(os.path.join(REPO, "pyproject.toml"), "rb") as f:
+        deps = tomllib.load(f)["project"]["dependencies"]
+    names = [d.split(";")[0].strip() for d in deps]
+    assert any(
+        n == "msgpack" or n.startswith(("msgpack>", "msgpack=", "msgpack<", "msgpack~"))
+        for n in names
+    ), names
+
+
+@dataclasses.dataclass
+class _BlockScan:
+    """A plug-in's result object without ``as_dict`` (Groot2 gets its repr)."""
+
+    blocks: int
+    crops: list
+
+
+class _BrokenAsDict:
+    def as_dict(self) -> dict:
+        raise ValueError("no figures yet")
+
+    def __repr__(self) -> str:
+        return "BrokenAsDict(pending)"
+
+
+class _Unprintable:
+    def __repr__(self) -> str:
+        raise RuntimeError("no repr")
+
+
+def _face():
+    from perception.face import FaceEstimate
+
+    return FaceEstimate(
+        facing_rad=0.5,
+        face_offset_m=2.0,
+        z_m=0.4,
+        first_s=-0.3,
+        last_s=0.3,
+        blocks_seen=3,
+        sightings=9,
+        hypotheses=1,
+        centre_s=0.0,
+        yaw_from_blocks=True,
+    )
+
+
+def test_blackboard_objects_are_sent_readable(ctx):
+    """Objects on the blackboard (LocatePallet's ``face``, DetectBlocks' ``block_scan``) are
+    not null in Groot2's blackboard view: an object with ``as_dict()`` is sent as that dict,
+    another as its repr (as summary.json keeps it), a long repr as the tick log's bounded
+    note, and an object whose ``as_dict`` or repr raises still gets a readable line."""
+    from bt_engine.node import SUCCESS, NodeStatus, SyncActionNode
+    from bt_engine.ports import output_port
+    from bt_engine.registry import REGISTRY
+    from bt_engine.ticklog import VALUE_LIMIT_BYTES
+
+    face = _face()
+
+    class PutFace(SyncActionNode):
+        """Test leaf: writes a face estimate object to its output port."""
+
+        bt_id = "PutFace"
+        category = "test"
+        ports = (output_port("face", description="the face estimate"),)
+
+        def tick_impl(self) -> NodeStatus:
+            self.set_output("face", face)
+            return SUCCESS
+
+    registry = REGISTRY.copy()
+    registry.register(PutFace)
+    scan = _BlockScan(blocks=3, crops=["b1", "b2", "b3"])
+    huge = _BlockScan(blocks=1, crops=["x" * 100] * 1000)
+    body = """
+    <Sequence name="s">
+      <PutFace name="locate" face="{face}"/>
+      <SubTree ID="Sub" name="scan"/>
+    </Sequence>"""
+    sub = """  <BehaviorTree ID="Sub"><PutFace name="inner" face="{own_face}"/></BehaviorTree>\n"""
+    mission = xml_mission(
+        wrap(body, sub),
+        registry=registry,
+        blackboard={
+            "block_scan": scan,
+            "huge": huge,
+            "broken": _BrokenAsDict(),
+            "nested": {"scan": scan, "faces": [face]},
+        },
+    )
+    with Groot2Server(mission, port=0) as server:
+        Runner(mission, 50.0, hooks=[server]).step()
+        # set after the tick: the runner's own record of the blackboard calls repr too
+        mission.blackboard["unprintable"] = _Unprintable()
+        names = ";".join(s.fullpath or s.tree_id for s in server.subtrees).encode()
+        bb = msgpack_decode(_ask_blackboards(ctx, server, names))
+    main = bb["Main"]
+    assert main["face"] == face.as_dict()
+    assert main["face"]["blocks_seen"] == 3 and main["face"]["yaw_from_blocks"] is True
+    assert main["block_scan"] == repr(scan) == "_BlockScan(blocks=3, crops=['b1', 'b2', 'b3'])"
+    assert main["nested"] == {"scan": repr(scan), "faces": [face.as_dict()]}
+    assert main["broken"] == "BrokenAsDict(pending)"
+    assert isinstance(main["unprintable"], str) and "_Unprintable" in main["unprintable"]
+    note = main["huge"]
+    assert isinstance(note, str) and len(note) < 200 and "not logged" in note
+    assert len(repr(huge)) > VALUE_LIMIT_BYTES
+    assert bb["scan"] == {"own_face": face.as_dict()}  # a SubTree's own blackboard
 
 
 def test_loopback_by_default_and_port_in_use(ctx):
