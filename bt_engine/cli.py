@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None, earlier_interrupts: list[str] | None = N
     ``earlier_interrupts``: SIGINT/SIGTERM the launcher (``btrun_launcher``, the console
     script) caught while this package was being imported; a run then ends before it flies.
     """
-    from bt_engine.runner import catch_early_interrupts, release_early_interrupts
+    from bt_engine.interrupts import catch_early_interrupts, release_early_interrupts
 
     # before anything slow: a Ctrl-C is never lost
     early = catch_early_interrupts(earlier_interrupts)
@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None, earlier_interrupts: list[str] | None = N
 
 
 def _main(argv: list[str] | None, early: dict | None) -> int:
-    from bt_engine.runner import release_early_interrupts
+    from bt_engine.interrupts import release_early_interrupts
 
     argv = list(sys.argv[1:] if argv is None else argv)
     extra = plugin_commands()

@@ -17,7 +17,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from bt_engine.runner import Runner, RunResult, _restore_sigint, _route_signals
+from bt_engine.interrupts import _restore_sigint, _route_signals
+from bt_engine.runner import Runner, RunResult
 
 
 class FleetHook(Protocol):

@@ -19,9 +19,22 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from bt_engine.interrupts import (  # noqa: F401  (re-exported: btrun's CLI, fleets)
+    PENDING_INTERRUPTS,
+    _restore_sigint,
+    _route_signals,
+    catch_early_interrupts,
+    release_early_interrupts,
+)
 from bt_engine.mission import Mission
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeRuntimeError, NodeStatus
-from bt_engine.ticklog import TickLog, summarise_messages, summarise_value
+from bt_engine.ticklog import TickLog
+from bt_engine.trace import (  # noqa: F401  (re-exported)
+    TRACE_LIMIT_BYTES,
+    Trace,
+    record_cost,
+    summarised,
+)
 from bt_engine.watchdog import TickOverrun, TickWatchdog
 
 
@@ -45,130 +58,6 @@ class RunResult:
     mission_time_s: float
     wall_time_s: float
     tick_periods_s: list[float] = field(default_factory=list, repr=False)
-
-
-#: About how many bytes of memory the trace's records may take before it is decimated (a
-#: 20-minute flight at 50 Hz takes about 45 MB, and is never thinned).
-TRACE_LIMIT_BYTES = 128 * 1024 * 1024
-
-
-def _value_cost(value: Any, depth: int = 0) -> int:
-    """About the bytes a (summarised, JSON-friendly) value takes in memory."""
-    if isinstance(value, str):
-        return 50 + len(value)
-    if isinstance(value, (list, tuple)):
-        if depth > 4:
-            return 64 + 40 * len(value)
-        return 64 + sum(8 + _value_cost(v, depth + 1) for v in value)
-    if isinstance(value, dict):
-        if depth > 4:
-            return 64 + 100 * len(value)
-        return 64 + sum(50 + _value_cost(v, depth + 1) for v in value.values())
-    return 32
-
-
-def record_cost(rec: dict) -> int:
-    """About the bytes one trace record takes in memory (what :class:`Trace` budgets)."""
-    cost = 240
-    for key in ("changed", "done"):
-        part = rec.get(key)
-        if part:
-            cost += 100 * len(part)
-    vehicle = rec.get("vehicle")
-    if vehicle:
-        cost += 64 + 48 * len(vehicle)
-    bb = rec.get("bb")
-    if bb:
-        cost += sum(100 + _value_cost(v) for v in bb.values())
-    msgs = rec.get("messages")
-    if msgs:
-        cost += sum(60 + _value_cost(m) for m in msgs)
-    return cost
-
-
-def summarised(record: dict) -> dict:
-    """``record`` as the trace keeps it: its blackboard writes and messages summarised as
-    the tick log writes them (a copy if there are any; the other keys are shared)."""
-    bb, msgs = record.get("bb"), record.get("messages")
-    if not bb and not msgs:
-        return record
-    rec = dict(record)
-    if bb:
-        rec["bb"] = {k: summarise_value(v) for k, v in bb.items()}
-    if msgs:
-        rec["messages"] = summarise_messages(msgs)
-    return rec
-
-
-def _has_events(rec: dict) -> bool:
-    return bool(rec.get("changed") or rec.get("done") or rec.get("messages"))
-
-
-class Trace(list):
-    """The runner's per-tick records in memory (the report and the plug-ins' summary sections
-    read them), bounded.
-
-    A record is kept as the tick log writes it: its blackboard writes and messages
-    summarised (:func:`~bt_engine.ticklog.summarise_value`,
-    :func:`~bt_engine.ticklog.summarise_messages`: a value past 16 kB becomes a note), the
-    other keys as they are. Once the records take about ``limit_bytes``
-    (:func:`record_cost`), the history is decimated: :attr:`stride` doubles and only the
-    records of ticks that are multiples of it are kept, and those that carry events (status
-    changes, finished leaves, messages) while these take under half the budget; after that,
-    events are decimated the same way (:attr:`thin_events`). The newest record is always
-    kept. A normal flight (under about an hour at 50 Hz) keeps every tick.
-    """
-
-    def __init__(self, limit_bytes: int = TRACE_LIMIT_BYTES) -> None:
-        super().__init__()
-        self.limit_bytes = limit_bytes
-        #: 1: every tick is kept; N: plain records of ticks that are multiples of N
-        self.stride = 1
-        #: True once records with events are decimated too
-        self.thin_events = False
-        #: about the bytes the records take now
-        self.cost = 0
-        self._tail_cost = 0
-        self._tail_spare = False  # the newest record is only kept because it is the newest
-
-    def _keep(self, rec: dict) -> bool:
-        tick = rec.get("tick")
-        if not isinstance(tick, int) or tick % self.stride == 0:
-            return True
-        return not self.thin_events and _has_events(rec)
-
-    def append(self, record: dict) -> None:
-        """Keep ``record`` summarised (:func:`summarised`); decimate if past the budget."""
-        self.keep(summarised(record))
-
-    def keep(self, rec: dict) -> None:
-        """Keep ``rec``, already :func:`summarised`; decimate if past the budget."""
-        if self._tail_spare:  # the previous newest record is off the grid: it goes
-            super().pop()
-            self.cost -= self._tail_cost
-        cost = record_cost(rec)
-        super().append(rec)
-        self.cost += cost
-        self._tail_cost = cost
-        self._tail_spare = self.stride > 1 and not self._keep(rec)
-        if self.cost > self.limit_bytes:
-            self._thin()
-
-    def _thin(self) -> None:
-        """Double the stride until the records take under half the budget."""
-        while self.cost > self.limit_bytes // 2 and len(self) > 2:
-            self.stride *= 2
-            newest = self[-1]
-            kept = [r for r in self[:-1] if self._keep(r)]
-            kept.append(newest)
-            self[:] = kept
-            costs = [record_cost(r) for r in kept]
-            self.cost = sum(costs)
-            events = sum(c for r, c in zip(kept, costs, strict=True) if _has_events(r))
-            if events > self.limit_bytes // 4:
-                self.thin_events = True
-            self._tail_cost = costs[-1]
-        self._tail_spare = self.stride > 1 and not self._keep(self[-1])
 
 
 class Abort(Exception):
@@ -574,38 +463,6 @@ GIVE_UP_S = 5.0
 #: the runs of this process between :meth:`Runner.begin` and :meth:`Runner.conclude`
 _LIVE: weakref.WeakSet[Runner] = weakref.WeakSet()
 
-#: SIGINT/SIGTERM received before a run took the signals over (see :func:`catch_early_interrupts`)
-PENDING_INTERRUPTS: list[str] = []
-
-
-def catch_early_interrupts(earlier: list[str] | None = None) -> dict | None:
-    """From now until a :class:`Runner` starts, remember SIGINT/SIGTERM instead of dying;
-    returns the handlers this replaced (for :func:`release_early_interrupts`).
-
-    ``btrun`` calls this first thing: a Ctrl-C while it loads (models, plug-ins, the rig) is
-    then never lost or half-handled by a library; the run that follows starts interrupted
-    (it ends ABORTED at once, nothing flies, the summary says so). ``earlier``: the signals
-    the launcher (``btrun_launcher``) caught before this module was imported, read after the
-    handler is swapped so that none falls between. Main thread only.
-    """
-
-    def handler(signum, frame):  # noqa: ARG001
-        PENDING_INTERRUPTS.append("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
-
-    PENDING_INTERRUPTS.clear()
-    old = _route_signals(handler)
-    PENDING_INTERRUPTS[:0] = list(earlier or ())
-    return old
-
-
-def release_early_interrupts(old: dict | None) -> None:
-    """Give the signals back to the handlers :func:`catch_early_interrupts` replaced; a
-    signal that arrived meanwhile (and no run consumed) is raised now as KeyboardInterrupt."""
-    _restore_sigint(old)
-    if PENDING_INTERRUPTS:
-        PENDING_INTERRUPTS.clear()
-        raise KeyboardInterrupt
-
 
 def _install_sigint(runner: Runner) -> dict | None:
     """Route SIGINT (Ctrl-C) and SIGTERM to :meth:`Runner.interrupt`; return the old handlers.
@@ -621,24 +478,3 @@ def _install_sigint(runner: Runner) -> dict | None:
             raise KeyboardInterrupt
 
     return _route_signals(handler)
-
-
-def _route_signals(handler: Callable[[int, Any], None]) -> dict | None:
-    """Install ``handler`` for SIGINT and SIGTERM; return the old handlers (None, and
-    nothing changed, outside the main thread)."""
-    old: dict = {}
-    try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            old[sig] = signal.signal(sig, handler)
-    except ValueError:  # not in the main thread
-        _restore_sigint(old)
-        return None
-    return old
-
-
-def _restore_sigint(old: dict | None) -> None:
-    for sig, handler in (old or {}).items():
-        try:
-            signal.signal(sig, handler)
-        except (ValueError, TypeError):
-            pass

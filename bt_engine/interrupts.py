@@ -1,0 +1,65 @@
+"""Ctrl-C and SIGTERM before and between runs: remembered, never lost, never half-handled.
+
+``btrun`` routes both signals to a recorder first thing (:func:`catch_early_interrupts`);
+a run that starts then begins interrupted. :mod:`bt_engine.runner` routes them to the
+running :class:`~bt_engine.runner.Runner` while it flies, and gives them back afterwards.
+"""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Callable
+from typing import Any
+
+#: SIGINT/SIGTERM received before a run took the signals over (see :func:`catch_early_interrupts`)
+PENDING_INTERRUPTS: list[str] = []
+
+
+def catch_early_interrupts(earlier: list[str] | None = None) -> dict | None:
+    """From now until a :class:`Runner` starts, remember SIGINT/SIGTERM instead of dying;
+    returns the handlers this replaced (for :func:`release_early_interrupts`).
+
+    ``btrun`` calls this first thing: a Ctrl-C while it loads (models, plug-ins, the rig) is
+    then never lost or half-handled by a library; the run that follows starts interrupted
+    (it ends ABORTED at once, nothing flies, the summary says so). ``earlier``: the signals
+    the launcher (``btrun_launcher``) caught before this module was imported, read after the
+    handler is swapped so that none falls between. Main thread only.
+    """
+
+    def handler(signum, frame):  # noqa: ARG001
+        PENDING_INTERRUPTS.append("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
+
+    PENDING_INTERRUPTS.clear()
+    old = _route_signals(handler)
+    PENDING_INTERRUPTS[:0] = list(earlier or ())
+    return old
+
+
+def release_early_interrupts(old: dict | None) -> None:
+    """Give the signals back to the handlers :func:`catch_early_interrupts` replaced; a
+    signal that arrived meanwhile (and no run consumed) is raised now as KeyboardInterrupt."""
+    _restore_sigint(old)
+    if PENDING_INTERRUPTS:
+        PENDING_INTERRUPTS.clear()
+        raise KeyboardInterrupt
+
+
+def _route_signals(handler: Callable[[int, Any], None]) -> dict | None:
+    """Install ``handler`` for SIGINT and SIGTERM; return the old handlers (None, and
+    nothing changed, outside the main thread)."""
+    old: dict = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, handler)
+    except ValueError:  # not in the main thread
+        _restore_sigint(old)
+        return None
+    return old
+
+
+def _restore_sigint(old: dict | None) -> None:
+    for sig, handler in (old or {}).items():
+        try:
+            signal.signal(sig, handler)
+        except (ValueError, TypeError):
+            pass
