@@ -11,7 +11,7 @@ import os
 import sys
 
 from bt_engine.plugins import Command, plugin_commands
-from bt_engine.spec import MissionError, Problem
+from bt_engine.spec import Loc, MissionError, Problem
 
 COMMANDS = ("run", "validate", "show", "convert", "nodes", "replay", "campaign")
 
@@ -52,7 +52,9 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="set a blackboard input (target=1;2;1) or a rig/world setting "
+        help="set a mission input (height=1.5: a port of the main tree or an entry the "
+        "mission reads; anything else is refused, with a 'did you mean'), an undeclared "
+        "blackboard entry on purpose (bb.NAME=VALUE, unchecked) or a rig/world setting "
         "(world.scan_pallet=3A, clock.mode=realtime; every key: btrun rig settings); "
         "repeatable",
     )
@@ -112,8 +114,29 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     )
     _include_path(r)
 
-    v = sub.add_parser("validate", help="check mission files; report every problem")
+    v = sub.add_parser(
+        "validate",
+        help="check mission files; report every problem (with --rig or --set: also against a "
+        "rig and its world, as btrun run checks before take-off, flying nothing)",
+    )
     v.add_argument("files", nargs="+")
+    v.add_argument(
+        "--rig",
+        help="also check each mission against this rig and its world: the --set items, the "
+        "rig and world files and every node's pre-flight check (a place the world does not "
+        "have); nothing is built or flown",
+    )
+    v.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="as btrun run --set (checked against each mission and the rig; without --rig: "
+        "the default rig); repeatable",
+    )
+    v.add_argument(
+        "--seed", type=int, default=0, help="seed of the world's stock drawn (default 0)"
+    )
     _include_path(v)
 
     s = sub.add_parser("show", help="print a mission's tree")
@@ -222,11 +245,14 @@ def _cmd_validate(args) -> int:
 
     worst = 0
     all_problems: list[Problem] = []
+    against_rig = bool(args.rig or args.set)
     for f in args.files:
         warnings: list[Problem] = []
-        _, problems = check_mission(f, REGISTRY, args.include_path, warnings)
+        spec, problems = check_mission(f, REGISTRY, args.include_path, warnings)
         for w in warnings:  # file:line:col: warning: ... (validation still passes)
             print(str(w), file=sys.stderr)
+        if against_rig and not problems:
+            problems = check_before_flight(spec, args.rig, args.set, args.seed)
         if problems:
             all_problems += problems
             worst = 2
@@ -235,6 +261,33 @@ def _cmd_validate(args) -> int:
     if all_problems:
         _print_problems(all_problems)
     return worst
+
+
+def check_before_flight(spec, rig: str | None, sets: list[str], seed: int = 0) -> list[Problem]:
+    """What ``btrun run`` checks before take-off, without building a platform or flying:
+    the ``--set`` items against the mission's inputs, the rig and world files (through the
+    plug-in) and every node's pre-flight check (:meth:`bt_engine.mission.Mission.preflight`)
+    with the rig's resources (its world). Returns every located problem."""
+    from bt_engine.mission import Mission, declared_inputs
+    from bt_engine.plugins import load_target
+    from bt_engine.run_cmd import parse_sets
+
+    bb, overrides, problems = parse_sets(sets, declared_inputs(spec), spec.file)
+    try:
+        target = load_target(rig, overrides)
+    except MissionError as exc:
+        return problems + exc.problems
+    if target is None:
+        where = Loc(rig or "--set", 0, 0)
+        return [*problems, Problem(where, "no vehicle plug-in is installed to use a rig")]
+    if problems:
+        return problems
+    resources = {"platform": None, "seed": seed, "run_dir": None, "resume_from": None}
+    mission = Mission(spec, resources={**resources, **target.resources()}, blackboard=bb)
+    try:
+        return mission.preflight(set_keys=set(bb))
+    finally:
+        mission.close()
 
 
 def _load_valid(path: str, include_paths: list[str]):

@@ -12,7 +12,8 @@ This is the Python face of btrun for tests and tools::
 
 from __future__ import annotations
 
-from collections.abc import Iterator, MutableMapping
+import difflib
+from collections.abc import Collection, Iterator, MutableMapping
 from typing import Any
 
 from bt_engine.builder import build_tree
@@ -21,7 +22,7 @@ from bt_engine.loading import load_spec
 from bt_engine.node import FAILURE, RUNNING, SKIPPED, SUCCESS, BTNode, MissionContext, NodeStatus
 from bt_engine.registry import REGISTRY, Registry
 from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
-from bt_engine.validate import validate
+from bt_engine.validate import referenced_entries, validate
 
 
 def check_file(path: str, registry: Registry | None = None) -> tuple[MissionSpec, list[Problem]]:
@@ -48,6 +49,42 @@ def mission_inputs(spec: MissionSpec) -> dict[str, Any]:
         and p.default is not None
         and not p.name.startswith("__")
     }
+
+
+#: Prefix of a ``--set`` key (and of a campaign or fleet setting) that puts an entry on the
+#: blackboard unchecked: ``--set bb.NAME=VALUE`` sets ``NAME`` even if the mission does not
+#: declare it (an entry a plug-in leaf reads without a port).
+UNCHECKED_PREFIX = "bb."
+
+
+def declared_inputs(spec: MissionSpec, registry: Registry | None = None) -> set[str]:
+    """The blackboard entries a mission takes from outside (``--set NAME=VALUE``).
+
+    They are the ports of the main tree's ``<TreeNodesModel>`` entry (with or without a
+    default) and every entry the mission reads: ``{name}`` references on any port and the
+    names its scripts read, in any of its trees.
+    """
+    names = set(referenced_entries(spec, registry or REGISTRY))
+    main = spec.main_tree_id()
+    model = spec.models.get(main) if main else None
+    if model is not None:
+        names.update(p.name for p in model.ports.values() if not p.name.startswith("__"))
+    return names
+
+
+def undeclared_input(key: str, declared: Collection[str], mission: str) -> str | None:
+    """The one-line message for a blackboard key the mission does not declare (None when it
+    does): a "did you mean" from ``declared``, the mission's inputs, the ``bb.`` way out."""
+    if key in declared:
+        return None
+    close = difflib.get_close_matches(key, sorted(declared), n=1, cutoff=0.6)
+    hint = f"; did you mean {close[0]}?" if close else ""
+    listed = sorted(declared)
+    inputs = ", ".join(listed[:12]) + (f", ... ({len(listed)} in all)" if len(listed) > 12 else "")
+    return (
+        f"{key}: {mission} has no input '{key}'{hint} (its inputs: {inputs or 'none'}; "
+        f"{UNCHECKED_PREFIX}{key} puts it on the blackboard unchecked)"
+    )
 
 
 #: Distinct leaf failures a mission remembers (more are counted in the last one's place).

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,7 +19,7 @@ import yaml
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.display import spec_rows
 from bt_engine.loading import check_mission
-from bt_engine.mission import Mission
+from bt_engine.mission import UNCHECKED_PREFIX, Mission, declared_inputs, undeclared_input
 from bt_engine.plugins import Platform, RunTarget, load_target, run_sections, write_report
 from bt_engine.registry import REGISTRY
 from bt_engine.runner import Runner, RunResult
@@ -32,12 +33,18 @@ from bt_engine.summary import (
 from bt_engine.ticklog import TickLog
 
 
-def parse_sets(items: list[str]) -> tuple[dict[str, Any], dict[str, str], list[Problem]]:
+def parse_sets(
+    items: list[str], declared: Collection[str] | None = None, mission: str = "the mission"
+) -> tuple[dict[str, Any], dict[str, str], list[Problem]]:
     """Split ``--set KEY=VALUE`` items into blackboard entries and rig/world overrides.
 
-    Dotted keys (``world.scan_pallet``, ``control.setpoint_mode``) are rig/world settings;
-    a leading ``rig.`` is stripped. Plain keys are blackboard entries. Blackboard values are read as YAML scalars (numbers,
-    booleans), otherwise kept as text; ports convert them when read.
+    ``bb.NAME`` puts ``NAME`` on the blackboard unchecked. Other dotted keys
+    (``world.scan_pallet``, ``control.setpoint_mode``) are rig/world settings; a leading
+    ``rig.`` is stripped. Plain keys are blackboard entries and, when ``declared`` (the
+    mission's inputs, :func:`bt_engine.mission.declared_inputs`) is given, must be one of
+    them: an undeclared key is a problem ("did you mean"), so a typo never flies with the
+    default. Blackboard values are read as YAML scalars (numbers, booleans), otherwise kept
+    as text; ports convert them when read.
     """
     bb: dict[str, Any] = {}
     rig: dict[str, str] = {}
@@ -51,14 +58,24 @@ def parse_sets(items: list[str]) -> tuple[dict[str, Any], dict[str, str], list[P
         if not key:
             problems.append(Problem(Loc("--set", i, 1), f"empty key in {item!r}"))
             continue
-        if "." in key:
+        if key.startswith(UNCHECKED_PREFIX):
+            key = key[len(UNCHECKED_PREFIX) :].strip()
+            if not key:
+                problems.append(Problem(Loc("--set", i, 1), f"no entry name after bb. in {item!r}"))
+                continue
+        elif "." in key:
             rig[key[4:] if key.startswith("rig.") else key] = value
-        else:
-            try:
-                parsed = yaml.safe_load(value) if value.strip() else ""
-            except yaml.YAMLError:
-                parsed = value
-            bb[key] = parsed if isinstance(parsed, (int, float, bool, str, list)) else value
+            continue
+        elif declared is not None:
+            message = undeclared_input(key, declared, mission)
+            if message is not None:
+                problems.append(Problem(Loc("--set", 0, 0), message))
+                continue
+        try:
+            parsed = yaml.safe_load(value) if value.strip() else ""
+        except yaml.YAMLError:
+            parsed = value
+        bb[key] = parsed if isinstance(parsed, (int, float, bool, str, list)) else value
     return bb, rig, problems
 
 
@@ -165,12 +182,13 @@ def prepare(
     resume_problems = resume_settings(args)
     if resume_problems:
         raise MissionError(resume_problems)
-    bb, rig_over, problems = parse_sets(args.set)
     warnings: list[Problem] = []
-    spec, mission_problems = check_mission(args.mission, REGISTRY, None, warnings)
+    spec, problems = check_mission(args.mission, REGISTRY, None, warnings)
     for w in warnings if warn else ():  # file:line:col: warning: ... (the mission still flies)
         print(str(w), file=sys.stderr)
-    problems += mission_problems
+    declared = None if problems else declared_inputs(spec)  # a typo never flies the default
+    bb, rig_over, set_problems = parse_sets(args.set, declared, args.mission)
+    problems += set_problems
     if problems:
         raise MissionError(problems)
     target = load_target(args.rig, rig_over)

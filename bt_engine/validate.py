@@ -614,7 +614,30 @@ def validate(
     return problems
 
 
-__all__ = ["validate", "check_script", "CONDITION_ATTRS", "KNOWN_ENTRIES", "NO_DEFAULT"]
+def referenced_entries(spec: MissionSpec, registry: Registry) -> set[str]:
+    """Every blackboard entry the mission's trees name: ``{name}`` on any port (``{=}``
+    names the port itself; ``{@name}`` the root scope's ``name``) and the entries valid
+    scripts read, in every tree, whatever the scope."""
+    v = _Validator(spec, registry)
+    names: set[str] = set()
+    for node in v.nodes():
+        for _, script in v.scripts(node):
+            names.update(script.reads)
+        for key, attr in node.attrs.items():
+            ref = blackboard_ref(attr.value)
+            if ref is not None:
+                names.add(key if ref == "=" else ref)
+    return {n.lstrip("@") for n in names if n.lstrip("@")}
+
+
+__all__ = [
+    "validate",
+    "check_script",
+    "referenced_entries",
+    "CONDITION_ATTRS",
+    "KNOWN_ENTRIES",
+    "NO_DEFAULT",
+]
 
 
 def _brief(value: Any, limit: int = 60) -> str:

@@ -47,8 +47,9 @@ METRICS: dict[str, Any] = {
 
 
 def fake_result(p: dict[str, Any]) -> dict[str, Any]:
-    """A run's result without a run: FAILURE where the row sets ``probe=fail``."""
-    failed = "probe=fail" in p["sets"]
+    """A run's result without a run: FAILURE where the row sets ``bb.probe=fail`` (an entry
+    the mission does not read: ``bb.`` passes it unchecked)."""
+    failed = "bb.probe=fail" in p["sets"]
     return {
         "key": p["key"],
         "status": "FAILURE" if failed else "SUCCESS",
@@ -232,9 +233,9 @@ def test_the_command_ends_with_a_summary_table(tmp_path, fake_pools, capsys) -> 
         tmp_path,
         extra="""faults:
           - name: none
-            set: {probe: ok}
+            set: {bb.probe: ok}
           - name: broken
-            set: {probe: fail}
+            set: {bb.probe: fail}
         """,
     )
     assert main(["campaign", path, "--out", str(tmp_path / "out")]) == 0

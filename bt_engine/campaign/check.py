@@ -4,8 +4,9 @@ registry, and every distinct settings combination against the plug-in's rig load
 Each mission is validated once (``btrun validate``). Settings are checked through
 :func:`bt_engine.plugins.load_target` once per distinct combination of rig, world and fixed
 values; a randomly drawn setting is checked at the values that bound its draws (both ends
-of a range, every choice), so no draw can fail later. A problem with a setting's value is
-reported where the campaign file wrote that setting.
+of a range, every choice), so no draw can fail later. A plain (blackboard) key must be an
+input of every mission of the campaign (``bb.NAME`` is passed on unchecked). A problem with
+a setting's value is reported where the campaign file wrote that setting.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any
 from bt_engine.campaign.rows import Row, value_text
 from bt_engine.campaign.spec import Campaign, FaultCase
 from bt_engine.loading import check_mission
+from bt_engine.mission import UNCHECKED_PREFIX, declared_inputs, undeclared_input
 from bt_engine.plugins import load_plugins, load_target
 from bt_engine.registry import REGISTRY
 from bt_engine.spec import Loc, MissionError, Problem
@@ -29,17 +31,19 @@ def check_campaign(c: Campaign, rows: Iterable[Row], include_paths: list[str] | 
     distinct settings combinations are kept."""
     load_plugins()  # registers the plug-ins' leaves
     problems: list[Problem] = []
-    for path in dict.fromkeys(c.mission_paths):
+    for path, written in dict(zip(c.mission_paths, c.missions, strict=True)).items():
         warnings: list[Problem] = []
-        _, found = check_mission(path, REGISTRY, include_paths, warnings)
+        spec, found = check_mission(path, REGISTRY, include_paths, warnings)
         problems += found
         for w in warnings:
             print(str(w), file=sys.stderr)
+        if not found:
+            problems += _check_inputs(c, written, declared_inputs(spec))
     checked: set[tuple] = set()
     faults = {case.name: case for case in c.faults or ()}
     for row in rows:
         drawn = _drawn_keys(c, faults.get(row.fault) if row.fault else None)
-        fixed = {k: v for k, v in row.settings.items() if "." in k and k not in drawn}
+        fixed = {k: v for k, v in row.settings.items() if _is_rig_key(k) and k not in drawn}
         for overrides in _candidates(fixed, drawn):
             sig = (row.rig_path, row.world_path, tuple(sorted(overrides.items())))
             if sig in checked:
@@ -52,10 +56,29 @@ def check_campaign(c: Campaign, rows: Iterable[Row], include_paths: list[str] | 
     return len(checked)
 
 
+def _is_rig_key(key: str) -> bool:
+    """A dotted key is a rig/world setting, except ``bb.NAME`` (a blackboard entry)."""
+    return "." in key and not key.startswith(UNCHECKED_PREFIX)
+
+
+def _check_inputs(c: Campaign, mission: str, declared: set[str]) -> list[Problem]:
+    """Every plain (blackboard) key the campaign sets that ``mission`` does not declare,
+    located where the campaign file wrote it."""
+    keys = [*c.fixed, *c.grid, *c.cycle, *c.random]
+    for case in c.faults or ():
+        keys += [*case.sets, *case.draws]
+    out = []
+    for key in dict.fromkeys(keys):
+        message = None if "." in key else undeclared_input(key, declared, mission)
+        if message is not None:
+            out.append(Problem(c.key_locs.get(key) or Loc(c.path, 1, 1), message))
+    return out
+
+
 def _drawn_keys(c: Campaign, case: FaultCase | None) -> dict[str, list[Any]]:
     """The dotted keys a row draws at random -> the values that bound their draws."""
     draws = {**c.random, **(case.draws if case is not None else {})}
-    return {k: d.extremes() for k, d in draws.items() if "." in k}
+    return {k: d.extremes() for k, d in draws.items() if _is_rig_key(k)}
 
 
 def _candidates(fixed: dict[str, Any], drawn: dict[str, list[Any]]) -> list[dict]:

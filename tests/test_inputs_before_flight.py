@@ -1,0 +1,177 @@
+"""Inputs are checked before anything flies: a ``--set`` key (or a campaign's plain key) the
+mission does not declare is refused with a "did you mean" (``bb.NAME`` passes on purpose),
+and ``btrun validate --rig`` runs the nodes' pre-flight checks against the rig's world."""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+import re
+
+import pytest
+from helpers import REPO
+
+from bt_engine.cli import main
+from bt_engine.loading import load_spec
+from bt_engine.mission import declared_inputs
+from bt_engine.run_cmd import parse_sets
+
+SQUARE = os.path.join(REPO, "missions", "square.xml")
+AISLE_RIG = os.path.join(REPO, "rigs", "aisle.yaml")
+
+
+def _err_lines(capsys) -> list[str]:
+    return capsys.readouterr().err.strip().splitlines()
+
+
+# -- 1. --set: the mission's inputs ---------------------------------------------------------
+
+
+def test_a_misspelt_input_is_refused_before_anything_flies(tmp_path, capsys) -> None:
+    out = tmp_path / "run"
+    assert main(["missions/square.xml", "--set", "hieght=2", "--out", str(out), "-q"]) == 2
+    err = _err_lines(capsys)
+    assert err[0].startswith("--set hieght: missions/square.xml has no input 'hieght'")
+    assert "did you mean height?" in err[0] and "bb.hieght" in err[0]
+    assert err[-1] == "1 problem found; nothing was run."
+    assert not out.exists()  # no run folder: nothing was built
+
+
+def test_bb_prefix_sets_an_undeclared_entry_on_purpose(tmp_path) -> None:
+    out = tmp_path / "run"
+    args = [SQUARE, "--set", "bb.note=2", "--set", "height=0.8", "--out", str(out), "-q"]
+    assert main([*args, "--no-report", "--no-mcap"]) == 0
+    with open(out / "summary.json", encoding="utf-8") as f:
+        bb = json.load(f)["blackboard"]
+    assert bb["note"] == 2 and bb["height"] == 0.8
+
+
+def test_parse_sets_splits_inputs_unchecked_entries_and_rig_settings() -> None:
+    items = ["height=1.5", "bb.a.b=x", "world.scan_pallet=2B", "rig.wind.gust_std_mps=0.1"]
+    bb, rig, problems = parse_sets(items, {"height"}, "m.xml")
+    assert problems == []
+    assert bb == {"height": 1.5, "a.b": "x"}  # bb. comes before the dotted-key rule
+    assert rig == {"world.scan_pallet": "2B", "wind.gust_std_mps": "0.1"}
+    _, _, problems = parse_sets(["bb.=1", "speeed=2"], {"speed"}, "m.xml")
+    assert [str(p) for p in problems] == [
+        "--set:1:1: no entry name after bb. in 'bb.=1'",
+        "--set speeed: m.xml has no input 'speeed'; did you mean speed? (its inputs: speed; "
+        "bb.speeed puts it on the blackboard unchecked)",
+    ]
+    assert parse_sets(["anything=1"])[2] == []  # no declared inputs given: unchecked
+
+
+def test_declared_inputs_are_main_tree_ports_references_and_script_reads(tmp_path) -> None:
+    path = tmp_path / "m.xml"
+    path.write_text(
+        """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <Sequence>
+      <Script code="total := limit + 1"/>
+      <Sleep msec="{pause}"/>
+      <SubTree ID="Inner" _autoremap="true"/>
+    </Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="Inner"><Sleep msec="{@inner_pause}"/></BehaviorTree>
+  <TreeNodesModel>
+    <SubTree ID="Main"><input_port name="no_default"/></SubTree>
+  </TreeNodesModel>
+</root>
+"""
+    )
+    assert declared_inputs(load_spec(str(path))) == {
+        "limit",
+        "pause",
+        "inner_pause",
+        "no_default",
+    }
+
+
+_SET_PLAIN = re.compile(r"--set[ =]+[\"']?([A-Za-z_]\w*)=")
+#: the docs' example of a refused key
+_TYPOS = {"hieght"}
+
+
+def test_every_plain_set_key_in_readme_and_docs_is_an_input_of_its_mission() -> None:
+    """A documented ``--set name=...`` next to a mission file names one of its inputs."""
+    missions = {
+        os.path.basename(m): declared_inputs(load_spec(m))
+        for m in glob.glob(os.path.join(REPO, "missions", "*.*"))
+    }
+    bad, checked = [], 0
+    for path in ["README.md", *sorted(glob.glob(os.path.join(REPO, "docs", "*.md")))]:
+        with open(os.path.join(REPO, path), encoding="utf-8") as f:
+            for n, line in enumerate(f, 1):
+                names = [m for m in missions if f"missions/{m}" in line]
+                for key in _SET_PLAIN.findall(line):
+                    for m in names:
+                        checked += 1
+                        if key not in missions[m] and key not in _TYPOS:
+                            bad.append(f"{os.path.basename(path)}:{n}: {m} has no input {key}")
+    assert not bad, "\n".join(bad)
+    assert checked >= 8
+
+
+# -- 1. campaigns -----------------------------------------------------------------------------
+
+
+def _campaign(tmp_path, body: str) -> str:
+    path = tmp_path / "c.yaml"
+    path.write_text(f"name: c\nmissions: [{SQUARE}]\nseeds: [0]\n{body}")
+    return str(path)
+
+
+def test_a_campaign_grid_key_the_mission_does_not_declare_fails_the_dry_run(
+    tmp_path, capsys
+) -> None:
+    path = _campaign(tmp_path, "grid: {hieght: [1.0, 1.5]}\n")
+    assert main(["campaign", path, "--dry-run"]) == 2
+    err = _err_lines(capsys)
+    assert err[0].startswith(f"{path}:4:8: hieght: {SQUARE} has no input 'hieght'")
+    assert "did you mean height?" in err[0]
+
+
+def test_a_campaign_bb_key_passes_unchecked_and_is_no_rig_setting(tmp_path, capsys) -> None:
+    path = _campaign(tmp_path, "set: {bb.note: 3, wind.gust_std_mps: 0.05}\n")
+    assert main(["campaign", path, "--dry-run"]) == 0, capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "campaign", sorted(glob.glob(os.path.join(REPO, "campaigns", "*.yaml"))), ids=os.path.basename
+)
+def test_every_shipped_campaign_still_passes_its_dry_run(campaign, capsys) -> None:
+    assert main(["campaign", campaign, "--dry-run"]) == 0, capsys.readouterr().err
+
+
+# -- 2. btrun validate --rig ------------------------------------------------------------------
+
+PLAN = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <InventoryPlan places="{places}" queue="{queue}"/>
+  </BehaviorTree>
+  <TreeNodesModel>
+    <SubTree ID="Main"><input_port name="places" default="all"/></SubTree>
+  </TreeNodesModel>
+</root>
+"""
+
+
+def test_validate_with_a_rig_runs_the_preflight_checks(tmp_path, capsys) -> None:
+    path = tmp_path / "plan.xml"
+    path.write_text(PLAN)
+    assert main(["validate", str(path)]) == 0  # without --rig: as before
+    capsys.readouterr()
+    assert main(["validate", "--rig", AISLE_RIG, "--set", "places=A-1-1", str(path)]) == 2
+    err = _err_lines(capsys)
+    assert err[0] == "--set places: unknown place 'A-1-1' (did you mean 'A-01-1'?)"
+    assert main(["validate", "--rig", AISLE_RIG, "--set", "places=A-01-1", str(path)]) == 0
+    assert capsys.readouterr().out.strip() == f"{path}: ok"
+
+
+def test_validate_checks_set_keys_and_rig_settings(tmp_path, capsys) -> None:
+    argv = ["validate", "--set", "hieght=2", "--set", "world.nope=1", SQUARE]
+    assert main(argv) == 2
+    err = _err_lines(capsys)
+    assert any("has no input 'hieght'; did you mean height?" in line for line in err)
+    assert any(line.startswith("--set world.nope=1: unknown key") for line in err)
