@@ -1,7 +1,8 @@
 """Reading mission files (and campaign files and the files they list): bounded in size,
 UTF-8, problems located instead of raised. :func:`read_bytes` is the bounded read itself,
 :func:`read_text` decodes it, :func:`file_kind` names what a path is when it is not a
-regular file.
+regular file, :func:`open_regular` opens one for a caller that reads it line by line (a tick
+log).
 
 Only regular files are read: a named pipe would block the reader forever and a device such
 as ``/dev/zero`` never ends, so both are refused before they are opened (symbolic links are
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import os
 import stat
+from typing import BinaryIO
 
 from bt_engine.spec import Loc, Problem
 
@@ -48,6 +50,30 @@ def file_kind(path: str) -> str | None:
     return next((name for test, name in _KINDS if test(mode)), "not a regular file")
 
 
+class NotRegularFile(Exception):
+    """A path that is not a regular file (a FIFO, a device, a folder): the message says what
+    it is."""
+
+
+def open_regular(path: str, what: str = "missions") -> BinaryIO:
+    """Open ``path`` (symbolic links followed) for reading in binary if it is a regular file:
+    checked before opening (a FIFO would block the open) and again on the open file (it is
+    opened with ``O_NONBLOCK``: a file swapped for a FIFO in between is refused too). Raises
+    :class:`NotRegularFile` (``what`` names the files in the message) or ``OSError``.
+    Nothing is read: the caller bounds what it reads."""
+    real = os.path.realpath(path)
+    why = _not_regular(path, os.stat(real).st_mode, what)
+    if why is not None:
+        raise NotRegularFile(why)
+    fd = os.open(real, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+    f = os.fdopen(fd, "rb")
+    why = _not_regular(path, os.fstat(f.fileno()).st_mode, what)
+    if why is not None:
+        f.close()
+        raise NotRegularFile(why)
+    return f
+
+
 def read_bytes(
     path: str,
     problems: list[Problem],
@@ -63,26 +89,19 @@ def read_bytes(
     where = loc or Loc(path, 1, 1)
     cap = MAX_FILE_BYTES if limit is None else limit
     try:
-        real = os.path.realpath(path)
-        st = os.stat(real)
-        why = _not_regular(path, st.st_mode, what)  # before opening: a FIFO would block
-        if why is not None:
-            problems.append(Problem(where, why))
-            return None
-        if st.st_size > cap:
-            problems.append(Problem(where, f"file is {st.st_size} bytes; the limit is {cap}"))
-            return None
-        # O_NONBLOCK: should the file be swapped for a FIFO after the check, open() still
-        # returns at once, and fstat() below refuses it.
-        fd = os.open(real, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
-        with os.fdopen(fd, "rb") as f:
-            why = _not_regular(path, os.fstat(f.fileno()).st_mode, what)
-            if why is not None:
-                problems.append(Problem(where, why))
+        with open_regular(path, what) as f:
+            size = os.fstat(f.fileno()).st_size
+            if size > cap:
+                problems.append(Problem(where, f"file is {size} bytes; the limit is {cap}"))
                 return None
             data = f.read(cap + 1)
-    except OSError as exc:
-        problems.append(Problem(where, f"cannot read {path}: {exc.strerror or exc}"))
+    except NotRegularFile as exc:
+        problems.append(Problem(where, str(exc)))
+        return None
+    except (OSError, ValueError) as exc:  # ValueError: a path holding a NUL byte
+        problems.append(
+            Problem(where, f"cannot read {path}: {getattr(exc, 'strerror', None) or exc}")
+        )
         return None
     if len(data) > cap:
         problems.append(Problem(where, f"file is larger than {cap} bytes (the limit); not read"))
@@ -91,11 +110,17 @@ def read_bytes(
 
 
 def read_text(
-    path: str, problems: list[Problem], loc: Loc | None = None, *, what: str = "missions"
+    path: str,
+    problems: list[Problem],
+    loc: Loc | None = None,
+    *,
+    what: str = "missions",
+    limit: int | None = None,
 ) -> str | None:
     """The text of ``path``, or None with a problem appended (not a regular file, too large,
-    unreadable, not UTF-8) located at ``loc`` (default: the file's start)."""
-    data = read_bytes(path, problems, loc, what=what)
+    unreadable, not UTF-8) located at ``loc`` (default: the file's start); ``what`` and
+    ``limit`` as for :func:`read_bytes`."""
+    data = read_bytes(path, problems, loc, what=what, limit=limit)
     if data is None:
         return None
     try:

@@ -87,6 +87,9 @@ class Includes:
         """Resolve the include ``ref`` written at ``loc`` in the file ``including`` (relative
         to it) and merge it into ``spec``; loops, depth, files outside the allowed folders and
         missing files become problems."""
+        if "\0" in ref:  # no file name holds one (and os.path would raise)
+            spec.load_problems.append(Problem(loc, "include: a file path cannot hold a NUL byte"))
+            return
         full = os.path.normpath(os.path.join(os.path.dirname(including), ref))
         real = os.path.realpath(full)
         if real in {os.path.realpath(s) for s in stack}:

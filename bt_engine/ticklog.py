@@ -13,6 +13,9 @@ import math
 import os
 from typing import IO, Any
 
+from bt_engine.files import NotRegularFile, open_regular
+from bt_engine.spec import Loc, MissionError, Problem
+
 #: A blackboard value or message longer than this (as JSON) is logged as a note with its size
 #: and SHA-1 instead (the full value stays on the blackboard; the in-memory trace and
 #: summary.json keep the same note: :func:`summarise_value`).
@@ -137,21 +140,109 @@ class TickLog:
             self._f.close()
 
 
+#: The longest line of a tick log read back, in bytes: a longer one is refused, not read.
+MAX_LINE_BYTES = 64 * 1024 * 1024
+
+
+def _path_or_none(v: Any) -> bool:
+    return v is None or (isinstance(v, str) and "\0" not in v)
+
+
+def _node_row(n: Any) -> bool:
+    return (
+        isinstance(n, list)
+        and len(n) == 4
+        and isinstance(n[0], str)
+        and isinstance(n[1], str)
+        and isinstance(n[2], int)
+        and isinstance(n[3], list)
+    )
+
+
+#: The header's keys read back (``--resume`` takes mission, seed, rig_arg and sets; replay
+#: the nodes): a test of the value and what it should be.
+_HEADER_KEYS: dict[str, tuple[Any, str]] = {
+    "mission": (_path_or_none, "a path or null"),
+    "rig": (_path_or_none, "a path or null"),
+    "rig_arg": (_path_or_none, "a path or null"),
+    "seed": (lambda v: v is None or type(v) is int, "an integer or null"),
+    "sets": (
+        lambda v: isinstance(v, list) and all(isinstance(i, str) for i in v),
+        "a list of KEY=VALUE strings",
+    ),
+    "rate_hz": (lambda v: v is None or type(v) in (int, float), "a number or null"),
+    "nodes": (
+        lambda v: isinstance(v, list) and all(_node_row(n) for n in v),
+        "a list of [path, label, depth, flags]",
+    ),
+}
+
+
+def _refused(path: str, line: int, col: int, message: str) -> MissionError:
+    return MissionError([Problem(Loc(path, line, col), message)])
+
+
+def _check_header(header: Any, path: str, number: int, text: str) -> dict:
+    """The header of line ``number`` (its ``text``) if its keys have the right types, else
+    :class:`MissionError` located at the first wrong key."""
+    if not isinstance(header, dict):
+        col = text.find('"header"') + 1 or 1
+        raise _refused(path, number, col, f"'header' must be a JSON object, got {header!r:.60}")
+    for key, (ok, want) in _HEADER_KEYS.items():
+        if key in header and not ok(header[key]):
+            col = text.find(f'"{key}"') + 1 or 1
+            raise _refused(
+                path, number, col, f"header '{key}' must be {want}, got {header[key]!r:.60}"
+            )
+    return header
+
+
 def read_log(path: str) -> tuple[dict, list[dict]]:
-    """Read a tick log: return ``(header, tick_records)``; a torn last line is ignored."""
+    """Read a tick log: return ``(header, tick_records)``; a torn last line is ignored.
+
+    A tick log comes from a run folder, which may have been tampered with: it is read only
+    if it is a regular file (a FIFO or a device is refused before it is opened), line by
+    line, none longer than :data:`MAX_LINE_BYTES`. Raises :class:`MissionError` with one
+    located problem (``file:line:col: message``) for such a file, a first line that is not
+    a JSON object, a line that is JSON but not an object, or a header key of the wrong type
+    (``"seed": "x"``, ``"sets": 5``)."""
     header: dict = {}
     records: list[dict] = []
-    with open(path, encoding="utf-8") as f:
-        for line in f:
-            line = line.strip()
-            if not line:
+    try:
+        f = open_regular(path, what="tick logs")
+    except NotRegularFile as exc:
+        raise _refused(path, 1, 1, str(exc)) from None
+    except (OSError, ValueError) as exc:
+        why = getattr(exc, "strerror", None) or exc
+        raise _refused(path, 1, 1, f"cannot read {path}: {why}") from None
+    with f:
+        number = 0
+        first = True
+        while True:
+            raw = f.readline(MAX_LINE_BYTES + 1)
+            if not raw:
+                break
+            number += 1
+            if len(raw) > MAX_LINE_BYTES:
+                raise _refused(path, number, 1, f"line longer than {MAX_LINE_BYTES} bytes")
+            if not raw.strip():
                 continue
             try:
-                rec = json.loads(line)
-            except json.JSONDecodeError:
+                rec = json.loads(raw)
+            except ValueError:  # not JSON, not UTF-8: a torn last line, unless it is the first
+                if first:
+                    raise _refused(
+                        path, number, 1, "not a tick log: the line is not JSON"
+                    ) from None
                 break
+            if not isinstance(rec, dict):
+                raise _refused(
+                    path, number, 1, f"not a tick log: expected a JSON object, got {rec!r:.60}"
+                )
+            first = False
             if "header" in rec:
-                header = rec["header"]
+                text = raw.decode("utf-8", "replace")
+                header = _check_header(rec["header"], path, number, text)
             else:
                 records.append(rec)
     return header, records

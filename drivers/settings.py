@@ -10,6 +10,12 @@ the offending key or value, and all problems are collected before anything is re
 
 :func:`apply_overrides` applies ``--set dotted.key=value`` pairs to validated data with the
 same type checks.
+
+Settings files are read by :func:`read_settings_text`: regular files only (a named pipe would
+block the reader forever and ``/dev/zero`` never ends, so both are refused before they are
+opened), at most :data:`MAX_SETTINGS_BYTES`, UTF-8 text without NUL bytes; each refusal is
+one located problem. (``bt_engine.files`` does the same for mission files; drivers/ does not
+import the engine.)
 """
 
 from __future__ import annotations
@@ -17,6 +23,8 @@ from __future__ import annotations
 import copy
 import dataclasses
 import difflib
+import os
+import stat
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -281,33 +289,110 @@ def _unsafe_nodes(root: yaml.Node, filename: str, limit: int = 100_000) -> list[
     return problems
 
 
+#: The largest rig, world or fleet file read, in bytes (as a mission file).
+MAX_SETTINGS_BYTES = 5_000_000
+
+_NOT_REGULAR = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISFIFO, "a named pipe (FIFO)"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def _position(data: bytes | str, index: int) -> tuple[int, int]:
+    """(line, column), 1-based, of character (or byte) ``index`` of ``data``."""
+    newline = b"\n" if isinstance(data, bytes) else "\n"
+    line_start = data.rfind(newline, 0, index) + 1  # type: ignore[arg-type]
+    return data.count(newline, 0, index) + 1, index - line_start + 1  # type: ignore[arg-type]
+
+
+def read_settings_text(path: str, what: str = "settings files") -> str:
+    """The text of the settings file ``path``; raises :class:`ConfigError` with one located
+    problem if it is not a regular file (checked before it is opened; opened non-blocking
+    and checked again), is larger than :data:`MAX_SETTINGS_BYTES`, cannot be read, is not
+    UTF-8 or holds a NUL byte. ``what`` names the files in the messages (``rig files``)."""
+
+    def refuse(message: str, line: int = 1, col: int = 1) -> ConfigError:
+        return ConfigError([SettingProblem(path, line, col, message)])
+
+    def not_regular(mode: int) -> ConfigError | None:
+        if stat.S_ISREG(mode):
+            return None
+        kind = next((name for test, name in _NOT_REGULAR if test(mode)), "not a regular file")
+        return refuse(f"{path} is {kind}, not a regular file; {what} are read from ordinary files")
+
+    try:
+        real = os.path.realpath(path)
+        error = not_regular(os.stat(real).st_mode)  # before opening: a FIFO would block
+        if error is not None:
+            raise error
+        fd = os.open(real, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+        with os.fdopen(fd, "rb") as f:
+            st = os.fstat(f.fileno())
+            error = not_regular(st.st_mode)
+            if error is not None:
+                raise error
+            if st.st_size > MAX_SETTINGS_BYTES:
+                raise refuse(f"file is {st.st_size} bytes; the limit is {MAX_SETTINGS_BYTES}")
+            data = f.read(MAX_SETTINGS_BYTES + 1)
+    except OSError as exc:
+        raise refuse(f"cannot read file: {exc.strerror or exc}") from None
+    except ValueError as exc:  # a path holding a NUL byte
+        raise refuse(f"cannot read file: {exc}") from None
+    if len(data) > MAX_SETTINGS_BYTES:
+        raise refuse(f"file is larger than {MAX_SETTINGS_BYTES} bytes (the limit); not read")
+    nul = data.find(b"\0")
+    if nul >= 0:
+        raise refuse(
+            f"the file holds a NUL byte (byte {nul}); {what} are YAML text", *_position(data, nul)
+        )
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise refuse(f"not UTF-8 text (byte {exc.start})", *_position(data, exc.start)) from None
+
+
+def _yaml_problem(path: str, text: str, exc: yaml.YAMLError) -> SettingProblem:
+    """A YAML error as one located problem (a control character, a syntax error)."""
+    if isinstance(exc, yaml.reader.ReaderError):
+        line, col = _position(text, max(exc.position, 0))
+        char = exc.character
+        shown = f"#x{char:04x}" if isinstance(char, int) else repr(char)
+        return SettingProblem(path, line, col, f"character {shown} is not allowed in YAML")
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    line, col = (mark.line + 1, mark.column + 1) if mark else (1, 1)
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    return SettingProblem(path, line, col, f"YAML syntax error: {problem}")
+
+
 def load_yaml_file(
-    path: str, spec: Field, text: str | None = None, marks: Marks | None = None
+    path: str,
+    spec: Field,
+    text: str | None = None,
+    marks: Marks | None = None,
+    what: str = "settings files",
 ) -> dict:
-    """Read and validate the YAML file at ``path`` against ``spec``.
+    """Read (:func:`read_settings_text`, unless ``text`` is given) and validate the YAML
+    file at ``path`` against ``spec``.
 
     Returns the validated data with defaults filled in. Raises :class:`ConfigError` listing
     every problem (syntax errors included) as ``file:line:col: message``. If ``marks`` is
     given it receives ``dotted.path -> (file, line, col)`` for every node, so callers can
-    locate their own semantic checks.
+    locate their own semantic checks. ``what`` names the files in a refusal of the file
+    itself (``rig files are read from ordinary files``).
     """
     if text is None:
-        try:
-            with open(path, encoding="utf-8") as f:
-                text = f.read()
-        except OSError as exc:
-            raise ConfigError(
-                [SettingProblem(path, 1, 1, f"cannot read file: {exc.strerror}")]
-            ) from exc
-    loader = yaml.SafeLoader(text)
+        text = read_settings_text(path, what)
+    try:
+        loader = yaml.SafeLoader(text)  # refuses control characters at once
+    except yaml.YAMLError as exc:
+        raise ConfigError([_yaml_problem(path, text, exc)]) from None
     try:
         node = loader.get_single_node()
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark
-        line, col = (mark.line + 1, mark.column + 1) if mark else (1, 1)
-        raise ConfigError(
-            [SettingProblem(path, line, col, f"YAML syntax error: {exc.problem}")]
-        ) from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError([_yaml_problem(path, text, exc)]) from None
     finally:
         loader.dispose()
     if node is None:

@@ -18,11 +18,13 @@ from __future__ import annotations
 
 import csv
 import fnmatch
+import io
 import math
 import os
 import re
 from typing import Any
 
+from bt_engine.files import read_text
 from bt_engine.node import FAILURE, SUCCESS, NodeStatus, SyncActionNode
 from bt_engine.ports import ANY, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
@@ -114,10 +116,13 @@ def resolve_places(
 
 def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Problem]]:
     """Place names of a CSV file with their line and column (``place`` column or the first)."""
+    read: list[Problem] = []  # a regular, bounded UTF-8 file (a FIFO would block)
+    text = read_text(path, read, where, what="place lists")
+    if text is None:
+        return [], [Problem(where, f"place list: {read[0].message}")]
     try:
-        with open(path, encoding="utf-8", newline="") as f:
-            rows = list(csv.reader(f))
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:
         return [], [Problem(where, f"cannot read the place list {path}: {exc}")]
     if not rows:
         return [], [Problem(Loc(path, 1, 1), "the place list is empty")]
@@ -161,8 +166,8 @@ class InventoryPlan(SyncActionNode):
             InventoryLog.of(self.ctx)
         except ConfigError as exc:
             return [("places", f"the rig's world cannot be loaded: {exc}")]
-        except InventoryError as exc:
-            return [Problem(Loc("--resume", 0, 0), str(exc))]
+        except InventoryError as exc:  # located in the resumed inventory file
+            return [exc.problem()]
         out: list[Any] = []
         for p in problems:
             if p.loc == self.loc:  # the list itself (literal, --set or mission input)

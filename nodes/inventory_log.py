@@ -21,11 +21,13 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 from collections.abc import Callable
 from typing import Any
 
-from bt_engine.files import atomic_write_text
+from bt_engine.files import atomic_write_text, read_text
+from bt_engine.spec import Loc, Problem
 
 #: answers besides pallet identities
 EMPTY, UNKNOWN = "empty", "unknown"
@@ -48,8 +50,28 @@ FIELDS = (
 FORMAT = "btrun-inventory-1"
 
 
+#: The most rows an inventory read back (``--resume``) may hold: far more places than any
+#: warehouse map has; a larger file is refused before anything flies.
+MAX_INVENTORY_ROWS = 100_000
+#: The largest ``inventory.json`` read back, in bytes (100,000 rows as written take ~25 MB).
+MAX_INVENTORY_BYTES = 64_000_000
+#: The longest text in a row read back (a place name, an answer, a reason).
+MAX_ROW_TEXT = 10_000
+
+
 class InventoryError(Exception):
-    """An inventory file that cannot be used (said in one line)."""
+    """An inventory file that cannot be used, said in one line (``file:line:col: message``
+    when the place in the file is known)."""
+
+    def __init__(self, message: str, loc: Loc | None = None) -> None:
+        super().__init__(f"{loc}: {message}" if loc is not None else message)
+        self.message, self.loc = message, loc
+
+    def problem(self) -> Problem:
+        """As a located problem (at ``--resume`` when the place in the file is unknown)."""
+        if self.loc is None:
+            return Problem(Loc("--resume", 0, 0), self.message)
+        return Problem(self.loc, self.message)
 
 
 def grade(answer: str, truth: str | None, not_enrolled: set[str]) -> str:
@@ -70,24 +92,105 @@ def grade(answer: str, truth: str | None, not_enrolled: set[str]) -> str:
     return "right" if answer == truth else "wrong"
 
 
-def read_inventory(run_dir: str) -> list[dict]:
-    """The rows of ``run_dir/inventory.json`` ([] if the run wrote none); raises
-    :class:`InventoryError` if the file is not a btrun inventory."""
-    path = os.path.join(run_dir, "inventory.json")
-    if not os.path.exists(path):
-        return []
+def _text(v: Any) -> bool:
+    return v is None or (isinstance(v, str) and len(v) <= MAX_ROW_TEXT)
+
+
+def _number(v: Any) -> bool:
+    return v is None or (type(v) in (int, float) and math.isfinite(v))
+
+
+#: What each key of a row read back must be: a test and what it should be.
+_ROW_KEYS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "place": (
+        lambda v: isinstance(v, str) and 0 < len(v) <= MAX_ROW_TEXT,
+        "a place name",
+    ),
+    "answer": (_text, "text or null"),
+    "status": (lambda v: v in (*FINISHED, NOT_SCANNED), f"one of {[*FINISHED, NOT_SCANNED]}"),
+    "best_id": (_text, "text or null"),
+    "distance": (_number, "a number or null"),
+    "margin": (_number, "a number or null"),
+    "blocks_seen": (lambda v: v is None or type(v) is int, "an integer or null"),
+    "mission_time_s": (_number, "a number or null"),
+    "drone": (_text, "text or null"),
+    "run": (_text, "text or null"),
+    "reason": (_text, "text or null"),
+}
+
+
+def _row_problem(row: Any) -> str | None:
+    """What is wrong with one row read back (None: nothing)."""
+    if not isinstance(row, dict):
+        return f"expected a row (a JSON object), got {row!r:.60}"
+    for key, value in row.items():
+        if key not in _ROW_KEYS:
+            return f"unknown key {key!r:.60} (a row has {', '.join(FIELDS)})"
+        ok, want = _ROW_KEYS[key]
+        if not ok(value):
+            return f"{key}: expected {want}, got {value!r:.60}"
+    if "place" not in row:
+        return "a row needs a place"
+    return None
+
+
+def _row_loc(path: str, text: str, index: int) -> Loc:
+    """Where row ``index`` starts in ``path`` (its text ``text``): decoded once more with the
+    pure-Python scanner noting where each object starts (only to locate a refused row)."""
+    starts: dict[int, int] = {}
+    decoder = json.JSONDecoder()
+
+    def parse_object(s_and_end: tuple[str, int], *args: Any) -> tuple[Any, int]:
+        obj, end = json.decoder.JSONObject(s_and_end, *args)  # type: ignore[attr-defined]
+        starts[id(obj)] = s_and_end[1] - 1
+        return obj, end
+
+    decoder.parse_object = parse_object  # type: ignore[assignment]
+    decoder.scan_once = json.scanner.py_make_scanner(decoder)  # type: ignore[attr-defined]
     try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except (OSError, ValueError) as exc:
-        raise InventoryError(f"{path}: cannot be read as an inventory: {exc}") from None
+        again = decoder.decode(text)  # alive while the ids are looked up
+        offset = starts.get(id(again["rows"][index]))
+    except (ValueError, LookupError, TypeError, RecursionError):
+        offset = None
+    if offset is None:
+        return Loc(path, 1, 1)
+    line_start = text.rfind("\n", 0, offset) + 1
+    return Loc(path, text.count("\n", 0, offset) + 1, offset - line_start + 1)
+
+
+def read_inventory(run_dir: str) -> list[dict]:
+    """The rows of ``run_dir/inventory.json`` ([] if the run wrote none), schema-checked:
+    raises :class:`InventoryError` (one located line) if the file is not a regular file, is
+    larger than :data:`MAX_INVENTORY_BYTES`, is not a btrun inventory, holds more than
+    :data:`MAX_INVENTORY_ROWS` rows or a row of the wrong shape (``"answer": ["3A"]``,
+    ``"mission_time_s": "soon"``, an unknown key). A resumed run reads it before anything
+    flies."""
+    path = os.path.join(run_dir, "inventory.json")
+    if not os.path.lexists(path):
+        return []
+    problems: list[Problem] = []
+    text = read_text(path, problems, what="inventories", limit=MAX_INVENTORY_BYTES)
+    if text is None:
+        raise InventoryError(problems[0].message, problems[0].loc)
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InventoryError(f"not JSON: {exc.msg}", Loc(path, exc.lineno, exc.colno)) from None
+    except (ValueError, RecursionError) as exc:
+        raise InventoryError(f"not JSON: {exc}", Loc(path, 1, 1)) from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise InventoryError(f"{path}: not a btrun inventory (format {FORMAT!r} expected)")
+        raise InventoryError(f"not a btrun inventory (format {FORMAT!r} expected)", Loc(path, 1, 1))
     rows = data.get("rows")
-    if not isinstance(rows, list) or not all(
-        isinstance(r, dict) and isinstance(r.get("place"), str) for r in rows
-    ):
-        raise InventoryError(f"{path}: 'rows' must be a list of rows with a place")
+    if not isinstance(rows, list):
+        raise InventoryError("'rows' must be a list of rows", Loc(path, 1, 1))
+    if len(rows) > MAX_INVENTORY_ROWS:
+        raise InventoryError(
+            f"{len(rows)} rows; an inventory holds at most {MAX_INVENTORY_ROWS}", Loc(path, 1, 1)
+        )
+    for i, row in enumerate(rows):
+        why = _row_problem(row)
+        if why is not None:
+            raise InventoryError(f"rows[{i}]: {why}", _row_loc(path, text, i))
     return rows
 
 

@@ -48,7 +48,7 @@ from perception.gallery_schema import (
     write_schema,
 )
 from perception.gallery_update import UpdateDecision, UpdateRule
-from perception.gallery_views import ViewsMixin
+from perception.gallery_views import ViewsMixin, checked_time
 
 
 class Gallery(MatchingMixin, ViewsMixin):
@@ -289,7 +289,8 @@ class Gallery(MatchingMixin, ViewsMixin):
         return [r[0] for r in self.conn.execute("SELECT identity FROM entries ORDER BY identity")]
 
     def entries(self) -> list[dict]:
-        """Identity, creation time, source, crop count and active added views of every entry."""
+        """Identity, creation time, source, crop count and active added views of every entry
+        (:class:`GalleryError` if a creation time of a damaged file is not a date)."""
         rows = self.conn.execute(
             "SELECT e.identity, e.created, e.source, "
             "(SELECT COUNT(*) FROM crops c WHERE c.identity = e.identity), "
@@ -297,7 +298,13 @@ class Gallery(MatchingMixin, ViewsMixin):
             "FROM entries e ORDER BY e.identity"
         )
         return [
-            {"identity": i, "created": t, "source": s, "crops": n, "views": v}
+            {
+                "identity": i,
+                "created": checked_time(t, f"{self.path}: entry {i!r:.40}"),
+                "source": s,
+                "crops": n,
+                "views": v,
+            }
             for i, t, s, n, v in rows
         ]
 

@@ -9,7 +9,9 @@ evicted), :meth:`ViewsMixin.rollback` undoes one, and :meth:`ViewsMixin.history`
 
 from __future__ import annotations
 
+import math
 import time
+from typing import Any
 
 import cv2
 import numpy as np
@@ -19,6 +21,40 @@ from perception.errors import GalleryError
 from perception.gallery_match import Match, Thresholds
 from perception.gallery_math import block_distances
 from perception.gallery_update import UpdateDecision, UpdateRule, decide
+
+#: The latest time a gallery may record (the end of the year 9999), in seconds since 1970.
+LATEST_TIME_S = 253_402_300_799.0
+
+
+def checked_time(value: Any, where: str) -> float:
+    """``value`` (a gallery's time column) as seconds since 1970, or :class:`GalleryError`
+    saying ``where`` it was if it is not a date (text, NaN, 1e300: a damaged file)."""
+    if type(value) in (int, float) and math.isfinite(value) and 0 <= value <= LATEST_TIME_S:
+        return float(value)
+    raise GalleryError(
+        f"{where}: time {value!r:.40} is not a date; the gallery file is damaged (restore a backup)"
+    )
+
+
+def _is_text(v: Any) -> bool:
+    return v is None or isinstance(v, str)
+
+
+def _is_number(v: Any) -> bool:
+    return v is None or (type(v) in (int, float) and math.isfinite(v))
+
+
+#: What each column of a history row must hold (besides ``time``: :func:`checked_time`).
+_EVENT_COLUMNS = {
+    "event": (lambda v: type(v) is int, "an integer"),
+    "identity": (lambda v: isinstance(v, str), "text"),
+    "action": (lambda v: isinstance(v, str), "text"),
+    "run": (_is_text, "text"),
+    "distance": (_is_number, "a number"),
+    "margin": (_is_number, "a number"),
+    "view": (lambda v: v is None or type(v) is int, "an integer"),
+    "note": (_is_text, "text"),
+}
 
 
 def png_bytes(crop: np.ndarray) -> bytes:
@@ -42,12 +78,23 @@ class ViewsMixin:
         return [dict(zip(keys, r, strict=True)) for r in self.conn.execute(q, (identity,))]
 
     def history(self, identity: str | None = None) -> list[dict]:
-        """The audit trail (oldest first), of one identity or of all."""
+        """The audit trail (oldest first), of one identity or of all; :class:`GalleryError`
+        if a row of a damaged file holds what no event can (a time that is not a date)."""
         q = "SELECT event_id, identity, time, action, run, distance, margin, view_id, note "
         q += "FROM history" + (" WHERE identity = ?" if identity else "") + " ORDER BY event_id"
         keys = ("event", "identity", "time", "action", "run", "distance", "margin", "view", "note")
         args = (identity,) if identity else ()
-        return [dict(zip(keys, r, strict=True)) for r in self.conn.execute(q, args)]
+        events = [dict(zip(keys, r, strict=True)) for r in self.conn.execute(q, args)]
+        for e in events:  # a damaged file: one line saying which event, not a traceback
+            where = f"{self.path}: history event {e['event']!r:.20}"
+            e["time"] = checked_time(e["time"], where)
+            for key, (ok, want) in _EVENT_COLUMNS.items():
+                if not ok(e[key]):
+                    raise GalleryError(
+                        f"{where}: {key} {e[key]!r:.40} is not {want}; the gallery file is "
+                        "damaged (restore a backup)"
+                    )
+        return events
 
     def update(
         self,

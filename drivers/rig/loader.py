@@ -81,7 +81,7 @@ def load_rig(path: str | None = None, overrides: dict[str, str] | None = None) -
     The world file is validated too, so a bad world is reported before anything flies.
     """
     path = path or DEFAULT_RIG
-    data = load_yaml_file(path, RIG_SCHEMA)
+    data = load_yaml_file(path, RIG_SCHEMA, what="rig files")
     rig_keys = RIG_SCHEMA.children["world"].children
     world_over = {
         k[len("world.") :]: v

@@ -388,7 +388,7 @@ def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0
     keys of the world file (``scan_slot.y_m``), reported as ``world.KEY``; ``seed`` draws
     the placement error."""
     marks: Marks = {}
-    data = load_yaml_file(path, WORLD_SCHEMA, marks=marks)
+    data = load_yaml_file(path, WORLD_SCHEMA, marks=marks, what="world files")
     problems = check_world(data, marks, path)
     if overrides:
         data = apply_overrides(data, overrides, WORLD_SCHEMA, prefix="world.")

@@ -20,7 +20,7 @@ import time
 from typing import Any
 
 from bt_engine.clock import SimClock, WallClock
-from bt_engine.files import atomic_write_text
+from bt_engine.files import atomic_write_text, read_text
 from bt_engine.fleet import FleetRunner
 from bt_engine.run_cmd import PreparedRun, finish, make_runner, prepare, release
 from bt_engine.spec import Loc, MissionError, Problem
@@ -83,13 +83,22 @@ def _drone_args(spec: FleetSpec, args: Any, sets: list[str], seed: int, out: str
 def _previous_seed(resume: str | None) -> int | None:
     if not resume:
         return None
-    try:
-        with open(os.path.join(resume, "fleet.json"), encoding="utf-8") as f:
-            return int(json.load(f)["seed"])
-    except (OSError, ValueError, KeyError, TypeError):
+    path = os.path.join(resume, "fleet.json")
+    if not os.path.lexists(path):
         raise MissionError(
             [Problem(Loc("--resume", 0, 0), f"{resume} is not a fleet run folder (no fleet.json)")]
-        ) from None
+        )
+    problems: list[Problem] = []
+    text = read_text(path, problems, what="fleet records")  # regular and bounded
+    if text is None:
+        raise MissionError(problems)
+    try:
+        seed = json.loads(text)["seed"]
+    except (ValueError, KeyError, TypeError, RecursionError):
+        seed = None
+    if type(seed) is not int:
+        raise MissionError([Problem(Loc(path, 1, 1), "not a fleet record: no integer 'seed'")])
+    return seed
 
 
 def run(args: Any) -> int:
@@ -103,7 +112,7 @@ def run(args: Any) -> int:
     try:
         merged = InventoryLog(out, args.resume, "fleet", _truth(rig, world), None, _layout(world))
     except InventoryError as exc:
-        raise MissionError([Problem(Loc("--resume", 0, 0), str(exc))]) from None
+        raise MissionError([exc.problem()]) from None
     split = _split(spec, world, merged, common)
     common = [item for item in common if item.partition("=")[0] != "places"]
     os.makedirs(out, exist_ok=True)

@@ -14,16 +14,20 @@ Paths are relative to the fleet file. Everything is checked before anything flie
 problem is reported at once, located (``file:line:col: message``): 1 to 4 drones with
 distinct names, a pad of the world or a start position for each, no pad shared, start
 positions at least the minimum separation apart, no URI used twice, the rig, the mission and
-the place list.
+the place list. The fleet's name and the drones' names become folder names (the run folder,
+``drones/<name>/``), so they must match :data:`SAFE_NAME` (no ``/``, no ``..``): a fleet
+file cannot write outside ``--out``.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass
 from typing import Any
 
+from bt_engine.files import file_kind
 from bt_engine.spec import Loc, MissionError, Problem
 from drivers.settings import ConfigError, Field, Marks, load_yaml_file, problem_at
 
@@ -36,6 +40,21 @@ def M(children: dict, doc: str = "") -> Field:  # noqa: N802 - schema shorthand
 
 
 MAX_DRONES = 4
+#: Names used as folder names (the fleet's, each drone's): a letter or digit, then up to 63
+#: letters, digits, ``_``, ``.`` or ``-``; never ``..``.
+SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+
+def name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a folder name of a fleet run (None: it can)."""
+    if SAFE_NAME.fullmatch(name) and ".." not in name:
+        return None
+    return (
+        f"{name!r:.80} cannot be a folder name: use 1 to 64 letters, digits, '_', '.' or '-', "
+        "starting with a letter or digit, without '..'"
+    )
+
+
 DRONE = M(
     {
         "name": F(
@@ -155,7 +174,7 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
 
     marks: Marks = {}
     try:
-        data = load_yaml_file(path, FLEET_SCHEMA, marks=marks)
+        data = load_yaml_file(path, FLEET_SCHEMA, marks=marks, what="fleet files")
     except ConfigError as exc:
         raise MissionError(_problems(exc)) from None
     problems: list[Problem] = []
@@ -164,8 +183,14 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
         p = problem_at(marks, key, path, message)
         problems.append(Problem(Loc(p.file, p.line, p.col), p.message))
 
+    why = name_problem(data["name"])
+    if why is not None:
+        at("name", f"fleet name {why}")
     mission = _relative(path, data["mission"]) or ""
-    if not os.path.isfile(mission):
+    kind = file_kind(mission)
+    if kind is not None:  # a FIFO or a device: refused here, never opened
+        at("mission", f"mission file {data['mission']!r} is {kind}, not a regular file")
+    elif not os.path.isfile(mission):
         at("mission", f"mission file {data['mission']!r} not found (relative to {path})")
     rig_path = _relative(path, data["rig"])
     common = {str(k): v for k, v in data["set"].items() if "." in str(k)}
@@ -186,11 +211,14 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
     seen: dict[str, str] = {}
     for i, d in enumerate(data["drones"]):
         key = f"drones[{i}]"
+        why = name_problem(d["name"])
+        if why is not None:
+            at(f"{key}.name", f"drone name {why}")
         if d["name"] in seen:
             at(f"{key}.name", f"two drones named {d['name']!r}")
         seen.setdefault(d["name"], key)
         start = None
-        if d["pad"] is not None:
+        if d["pad"] is not None and rig is not None:  # no rig: its world's pads are unknown
             if d["pad"] not in pads:
                 known = ", ".join(pads) or "none: the world has no pads"
                 at(f"{key}.pad", f"pad {d['pad']!r} is not a pad of the world ({known})")
@@ -199,12 +227,13 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
                 start = (float(x), float(y), 0.0)
         if d["start_m"] is not None:
             start = tuple(float(v) for v in d["start_m"])
-        if start is None and not (d["pad"] and d["pad"] not in pads):
+        if start is None and rig is not None and not (d["pad"] and d["pad"] not in pads):
             at(key, f"drone {d['name']!r} needs a pad (one of the world's pads) or start_m")
         drones.append(
             DroneSpec(d["name"], start or (0.0, 0.0, 0.0), d["pad"], d["uri"], dict(d["set"]), i)
         )
-    _check_shared(data, drones, at)
+    if rig is not None:
+        _check_shared(data, drones, at)
     _check_uris(data, drones, rig, at)
     if problems:
         raise MissionError(problems)
