@@ -24,6 +24,7 @@ import copy
 import dataclasses
 import difflib
 import os
+import re
 import stat
 from dataclasses import dataclass, field
 from typing import Any
@@ -408,14 +409,32 @@ def load_yaml_file(
     return data
 
 
+#: ``name[3]`` in an override key: the list item 3 of ``name`` (the same as ``name.3``)
+_INDEX = re.compile(r"\[\s*([^\]]*?)\s*\]")
+
+
+def _index_problem(part: str, length: int, name: str) -> str | None:
+    """Why ``part`` is no index of the list ``name`` of ``length`` items (None: it is)."""
+    items = f"{name} has {length} item{'s' if length != 1 else ''}" + (
+        f" ({name}.0 .. {name}.{length - 1}, or {name}[0])" if length else ""
+    )
+    if not part.isdigit():
+        return f"'{part}' is not an index: {items}"
+    if int(part) >= length:
+        return f"index {int(part)} is out of range: {items}"
+    return None
+
+
 def apply_overrides(
     data: dict, overrides: dict[str, str] | None, spec: Field, prefix: str = ""
 ) -> dict:
     """Return a copy of validated ``data`` with ``--set`` style overrides applied.
 
-    Each key is a dotted path (``control.rate_hz``); each value is a string parsed as YAML
-    (``"0.5"`` -> 0.5, ``"[1, 0, 0]"`` -> list, ``"null"`` -> None) and type-checked against
-    the schema. Unknown keys get a "did you mean". All problems are raised at once.
+    Each key is a dotted path (``control.rate_hz``); an item of a list is addressed by its
+    index, dotted or in brackets (``row_slots.0.x_m`` or ``row_slots[0].x_m``). Each value
+    is a string parsed as YAML (``"0.5"`` -> 0.5, ``"[1, 0, 0]"`` -> list, ``"null"`` ->
+    None) and type-checked against the schema. Unknown keys get a "did you mean", an index
+    out of range the list's length. All problems are raised at once.
     ``prefix`` (e.g. ``"world."``) is how the user wrote the keys' parent on the command
     line; messages name the keys with it.
     """
@@ -423,12 +442,20 @@ def apply_overrides(
     problems: list[SettingProblem] = []
     for dotted, raw in (overrides or {}).items():
         where = f"{prefix}{dotted}={raw}"
-        parts = dotted.split(".")
+        parts = _INDEX.sub(r".\1", dotted).split(".")
         node_spec, target = spec, out
         ok = True
         for i, part in enumerate(parts):
             last = i == len(parts) - 1
-            if node_spec.kind == "map":
+            if node_spec.kind == "list" and isinstance(target, list):
+                why = _index_problem(part, len(target), prefix + ".".join(parts[:i]))
+                if why is not None:
+                    problems.append(SettingProblem("--set", 0, 0, f"{where}: {why}"))
+                    ok = False
+                    break
+                part = int(part)  # type: ignore[assignment]
+                child = node_spec.item or Field("any")
+            elif node_spec.kind == "map":
                 if part not in node_spec.children:
                     head = ".".join(parts[:i])
                     names = [
@@ -468,7 +495,7 @@ def apply_overrides(
                     break
                 target[part] = value
             else:
-                if target.get(part) is None:
+                if isinstance(target, dict) and target.get(part) is None:
                     target[part] = {}
                 target = target[part]
                 node_spec = child

@@ -214,6 +214,33 @@ class LookUpPlace(SyncActionNode):
         output_port("level", INT, "rack level (1 = lowest)"),
     )
 
+    def preflight(self) -> list[Any]:
+        """A literal ``place`` the rig's world does not have is refused before anything
+        flies, with a "did you mean" (as InventoryPlan's places). A place read from the
+        blackboard is only known in flight: the tick checks it."""
+        if self.input_entry("place") is not None:
+            return []
+        try:
+            world = world_of(self.ctx)
+        except ConfigError as exc:
+            return [("place", f"the rig's world cannot be loaded: {exc}")]
+        if world is None:  # no rig: nothing to check against
+            return []
+        name = str(self.get_input("place") or "").strip()
+        names = list(world.places)
+        if name in world.places:
+            return []
+        if not names:
+            return [
+                (
+                    "place",
+                    f"unknown place '{name}': the rig's world has no pallet places (racks:); "
+                    "fly inventories in a world with racks, e.g. --rig rigs/aisle.yaml",
+                )
+            ]
+        hint = did_you_mean(name, names) or f" (places: {names[0]} .. {names[-1]})"
+        return [("place", f"unknown place '{name}'{hint}")]
+
     def tick_impl(self) -> NodeStatus:
         world = world_of(self.ctx)
         name = self.get_input("place").strip()

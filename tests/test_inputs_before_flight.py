@@ -175,3 +175,88 @@ def test_validate_checks_set_keys_and_rig_settings(tmp_path, capsys) -> None:
     err = _err_lines(capsys)
     assert any("has no input 'hieght'; did you mean height?" in line for line in err)
     assert any(line.startswith("--set world.nope=1: unknown key") for line in err)
+
+
+# -- 2. LookUpPlace's pre-flight check ------------------------------------------------------
+
+LOOKUP = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <Sequence>
+      <LookUpPlace place="A-1-1" row="{row}" facing_deg="{facing}"/>
+      <LookUpPlace place="{next_place}" row="{row}" facing_deg="{facing}"/>
+    </Sequence>
+  </BehaviorTree>
+</root>
+"""
+
+
+def test_validate_with_a_rig_refuses_a_literal_place_the_world_does_not_have(
+    tmp_path, capsys
+) -> None:
+    path = tmp_path / "lookup.xml"
+    path.write_text(LOOKUP)
+    assert main(["validate", str(path)]) == 0  # no rig, no world: as before
+    capsys.readouterr()
+    assert main(["validate", "--rig", AISLE_RIG, str(path)]) == 2
+    err = _err_lines(capsys)
+    assert err[0] == (f"{path}:4:7: LookUpPlace: unknown place 'A-1-1' (did you mean 'A-01-1'?)")
+    assert err[-1] == "1 problem found; nothing was run."  # the blackboard one: in flight
+    path.write_text(LOOKUP.replace("A-1-1", "A-01-1"))
+    assert main(["validate", "--rig", AISLE_RIG, str(path)]) == 0
+
+
+# -- 1. fleet files -------------------------------------------------------------------------
+
+
+def test_a_fleet_set_key_the_mission_does_not_declare_is_refused_where_written(
+    tmp_path,
+) -> None:
+    from bt_engine.spec import MissionError
+    from nodes.fleet.spec import load_fleet
+
+    path = tmp_path / "f.yaml"
+    path.write_text(
+        f"name: f\nmission: {REPO}/missions/inventory.xml\nrig: {AISLE_RIG}\n"
+        "set: {bb.note: 1, wind.gust_std_mps: 0.05}\n"
+        "drones:\n"
+        "  - {name: cf1, pad: pad-1, set: {scan_sped: 0.1}}\n"
+        "  - {name: cf2, pad: pad-2, set: {scan_speed: 0.1}}\n"
+    )
+    with pytest.raises(MissionError) as exc:
+        load_fleet(str(path))
+    (problem,) = exc.value.problems
+    assert str(problem).startswith(f"{path}:6:46: scan_sped: ")
+    assert "has no input 'scan_sped'; did you mean scan_speed?" in problem.message
+    path.write_text(path.read_text().replace("scan_sped", "bb.scan_sped"))
+    assert [d.name for d in load_fleet(str(path)).drones] == ["cf1", "cf2"]
+
+
+# -- 3. list items of the world by index ----------------------------------------------------
+
+
+def _row(world, i: int):
+    return next(p for p in world.pallets if p.slot_name == f"row[{i}]")
+
+
+@pytest.mark.parametrize("key", ["row_slots.2.y_m", "row_slots[2].y_m", "row_slots[ 2 ].y_m"])
+def test_a_row_slot_is_moved_by_its_index(key) -> None:
+    from drivers.sim.world import load_world
+
+    world = load_world(os.path.join(REPO, "worlds", "warehouse.yaml"), {key: "-2.0"})
+    moved = _row(world, 2)
+    assert moved.identity == "4A" and moved.face_center_m[1] == pytest.approx(-2.0)
+    assert _row(world, 3).face_center_m[1] == pytest.approx(-3.15)  # the others stay
+
+
+def test_a_bad_list_index_is_refused_with_the_list_length(capsys) -> None:
+    argv = ["validate", "--set", "world.row_slots[4].x_m=9", "--set", "world.row_slots.x.y_m=1"]
+    assert main([*argv, SQUARE]) == 2
+    err = _err_lines(capsys)
+    assert (
+        "--set world.row_slots[4].x_m=9: index 4 is out of range: world.row_slots has 4 items "
+        "(world.row_slots.0 .. world.row_slots.3, or world.row_slots[0])"
+    ) in err
+    assert any(
+        line.startswith("--set world.row_slots.x.y_m=1: 'x' is not an index: world.row_slots")
+        for line in err
+    )

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from bt_engine.files import file_kind
+from bt_engine.mission import UNCHECKED_PREFIX, declared_inputs, undeclared_input
 from bt_engine.spec import Loc, MissionError, Problem
 from drivers.settings import ConfigError, Field, Marks, load_yaml_file, problem_at
 
@@ -167,6 +168,25 @@ def _problems(exc: ConfigError) -> list[Problem]:
     return [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
 
 
+def _check_inputs(mission: str, data: dict, at: Any) -> None:
+    """Every plain (blackboard) key of the fleet's ``set`` and of each drone's ``set`` that
+    the mission does not declare (``bb.NAME`` passes unchecked), located where it is
+    written, with a "did you mean". A mission that does not load is left to its own check."""
+    from bt_engine.loading import load_spec
+
+    spec = load_spec(mission)
+    if spec.load_problems:
+        return
+    declared = declared_inputs(spec)
+    sections = [("set", data["set"])]
+    sections += [(f"drones[{i}].set", d["set"]) for i, d in enumerate(data["drones"])]
+    for section, sets in sections:
+        for key in map(str, sets):
+            message = None if "." in key else undeclared_input(key, declared, data["mission"])
+            if message is not None:
+                at(f"{section}.{key}", message)
+
+
 def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
     """Read and check a fleet file (the world's pads come from its rig); raises
     :class:`MissionError` with every located problem."""
@@ -192,8 +212,14 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
         at("mission", f"mission file {data['mission']!r} is {kind}, not a regular file")
     elif not os.path.isfile(mission):
         at("mission", f"mission file {data['mission']!r} not found (relative to {path})")
+    else:
+        _check_inputs(mission, data, at)
     rig_path = _relative(path, data["rig"])
-    common = {str(k): v for k, v in data["set"].items() if "." in str(k)}
+    common = {
+        str(k): v
+        for k, v in data["set"].items()
+        if "." in str(k) and not str(k).startswith(UNCHECKED_PREFIX)
+    }
     world = None
     try:
         rig = load_rig(
