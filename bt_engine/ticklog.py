@@ -33,7 +33,7 @@ def to_jsonable(value: Any, depth: int = 0) -> Any:
     if isinstance(value, float):
         return value if math.isfinite(value) else repr(value)
     if depth > 6:
-        return repr(value)
+        return safe_repr(value)
     if isinstance(value, (list, tuple)):
         return [to_jsonable(v, depth + 1) for v in (value if depth < 2 else value[:1000])]
     if isinstance(value, dict):
@@ -48,7 +48,16 @@ def to_jsonable(value: Any, depth: int = 0) -> Any:
     shape = getattr(value, "shape", None)
     if shape is not None:
         return f"<{type(value).__name__} shape={tuple(shape)}>"
-    return repr(value)
+    return safe_repr(value)
+
+
+def safe_repr(value: Any) -> str:
+    """``repr(value)``, or ``<Type: repr failed: why>`` when a plug-in's object cannot say
+    what it is (a record must never end a run)."""
+    try:
+        return repr(value)
+    except Exception as exc:
+        return f"<{type(value).__name__}: repr failed: {type(exc).__name__}>"
 
 
 #: the bytes JSON writes as they are (printable ASCII but the quote and the backslash)

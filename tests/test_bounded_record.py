@@ -457,3 +457,15 @@ def test_groot2_connection_flood_leaves_the_flight_and_its_summary_alone(tmp_pat
     assert s["status"] == "SUCCESS" and "errors" not in s, s.get("errors")
     assert s.get("report") == "report.html"
     assert "Traceback" not in stderr
+
+
+def test_a_value_whose_repr_raises_is_recorded_not_fatal() -> None:
+    """A plug-in object that cannot say what it is must not end a run in its record."""
+    from bt_engine.ticklog import summarise_value, to_jsonable
+
+    class Broken:
+        def __repr__(self) -> str:
+            raise RuntimeError("no repr")
+
+    assert to_jsonable(Broken()) == "<Broken: repr failed: RuntimeError>"
+    assert "repr failed" in str(summarise_value({"face": Broken()}))
