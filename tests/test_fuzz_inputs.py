@@ -296,3 +296,79 @@ def test_yaml_anchor_bomb_in_rig(tmp_path) -> None:
     # refused at the anchors, before anything is expanded
     assert "anchors and aliases are not allowed" in str(info.value)
     assert len(str(info.value)) < 10_000
+
+
+# ------------------------------------------- fleets, campaigns and resume state (issue 31)
+
+
+def _more_files() -> dict[str, tuple[str, str]]:
+    out = {}
+    for p in [
+        os.path.join(REPO, "fleets", "aisle_2.yaml"),
+        os.path.join(REPO, "campaigns", "pallet_scan.yaml"),
+        os.path.join(REPO, "campaigns", "faults.yaml"),
+    ]:
+        out[os.path.basename(p)] = (p, open(p, encoding="utf-8").read())
+    return out
+
+
+MORE = _more_files()
+
+
+@pytest.mark.slow
+@settings(
+    max_examples=150,
+    deadline=5000,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+@given(st.sampled_from(sorted(MORE)), OPS)
+def test_fuzzed_fleets_and_campaigns_load_or_locate(name: str, ops) -> None:
+    """A mutated fleet or campaign file loads, or every problem is one located line: never a
+    traceback, whatever the mutation (NUL bytes, anchors and tags included)."""
+    from bt_engine.campaign.spec import load_campaign
+    from bt_engine.spec import MissionError
+    from nodes.fleet.spec import load_fleet
+
+    path, text = MORE[name]
+    mutated = _mutate(text, ops, YAML_VALUE)
+    target = os.path.join(os.path.dirname(path), f".fuzz-{os.getpid()}-{name}")
+    with open(target, "w", encoding="utf-8") as f:  # beside the original: relative paths hold
+        f.write(mutated)
+    try:
+        (load_fleet if name == "aisle_2.yaml" else load_campaign)(target)
+    except (MissionError, ConfigError) as exc:
+        for p in exc.problems:
+            assert LOCATED.match(str(p)), str(p)
+    finally:
+        os.unlink(target)
+
+
+@settings(max_examples=200, deadline=2000, derandomize=True)
+@given(st.binary(max_size=400), st.integers(0, 3))
+def test_fuzzed_resume_state_is_refused_located_or_read(data: bytes, where: int) -> None:
+    """--resume reads a run folder's tick log header and inventory rows before flight: any
+    bytes there are read or refused with one located line."""
+    import tempfile
+
+    from bt_engine.spec import MissionError
+    from bt_engine.ticklog import read_log
+    from nodes.inventory_log import InventoryError, read_inventory
+
+    header = b'{"header": {"mission": "m.xml", "seed": 0, "sets": []}}\n'
+    with tempfile.TemporaryDirectory() as d:
+        if where < 2:
+            with open(os.path.join(d, "ticks.jsonl"), "wb") as f:
+                f.write(data if where == 0 else header + data)
+            try:
+                read_log(os.path.join(d, "ticks.jsonl"))
+            except MissionError as exc:
+                for p in exc.problems:
+                    assert LOCATED.match(str(p)), str(p)
+        else:
+            with open(os.path.join(d, "inventory.json"), "wb") as f:
+                f.write(data if where == 2 else b'{"rows": [' + data + b"]}")
+            try:
+                read_inventory(d)
+            except InventoryError as exc:
+                assert LOCATED.match(str(exc.problem())), str(exc.problem())
