@@ -244,6 +244,21 @@ def _show(header: dict, records: list[dict], tick: int) -> None:
         print("blackboard: " + ", ".join(f"{k}={v!r}" for k, v in sorted(bb.items())))
 
 
+def _fleet_hint(folder: str | None) -> str:
+    """For a fleet's run folder (``fleet.json``, ``drones/``): which folders hold the tick
+    logs to replay; else ""."""
+    if folder is None or not os.path.lexists(os.path.join(folder, "fleet.json")):
+        return ""
+    try:
+        names = sorted(n for n in os.listdir(os.path.join(folder, "drones")))
+    except OSError:
+        names = []
+    shown = ", ".join(os.path.join(folder, "drones", n) for n in names[:4]) or os.path.join(
+        folder, "drones", "<name>"
+    )
+    return f": {folder} is a fleet run; replay one drone's folder ({shown})"
+
+
 def replay(path: str, tick: int | None = None, show_all: bool = False, repair: bool = False) -> int:
     """Replay the log at ``path`` (a ``ticks.jsonl``, a run's ``run.mcap`` or a run folder);
     return an exit code. The run's ``run.mcap`` is repaired first if a killed run left it
@@ -267,10 +282,11 @@ def replay(path: str, tick: int | None = None, show_all: bool = False, repair: b
     else:
         if done is not None and done.repaired:
             print(done.line(), file=sys.stderr)
-    if os.path.isdir(path):
+    folder = path if os.path.isdir(path) else None
+    if folder is not None:
         path = os.path.join(path, "ticks.jsonl")
     if not os.path.exists(path):
-        print(f"{path}:0:0: tick log not found", file=sys.stderr)
+        print(f"{path}:0:0: tick log not found{_fleet_hint(folder)}", file=sys.stderr)
         return 2
     is_mcap = path.endswith(".mcap")
     header, records = read_mcap(path) if is_mcap else read_log(path)

@@ -154,6 +154,28 @@ def resume_settings(args) -> list[Problem]:
     where = Loc("--resume", 0, 0)
     log = os.path.join(previous, "ticks.jsonl")
     if not os.path.isfile(log):
+        record = os.path.join(previous, "fleet.json")
+        if os.path.lexists(record):
+            import json
+
+            from bt_engine.files import read_text
+
+            fleet = "FLEET.yaml"
+            text = read_text(record, [], what="fleet records", limit=1_000_000)
+            try:
+                named = json.loads(text or "")["fleet"]
+                if isinstance(named, str) and named:
+                    rel = os.path.relpath(named)
+                    fleet = named if rel.startswith("..") else rel
+            except (ValueError, KeyError, TypeError, RecursionError):
+                pass
+            return [
+                Problem(
+                    where,
+                    f"{previous} is a fleet run: continue it with "
+                    f"btrun fleet {fleet} --resume {previous}",
+                )
+            ]
         return [Problem(where, f"{previous} is not a run folder (no ticks.jsonl in it)")]
     header, _ = read_log(log)
     flown = header.get("mission")

@@ -298,6 +298,8 @@ class RecordPlace(SyncActionNode):
             answer, status = "", NOT_SCANNED
             reason = reason or "the place could not be looked at"
         log = InventoryLog.of(self.ctx)
+        if pallet and (seen is None or seen < 0) and self.input_entry("blocks_seen") is None:
+            seen = self._blocks_located()
         row = log.record(
             {
                 "place": self.get_input("place").strip(),
@@ -314,6 +316,18 @@ class RecordPlace(SyncActionNode):
         self.ctx.log(f"inventory {row['place']}: {answer or '-'} ({status})")
         self.set_output("recorded", len(log.rows) - len(log.carried))
         return SUCCESS
+
+    def _blocks_located(self) -> int | None:
+        """How many blocks LocatePallet saw at this place, when the mission does not pass
+        ``blocks_seen`` with an answer: the last face located since the previous row (the
+        perception session keeps every face of the reactive leaves); None if there is none."""
+        session = self.ctx.resources.get("perception")
+        faces = getattr(session, "faces", None) or []
+        mark = self.ctx.resources.get("inventory_faces_mark", 0)
+        self.ctx.resources["inventory_faces_mark"] = len(faces)
+        located = [f for f in faces[mark:] if f.get("stage") == "located"]
+        seen = located[-1].get("blocks_seen") if located else None
+        return seen if type(seen) is int else None
 
 
 def _round(value: Any) -> Any:

@@ -78,11 +78,14 @@ def grade(answer: str, truth: str | None, not_enrolled: set[str]) -> str:
     """How an answer compares with the ground truth: ``right``; ``wrong`` (an identity
     accepted that is not the one standing there); ``unknown`` (no identity where an
     enrolled pallet stands); ``missed`` (answered empty where a pallet stands);
-    ``not_scanned`` (no answer)."""
+    ``not_scanned`` (no answer). An empty place (``truth`` None) is graded by what stands
+    there, nothing: only ``empty`` is right; ``unknown`` (a pallet claimed where none
+    stands) is ``wrong`` like an identity, never the ``unknown`` grade, which is for an
+    enrolled pallet left unidentified."""
     if not answer:
         return NOT_SCANNED
     if truth is None:
-        return "right" if answer == EMPTY else ("unknown" if answer == UNKNOWN else "wrong")
+        return "right" if answer == EMPTY else "wrong"
     if answer == EMPTY:
         return "missed"
     if truth in not_enrolled:
@@ -205,9 +208,12 @@ class InventoryLog:
         truth: Callable[[], tuple[dict[str, str | None], set[str]] | None] | None = None,
         sink: Callable[[InventoryLog], None] | None = None,
         layout: dict[str, list] | None = None,
+        run: str = "",
     ) -> None:
         self.run_dir = run_dir
-        self.run = os.path.basename(os.path.normpath(run_dir)) if run_dir else ""
+        #: the ``run`` column of new rows: the run folder's name (a fleet's drones give
+        #: the fleet's folder, so carried-over rows stay told apart from new ones)
+        self.run = run or (os.path.basename(os.path.normpath(run_dir)) if run_dir else "")
         self.drone = drone
         self.rows: dict[str, dict] = {}
         self.carried: set[str] = set()
@@ -226,12 +232,15 @@ class InventoryLog:
     @classmethod
     def of(cls, ctx: Any) -> InventoryLog:
         """The inventory of a mission context (created on first use from its resources:
-        ``run_dir``, ``resume_from``, ``drone``, the rig and seed for the ground truth)."""
+        ``run_dir``, ``resume_from``, ``drone``, ``inventory_run``, the rig and seed for the
+        ground truth). A solo run's ``drone`` column is the rig's ``name`` (``aisle``)."""
         log = ctx.resources.get("inventory")
         if log is None:
             res = ctx.resources
             rig = res.get("rig")
-            drone = res.get("drone") or getattr(rig, "name", "") or ""
+            rig_data = getattr(rig, "data", None)
+            rig_name = rig_data.get("name") if isinstance(rig_data, dict) else None
+            drone = res.get("drone") or getattr(rig, "name", "") or rig_name or ""
 
             world = res.get("world")
             if world is None and rig is not None:
@@ -251,6 +260,7 @@ class InventoryLog:
                 truth,
                 res.get("inventory_sink"),
                 layout,
+                res.get("inventory_run") or "",
             )
             ctx.resources["inventory"] = log
         return log
@@ -340,7 +350,28 @@ class InventoryLog:
             )
         if self.run_dir:
             out.append(f"inventory: {os.path.join(self.run_dir, 'inventory.csv')}")
+            left = s["not_scanned_places"]
+            if left and self.sink is None:  # a fleet's drone: the fleet prints its own
+                mission = _mission_of(self.run_dir) or "MISSION"
+                out.append(
+                    f"{len(left)} places not answered: continue with "
+                    f"btrun {mission} --resume {self.run_dir}"
+                )
         return out
+
+
+def _mission_of(run_dir: str) -> str | None:
+    """The mission file a run flew, from its tick log's first line (the header), relative
+    to the working directory when under it; None if unreadable."""
+    try:
+        with open(os.path.join(run_dir, "ticks.jsonl"), encoding="utf-8") as f:
+            mission = json.loads(f.readline(1_000_000)).get("header", {}).get("mission")
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return None
+    if not isinstance(mission, str) or not mission:
+        return None
+    rel = os.path.relpath(mission)
+    return mission if rel.startswith("..") else rel
 
 
 def summarise(

@@ -139,7 +139,11 @@ def run(args: Any) -> int:
             runs[d.name] = prepare(
                 ns,
                 clock=clock,
-                resources={"drone": d.name, "inventory_sink": printer},
+                resources={
+                    "drone": d.name,
+                    "inventory_sink": printer,
+                    "inventory_run": merged.run,  # rows name the fleet's run folder
+                },
                 warn=not runs,
             )
     except BaseException:
@@ -275,7 +279,7 @@ def _fly(
 
         summary["report"] = os.path.relpath(write_fleet_report(out, summary, runners, runs), out)
     atomic_write_text(os.path.join(out, "summary.json"), json.dumps(summary, indent=2))
-    _print(summary, out)
+    _print(summary, out, args.fleet)
     return 0 if all(c == 0 for c in codes.values()) and runs else 1
 
 
@@ -338,7 +342,9 @@ def _summary(
     }
 
 
-def _print(summary: dict, out: str) -> None:
+def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
+    """The fleet's console lines; an interrupted run (or places left without an answer)
+    ends with the command that continues it."""
     speed = summary["mission_time_s"] / summary["wall_time_s"] if summary["wall_time_s"] else 0.0
     print(
         f"fleet {summary['fleet']}: {summary['status']} ({len(summary['drones'])} drones, "
@@ -353,7 +359,10 @@ def _print(summary: dict, out: str) -> None:
     inv = summary.get("inventory")
     if inv:
         parts = [f"{v} {k.replace('_', ' ')}" for k, v in inv["status"].items()]
-        print(f"inventory: {inv['places']} places, " + ", ".join(parts))
+        line = f"inventory: {inv['places']} places, " + ", ".join(parts)
+        if inv.get("carried_over"):
+            line += f" ({inv['carried_over']} carried over from the resumed run)"
+        print(line)
         if "right" in inv:
             print(
                 f"inventory against the simulator: {inv['right']} of {inv['places']} right, "
@@ -369,4 +378,9 @@ def _print(summary: dict, out: str) -> None:
     if summary.get("report"):
         print(f"report: {os.path.join(out, summary['report'])}")
     print(f"run folder: {out}")
+    left = (inv or {}).get("not_scanned_places") or []
+    statuses = [d["status"] for d in summary["drones"].values()]
+    if left or "ABORTED" in statuses:
+        why = f"{len(left)} places not answered" if left else "interrupted"
+        print(f"{why}: continue with btrun fleet {fleet_file} --resume {out}")
     sys.stdout.flush()

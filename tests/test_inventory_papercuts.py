@@ -1,0 +1,128 @@
+"""Inventory paper cuts: resumed fleet rows marked, grades of empty places, the resume
+command of an interrupted fleet, fleet folders given to replay / a solo resume, the CSV's
+blocks_seen and drone columns, the report's lead and the aisle's demo gallery name."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+
+from helpers import REPO
+
+from bt_engine.cli import main
+from nodes.fleet.run import _print
+from nodes.inventory_log import FORMAT, grade
+
+RIG = os.path.join(REPO, "rigs", "aisle.yaml")
+MISSION = os.path.join(REPO, "missions", "inventory.xml")
+FLEET = os.path.join(REPO, "fleets", "aisle_2.yaml")
+
+
+def _csv(folder: str) -> dict[str, dict]:
+    with open(os.path.join(folder, "inventory.csv"), encoding="utf-8") as f:
+        return {r["place"]: r for r in csv.DictReader(f)}
+
+
+def _fake_fleet_run(folder: str, rows: list[dict]) -> None:
+    """A fleet run folder as an interrupted ``btrun fleet`` leaves it."""
+    os.makedirs(os.path.join(folder, "drones", "cf1"))
+    with open(os.path.join(folder, "fleet.json"), "w", encoding="utf-8") as f:
+        json.dump({"fleet": FLEET, "seed": 0, "set": []}, f)
+    with open(os.path.join(folder, "inventory.json"), "w", encoding="utf-8") as f:
+        json.dump({"format": FORMAT, "planned": [r["place"] for r in rows], "rows": rows}, f)
+
+
+def test_an_empty_place_answered_unknown_is_wrong_not_unknown() -> None:
+    """Nothing stands there: only ``empty`` is right; ``unknown`` claims a pallet."""
+    assert grade("unknown", None, {"115A"}) == "wrong"
+    assert grade("empty", None, {"115A"}) == "right"
+    assert grade("unknown", "103B", {"115A"}) == "unknown"
+
+
+def test_a_fleet_resume_marks_carried_rows_and_counts_blocks(tmp_path, capsys) -> None:
+    """Carried rows keep their run; new rows name the new fleet folder (not the drone's)."""
+    old = str(tmp_path / "old")
+    _fake_fleet_run(
+        old,
+        [
+            {
+                "place": "A-01-1",
+                "answer": "109B",
+                "status": "identified",
+                "drone": "cf1",
+                "run": "old",
+            }
+        ],
+    )
+    out = str(tmp_path / "new")
+    code = main(
+        ["fleet", FLEET, "--resume", old, "--set", "places=A-01-1;A-02-1"]
+        + ["--out", out, "-q", "--no-report", "--no-mcap"]
+    )
+    assert code == 0
+    rows = _csv(out)
+    assert rows["A-01-1"]["run"] == "old"
+    assert rows["A-02-1"]["run"] == "new"
+    assert rows["A-02-1"]["drone"] in ("cf1", "cf2")
+    assert rows["A-02-1"]["status"] == "identified"
+    assert int(rows["A-02-1"]["blocks_seen"]) >= 3
+    assert "1 carried over from the resumed run" in capsys.readouterr().out
+
+
+def test_a_solo_run_names_its_drone_and_counts_blocks(tmp_path) -> None:
+    """The ``drone`` column of a solo run is the rig's name; identified rows say how many
+    blocks LocatePallet saw."""
+    out = str(tmp_path / "solo")
+    code = main(
+        [MISSION, "--rig", RIG, "--set", "places=A-01-1", "--out", out]
+        + ["-q", "--no-report", "--no-mcap"]
+    )
+    assert code == 0
+    row = _csv(out)["A-01-1"]
+    assert row["status"] == "identified"
+    assert row["drone"] == "aisle"
+    assert int(row["blocks_seen"]) >= 3
+
+
+def test_an_interrupted_fleet_prints_its_resume_command(capsys) -> None:
+    summary = {
+        "fleet": "aisle_2",
+        "status": "ABORTED",
+        "mission_time_s": 10.0,
+        "wall_time_s": 1.0,
+        "drones": {
+            "cf1": {
+                "status": "ABORTED",
+                "reason": "operator interrupt (Ctrl-C)",
+                "mission_time_s": 10.0,
+                "answered": 0,
+                "places": 1,
+            }
+        },
+        "inventory": {
+            "places": 1,
+            "status": {"not_scanned": 1},
+            "not_scanned_places": ["A-01-1"],
+        },
+        "separation": {
+            "closest_m": None,
+            "minimum_m": 0.5,
+            "violations": 0,
+            "holds": 0,
+            "airspace_waits": 0,
+        },
+    }
+    _print(summary, "runs/x", "fleets/aisle_2.yaml")
+    assert "btrun fleet fleets/aisle_2.yaml --resume runs/x" in capsys.readouterr().out
+
+
+def test_a_fleet_folder_given_to_replay_or_a_solo_resume_says_where_to_go(tmp_path, capsys) -> None:
+    folder = str(tmp_path / "fleetrun")
+    _fake_fleet_run(folder, [])
+    assert main(["replay", folder]) == 2
+    err = capsys.readouterr().err
+    assert os.path.join(folder, "drones", "cf1") in err
+    assert main([MISSION, "--resume", folder]) == 2
+    said = capsys.readouterr()
+    assert "btrun fleet" in said.err + said.out and f"--resume {folder}" in said.err + said.out
