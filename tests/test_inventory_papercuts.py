@@ -126,3 +126,12 @@ def test_a_fleet_folder_given_to_replay_or_a_solo_resume_says_where_to_go(tmp_pa
     assert main([MISSION, "--resume", folder]) == 2
     said = capsys.readouterr()
     assert "btrun fleet" in said.err + said.out and f"--resume {folder}" in said.err + said.out
+
+
+def test_the_aisles_demo_gallery_is_named_by_its_rig(capsys) -> None:
+    """``demo`` is the rig's world's demo gallery, in the gallery commands as in a mission."""
+    assert main(["gallery", "list", "demo", "--rig", RIG]) == 0
+    out = capsys.readouterr().out
+    assert "aisle.yaml" in out and "114B" in out
+    with open(os.path.join(REPO, "docs", "inventory.md"), encoding="utf-8") as f:
+        assert "btrun gallery list demo --rig rigs/aisle.yaml" in f.read()

@@ -12,8 +12,10 @@
     btrun gallery history pallets.sqlite 7A       # enrolment, added views, rollbacks of 7A
     btrun gallery rollback pallets.sqlite 7A      # undo the latest view added to 7A
     btrun gallery demo                            # build (if needed) and show the demo gallery
+    btrun gallery list demo --rig rigs/aisle.yaml # the aisle's demo gallery (the rig's world)
 
-``demo`` stands for the demo gallery wherever a gallery is named. Errors are one line each,
+``demo`` stands for the demo gallery of the rig's world (``--rig``, as in a mission run:
+default the warehouse's) wherever a gallery is named. Errors are one line each,
 with exit code 2.
 """
 
@@ -64,7 +66,11 @@ def setup(p: argparse.ArgumentParser) -> None:
     rb.add_argument("--view", type=int, default=None, help="view id (default: the latest)")
     sub.add_parser("demo", help="build (if needed) the demo gallery and print its path")
     for sp in (ls, en, rm, ex, ev, hi, rb, sub.choices["demo"]):
-        sp.add_argument("--rig", default=None, help="rig (for the camera and world; default sim)")
+        sp.add_argument(
+            "--rig",
+            default=None,
+            help="rig: its camera and world (whose demo gallery 'demo' is); default sim",
+        )
         sp.add_argument("--embedder", default="", help="embedder weights (default: shipped)")
         sp.add_argument("--detector", default="", help="detector weights (default: shipped)")
 
