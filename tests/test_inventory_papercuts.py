@@ -135,3 +135,26 @@ def test_the_aisles_demo_gallery_is_named_by_its_rig(capsys) -> None:
     assert "aisle.yaml" in out and "114B" in out
     with open(os.path.join(REPO, "docs", "inventory.md"), encoding="utf-8") as f:
         assert "btrun gallery list demo --rig rigs/aisle.yaml" in f.read()
+
+
+def test_the_report_leads_with_the_answer_and_tables_the_pallets() -> None:
+    from nodes.report.html import _html
+
+    pallet = {"identity": "109B", "slot": "A-01-1", "centre_m": [3.48, 4.94], "base_z_m": 0.2}
+    summary = {
+        "mission": "missions/inventory.xml",
+        "status": "SUCCESS",
+        "reason": "done",
+        "sim": {"landed": True, "pallets": [pallet]},
+        "inventory": {"places": 2, "status": {"identified": 2}, "right": 2, "wrong": 0},
+    }
+    page = _html(summary, None, [], [], [])
+    assert page.index("<h2>Answer</h2>") < page.index("<h2>Run</h2>")
+    assert "inventory: 2 places, 2 identified" in page
+    assert "<td class=l>109B</td><td class=l>A-01-1</td>" in page
+    assert '"identity"' not in page and "&quot;identity&quot;" not in page
+    ident = {"pallet_id": "7A", "distance": 0.4, "margin": 0.5, "decided_by": "embedding"}
+    solo = {"status": "SUCCESS", "perception": {"identifications": [ident]}}
+    page = _html(solo, None, [], [], [])
+    assert "pallet: 7A (distance 0.400, margin 0.500, decided by embedding)" in page
+    assert page.index("<h2>Answer</h2>") < page.index("<h2>Run</h2>")

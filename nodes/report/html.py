@@ -143,6 +143,57 @@ def _motion_table(rows: list[dict]) -> str:
     return '<div class="wide"><table>' + head + "".join(body) + "</table></div>"
 
 
+def _answer(summary: dict) -> str:
+    """The run's answer first, as the console's lines give it: each identification (pallet,
+    distance, margin, what decided it) and, for an inventory, the places and counts."""
+    esc = html.escape
+    items = []
+    inv = summary.get("inventory") or {}
+    if inv.get("places"):
+        status = inv.get("status") or {}
+        counts = ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in status.items() if n)
+        line = f"inventory: {inv['places']} places, {counts}"
+        if "right" in inv:
+            line += (
+                f"; against the simulator {inv['right']} right, {inv.get('unknown', 0)} "
+                f"unknown, {inv.get('wrong', 0)} wrong"
+            )
+        items.append(line)
+    else:
+        for r in (summary.get("perception") or {}).get("identifications") or []:
+            if "failed" in r:
+                items.append(f"pallet: failed: {r['failed']}")
+                continue
+            items.append(
+                f"pallet: {r.get('pallet_id')} (distance {_fmt(r.get('distance'))}, margin "
+                f"{_fmt(r.get('margin'))}, decided by {r.get('decided_by') or 'embedding'})"
+            )
+    if not items:
+        return ""
+    return "<h2>Answer</h2><ul>" + "".join(f"<li>{esc(i)}</li>" for i in items[:20]) + "</ul>"
+
+
+def _pallets_table(pallets: list) -> str:
+    """The simulator's pallets (``sim.pallets``): one row per pallet."""
+    rows = []
+    for p in pallets:
+        if not isinstance(p, dict):
+            continue
+        centre = p.get("centre_m") or []
+        rows.append(
+            f"<tr><td class=l>{html.escape(str(p.get('identity', '')))}</td>"
+            f"<td class=l>{html.escape(str(p.get('slot', '')))}</td>"
+            f"<td>{', '.join(_fmt(c, '.2f') for c in centre)}</td>"
+            f"<td>{_fmt(p.get('base_z_m'), '.2f')}</td><td>{_fmt(p.get('facing_deg'), '.1f')}</td></tr>"
+        )
+    return (
+        "<h3>Pallets</h3><table><tr><th class=l>identity</th><th class=l>place</th>"
+        "<th>centre (m)</th><th>base z (m)</th><th>facing (deg)</th></tr>"
+        + "".join(rows)
+        + "</table>"
+    )
+
+
 def _html(
     summary: dict,
     mission: Any,
@@ -173,12 +224,16 @@ def _html(
         f"<style>{_CSS}</style></head><body>",
         f'<h1>{esc(os.path.basename(mission_file))}: <span class="{esc(status)}">{esc(status)}</span></h1>',
         f"<p>{esc(str(summary.get('reason', '')))}</p>",
+        _answer(summary),
         "<h2>Run</h2>",
         _kv_table(run),
     ]
     if truth:
         label = "Simulator ground truth" if "sim" in summary else "Vehicle"
-        out += [f"<h2>{label}</h2>", _kv_table(truth.items())]
+        plain = [(k, v) for k, v in truth.items() if k != "pallets"]
+        out += [f"<h2>{label}</h2>", _kv_table(plain)]
+        if truth.get("pallets"):
+            out.append(_pallets_table(truth["pallets"]))
     out += [
         "<h2>Motions</h2>",
         '<p class="note">Errors use the pose the vehicle flew on (motion capture). Track = |pose - reference| '
