@@ -177,7 +177,7 @@ def resume_settings(args) -> list[Problem]:
                 )
             ]
         return [Problem(where, f"{previous} is not a run folder (no ticks.jsonl in it)")]
-    header, _ = read_log(log)
+    header, _ = read_log(log, header_only=True)
     flown = header.get("mission")
     if flown and os.path.abspath(flown) != os.path.abspath(args.mission):
         return [Problem(where, f"{previous} flew {flown}: resume it with that mission")]

@@ -206,8 +206,10 @@ def _check_header(header: Any, path: str, number: int, text: str) -> dict:
     return header
 
 
-def read_log(path: str) -> tuple[dict, list[dict]]:
+def read_log(path: str, header_only: bool = False) -> tuple[dict, list[dict]]:
     """Read a tick log: return ``(header, tick_records)``; a torn last line is ignored.
+    ``header_only``: stop after the header line (``--resume`` needs nothing else, and a
+    long run's log is large).
 
     A tick log comes from a run folder, which may have been tampered with: it is read only
     if it is a regular file (a FIFO or a device is refused before it is opened), line by
@@ -252,6 +254,8 @@ def read_log(path: str) -> tuple[dict, list[dict]]:
             if "header" in rec:
                 text = raw.decode("utf-8", "replace")
                 header = _check_header(rec["header"], path, number, text)
+                if header_only:
+                    break
             else:
                 records.append(rec)
     return header, records
