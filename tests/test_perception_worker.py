@@ -109,6 +109,7 @@ def test_real_time_pallet_scan_identifies_with_perception_on_the_worker(tmp_path
     assert p["capture_to_decision_ms"]["p95"] > 0
     ticks = [json.loads(line) for line in open(os.path.join(out, "ticks.jsonl"))]
     t = [r["t"] for r in ticks if "tick" in r]
+    assert t[0] < 3.0  # one time base: loading before the first tick is not mission time
     gaps = [b - a for a, b in zip(t, t[1:], strict=False)]
     assert max(gaps) < 2.5  # no tick loaded a model or a gallery (4x: 0.6 s of wall time)
 
@@ -116,8 +117,7 @@ def test_real_time_pallet_scan_identifies_with_perception_on_the_worker(tmp_path
 def test_lock_step_detects_in_the_tick(tmp_path) -> None:
     out = tmp_path / "run"
     proc = subprocess.run(
-        [*BTRUN, "missions/pallet_scan.xml", "--out", str(out), "--quiet", "--no-report"]
-        + ["--no-mcap"],
+        [*BTRUN, "missions/pallet_scan.xml", "--out", str(out), "--no-report", "--no-mcap"],
         cwd=REPO,
         capture_output=True,
         text=True,
@@ -126,6 +126,8 @@ def test_lock_step_detects_in_the_tick(tmp_path) -> None:
     assert proc.returncode == 0, proc.stderr
     p = json.loads((out / "summary.json").read_text())["perception"]
     assert p["mode"] == "in the tick" and p["frames_dropped"] == 0
+    header = json.loads((out / "ticks.jsonl").read_text().split("\n", 1)[0])["header"]
+    assert "before_flight" in header
 
 
 class SlowOnce:
@@ -153,3 +155,63 @@ def test_real_time_ticks_skip_missed_slots_instead_of_bursting() -> None:
     after = run.tick_periods_s[5:]
     assert after and min(after) > 0.01, after  # 20 ms period: nothing back to back
     assert result.ticks < 30  # 0.6 s at 50 Hz, less the slots the slow tick took
+
+
+PREFLIGHT_PLUGIN = '''
+from bt_engine.node import SUCCESS, NodeStatus, SyncActionNode
+from bt_engine.registry import register
+
+
+@register
+class LoadsBeforeFlight(SyncActionNode):
+    """Logs from its preflight, as PerceptionReady does while it builds a gallery."""
+
+    category = "test"
+    ports = ()
+
+    def preflight(self):
+        self.ctx.log("loading the test model")
+        return []
+
+    def tick_impl(self) -> NodeStatus:
+        return SUCCESS
+
+
+class _Plugin:
+    name = "preflight-test"
+
+    def load_target(self, rig_path, overrides):
+        return None
+
+    def write_report(self, run_dir, trace, summary, mission):
+        return None
+
+    def commands(self):
+        return {}
+
+
+PLUGIN = _Plugin()
+'''
+
+
+def test_preflight_messages_are_shown_at_once_with_wall_time(tmp_path) -> None:
+    (tmp_path / "btrun_preflight_probe.py").write_text(PREFLIGHT_PLUGIN)
+    mission = tmp_path / "m.xml"
+    mission.write_text(wrap("<LoadsBeforeFlight/>"))
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join((str(tmp_path), REPO))
+    env["BTRUN_PLUGINS"] = "btrun_preflight_probe:PLUGIN"
+    proc = subprocess.run(
+        [*BTRUN, str(mission), "--out", str(tmp_path / "run"), "--no-report", "--no-mcap"],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    shown = [i for i, line in enumerate(lines) if "loading the test model" in line]
+    assert len(shown) == 1, lines  # once, not again at the first tick
+    assert lines[shown[0]].startswith("[wall ")
+    assert shown[0] < next(i for i, line in enumerate(lines) if "run folder" in line)
