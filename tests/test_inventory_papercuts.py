@@ -158,3 +158,22 @@ def test_the_report_leads_with_the_answer_and_tables_the_pallets() -> None:
     page = _html(solo, None, [], [], [])
     assert "pallet: 7A (distance 0.400, margin 0.500, decided by embedding)" in page
     assert page.index("<h2>Answer</h2>") < page.index("<h2>Run</h2>")
+
+
+def test_the_fleet_report_leads_with_the_answer_too(tmp_path) -> None:
+    from nodes.fleet.report import write_fleet_report
+
+    drone = {
+        "run_dir": "drones/cf1", "status": "SUCCESS", "reason": "done", "mission_time_s": 60.0,
+        "answered": 2, "places": 2, "waits": 0, "pauses": 0, "collisions": 0,
+    }  # fmt: skip
+    summary = {
+        "fleet": "aisle_2", "status": "SUCCESS", "seed": 0, "mission_time_s": 60.0,
+        "wall_time_s": 5.0, "drones": {"cf1": drone},
+        "separation": {"closest_m": None, "minimum_m": 0.5, "violations": 0, "holds": 0,
+                       "airspace_waits": 0},
+        "inventory": {"places": 2, "status": {"identified": 2}, "right": 2, "wrong": 0},
+    }  # fmt: skip
+    page = open(write_fleet_report(str(tmp_path), summary, {}, {})).read()
+    assert page.index("<h2>Answer</h2>") < page.index("<h2>Drones</h2>")
+    assert "inventory: 2 places, 2 identified" in page

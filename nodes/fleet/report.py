@@ -61,6 +61,7 @@ def write_fleet_report(
     out: str, summary: dict, runners: dict[str, Any], runs: dict[str, Any]
 ) -> str:
     """Write ``report.html`` (and its PNGs) in the fleet's run folder; return its path."""
+    from nodes.report.html import answer_section
     from nodes.report.inventory import inventory_section
 
     esc = html.escape
@@ -92,6 +93,7 @@ def write_fleet_report(
         f"<h1>fleet {esc(summary['fleet'])}: <span class='{esc(status)}'>{esc(status)}</span></h1>",
         f"<p>{len(summary['drones'])} drones, seed {summary['seed']}, "
         f"{summary['mission_time_s']:.1f} s mission time, {summary['wall_time_s']:.1f} s wall.</p>",
+        answer_section(summary),  # the merged inventory's answer first, as the console's
         "<h2>Drones</h2><table><tr><th class=l>drone</th><th class=l>status</th>"
         "<th class=l>reason</th><th>mission time (s)</th><th>places answered</th><th>battery "
         "changes</th><th>airspace waits</th><th>holds</th><th>collisions</th></tr>",

@@ -143,7 +143,7 @@ def _motion_table(rows: list[dict]) -> str:
     return '<div class="wide"><table>' + head + "".join(body) + "</table></div>"
 
 
-def _answer(summary: dict) -> str:
+def answer_section(summary: dict) -> str:
     """The run's answer first, as the console's lines give it: each identification (pallet,
     distance, margin, what decided it) and, for an inventory, the places and counts."""
     esc = html.escape
@@ -224,7 +224,7 @@ def _html(
         f"<style>{_CSS}</style></head><body>",
         f'<h1>{esc(os.path.basename(mission_file))}: <span class="{esc(status)}">{esc(status)}</span></h1>',
         f"<p>{esc(str(summary.get('reason', '')))}</p>",
-        _answer(summary),
+        answer_section(summary),
         "<h2>Run</h2>",
         _kv_table(run),
     ]
