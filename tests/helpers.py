@@ -109,3 +109,35 @@ def problems_of_xml(xml: str) -> list[str]:
     from bt_engine.validate import validate
 
     return [str(p) for p in validate(load_xml("m.xml", text=xml), REGISTRY)]
+
+
+#: The rest of a leaf-only test plug-in module: a plug-in object with no rig, report or
+#: command of its own (the module's leaves register themselves when it is imported).
+LEAF_PLUGIN_TAIL = """
+
+class _Plugin:
+    name = "test-leaves"
+
+    def load_target(self, rig_path, overrides):
+        return None
+
+    def write_report(self, run_dir, trace, summary, mission):
+        return None
+
+    def commands(self):
+        return {}
+
+
+PLUGIN = _Plugin()
+"""
+
+
+def leaf_plugin_env(folder, module: str, leaves: str) -> dict[str, str]:
+    """Write ``folder/<module>.py`` (the ``leaves`` source and :data:`LEAF_PLUGIN_TAIL`) and
+    return an environment in which a ``btrun`` subprocess loads it as a plug-in."""
+    with open(os.path.join(str(folder), f"{module}.py"), "w", encoding="utf-8") as f:
+        f.write(leaves + LEAF_PLUGIN_TAIL)
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join((str(folder), REPO))
+    env["BTRUN_PLUGINS"] = f"{module}:PLUGIN"
+    return env

@@ -15,11 +15,10 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 
 import pytest
-from helpers import REPO, bench_module, wait_until
+from helpers import REPO, bench_module, leaf_plugin_env, wait_until
 
 BTRUN = [sys.executable, "-c", "from bt_engine.cli import main; raise SystemExit(main())"]
 
@@ -43,22 +42,6 @@ class HoldTheGil(SyncActionNode):
     def tick_impl(self) -> NodeStatus:
         ctypes.PyDLL(None).sleep(int(self.get_input("seconds")))
         return SUCCESS
-
-
-class _Plugin:
-    name = "guard-test"
-
-    def load_target(self, rig_path, overrides):
-        return None
-
-    def write_report(self, run_dir, trace, summary, mission):
-        return None
-
-    def commands(self):
-        return {}
-
-
-PLUGIN = _Plugin()
 '''
 
 MISSION = """<root BTCPP_format="4" main_tree_to_execute="M">
@@ -76,11 +59,7 @@ MISSION = """<root BTCPP_format="4" main_tree_to_execute="M">
 @pytest.fixture
 def plugin_env(tmp_path):
     """An environment whose btrun loads the GIL-holding leaf."""
-    (tmp_path / "btrun_guard_probe.py").write_text(textwrap.dedent(PLUGIN_MODULE))
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(tmp_path), REPO) if p)
-    env["BTRUN_PLUGINS"] = "btrun_guard_probe:PLUGIN"
-    return env
+    return leaf_plugin_env(tmp_path, "btrun_guard_probe", PLUGIN_MODULE)
 
 
 def _mission(tmp_path, middle: str) -> str:

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from helpers import REPO, wait_until, wrap, xml_mission
+from helpers import REPO, leaf_plugin_env, wait_until, wrap, xml_mission
 
 from nodes.perception_feed import PerceptionWorker
 
@@ -175,32 +175,13 @@ class LoadsBeforeFlight(SyncActionNode):
 
     def tick_impl(self) -> NodeStatus:
         return SUCCESS
-
-
-class _Plugin:
-    name = "preflight-test"
-
-    def load_target(self, rig_path, overrides):
-        return None
-
-    def write_report(self, run_dir, trace, summary, mission):
-        return None
-
-    def commands(self):
-        return {}
-
-
-PLUGIN = _Plugin()
 '''
 
 
 def test_preflight_messages_are_shown_at_once_with_wall_time(tmp_path) -> None:
-    (tmp_path / "btrun_preflight_probe.py").write_text(PREFLIGHT_PLUGIN)
+    env = leaf_plugin_env(tmp_path, "btrun_preflight_probe", PREFLIGHT_PLUGIN)
     mission = tmp_path / "m.xml"
     mission.write_text(wrap("<LoadsBeforeFlight/>"))
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join((str(tmp_path), REPO))
-    env["BTRUN_PLUGINS"] = "btrun_preflight_probe:PLUGIN"
     proc = subprocess.run(
         [*BTRUN, str(mission), "--out", str(tmp_path / "run"), "--no-report", "--no-mcap"],
         cwd=REPO,
