@@ -118,9 +118,10 @@ class PerceptionWorker:
 @dataclass
 class FrameFeed:
     """What one leaf has consumed: the last camera frame index (lock-step), the last
-    observation number (real time), and its frame gate (lock-step: skip frames whose view
-    barely moved)."""
+    observation number and the worker's bad frames already reported (real time), and its
+    frame gate (lock-step: skip frames whose view barely moved)."""
 
     last_index: int | None
     seq: int
     gate: Any
+    errors: int = 0

@@ -308,7 +308,8 @@ class PerceptionSession:
         has no gate (the worker takes the newest frame whenever it is free)."""
         frame = vehicle.camera_frame()
         if realtime:
-            return FrameFeed(None, self.worker.seq if self.worker is not None else 0, None)
+            w = self.worker
+            return FrameFeed(None, w.seq if w else 0, None, w.errors if w else 0)
         return FrameFeed(frame.index if frame is not None else None, 0, self.frame_gate())
 
     def observations(
@@ -323,13 +324,12 @@ class PerceptionSession:
             self._detect_with = (detector, min_score)
             if self.worker is None:
                 self.worker = PerceptionWorker(vehicle.camera_frame, self._worker_detect)
-            errors = self.worker.errors
+            if self.worker.errors > feed.errors:  # a frame the models could not take
+                feed.errors = self.worker.errors
+                raise PerceptionError(self.worker.last_error)
             out = self.worker.since(feed.seq)
             if out:
                 feed.seq = out[-1].seq
-            elif errors and self.worker.last_error and feed.last_index != -errors:
-                feed.last_index = -errors  # report each new bad frame once per feed
-                raise PerceptionError(self.worker.last_error)
         else:
             frame = vehicle.camera_frame()
             if frame is None or frame.index == feed.last_index:
