@@ -28,7 +28,7 @@ import threading
 import time
 
 import pytest
-from helpers import REPO, sim_mission, wait_until
+from helpers import REPO, leaf_plugin_env, sim_mission, wait_until
 from mcap.reader import make_reader
 
 import nodes  # noqa: F401  (the drone leaves, before the registry snapshot)
@@ -384,22 +384,6 @@ class StuckTestOnly(SyncActionNode):
         while mode == "spin":
             pass
         return SUCCESS
-
-
-class _Plugin:
-    name = "stuck-test"
-
-    def load_target(self, rig_path, overrides):
-        return None
-
-    def write_report(self, run_dir, trace, summary, mission):
-        return None
-
-    def commands(self):
-        return {}
-
-
-PLUGIN = _Plugin()
 '''
 STUCK = """<root BTCPP_format="4" main_tree_to_execute="M">
   <BehaviorTree ID="M">
@@ -414,9 +398,7 @@ STUCK = """<root BTCPP_format="4" main_tree_to_execute="M">
 
 
 def _plugin_env(tmp_path) -> dict[str, str]:
-    (tmp_path / "btrun_test_stuck.py").write_text(textwrap.dedent(PLUGIN))
-    path = os.pathsep.join(p for p in (str(tmp_path), os.environ.get("PYTHONPATH")) if p)
-    return _env(PYTHONPATH=path, BTRUN_PLUGINS="btrun_test_stuck:PLUGIN")
+    return leaf_plugin_env(tmp_path, "btrun_test_stuck", textwrap.dedent(PLUGIN))
 
 
 @pytest.mark.parametrize("mode", ["swallow", "sleep"])
