@@ -39,6 +39,7 @@ from nodes.inventory_log import (
     InventoryError,
     InventoryLog,
 )
+from nodes.place_evidence import write_place_evidence
 
 CATEGORY_INVENTORY = "inventory"
 MAX_PLACES = 10_000
@@ -314,8 +315,28 @@ class RecordPlace(SyncActionNode):
             }
         )
         self.ctx.log(f"inventory {row['place']}: {answer or '-'} ({status})")
+        self._write_evidence(row["place"])
         self.set_output("recorded", len(log.rows) - len(log.carried))
         return SUCCESS
+
+    def _write_evidence(self, place: str) -> None:
+        """``places/<place>/``: the crops and top candidates of the last identification since
+        the previous row (:mod:`nodes.place_evidence`; the console shows them). Evidence is
+        never a reason to stop an inventory: a failure is one tick-log message."""
+        session = self.ctx.resources.get("perception")
+        idents = getattr(session, "identifications", None) or []
+        mark = self.ctx.resources.get("inventory_idents_mark", 0)
+        self.ctx.resources["inventory_idents_mark"] = len(idents)
+        run_dir = self.ctx.resources.get("run_dir")
+        found = [r for r in idents[mark:] if "ranking" in r]
+        if not run_dir or not found:
+            return
+        try:
+            last = found[-1]
+            ranking = [(str(r[0]), float(r[1])) for r in last.get("ranking") or ()]
+            write_place_evidence(run_dir, place, last.get("crops"), ranking)
+        except (OSError, ValueError, TypeError, IndexError) as exc:
+            self.ctx.log(f"inventory {place}: evidence not written: {exc}")
 
     def _blocks_located(self) -> int | None:
         """How many blocks LocatePallet saw at this place, when the mission does not pass
