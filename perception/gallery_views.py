@@ -121,6 +121,53 @@ class ViewsMixin:
         decision = decide(match, th, rule, anchor)
         if not decision.update:
             return decision
+        note = f"{anchor:.3f} from the enrolment view" if anchor is not None else ""
+        args = (match.distance, match.margin, rule.max_views, "add view", note)
+        self._insert_view(ident, emb, vis, crops, run, *args)
+        return decision
+
+    def add_view(
+        self,
+        identity: str,
+        query: np.ndarray,
+        visibility: np.ndarray | None = None,
+        crops: list[np.ndarray] | None = None,
+        run: str = "",
+        note: str = "",
+        max_views: int | None = None,
+    ) -> int:
+        """Add the scan ``query`` as a view of ``identity`` because a person said so (an
+        operator's review of an exception), without :func:`perception.gallery_update.decide`:
+        the history's ``operator view`` event records ``run`` and ``note`` (who, why), and
+        :meth:`rollback` undoes it like any added view. Returns the view id.
+
+        Raises:
+            GalleryError: ``identity`` is not enrolled.
+        """
+        if identity not in self.identities():
+            raise GalleryError(f"add view: {identity} is not enrolled in {self.path}")
+        emb = self._check_vectors("add view", query)
+        vis = self._check_visibility("add view", visibility)
+        limit = UpdateRule().max_views if max_views is None else max_views
+        return self._insert_view(
+            identity, emb, vis, crops, run, None, None, limit, "operator view", note
+        )
+
+    def _insert_view(
+        self,
+        ident: str,
+        emb: np.ndarray,
+        vis: np.ndarray | None,
+        crops: list[np.ndarray] | None,
+        run: str,
+        distance: float | None,
+        margin: float | None,
+        max_views: int,
+        action: str,
+        note: str,
+    ) -> int:
+        """Insert one view (and its crops) with its history event; evict the oldest active
+        views beyond ``max_views``. Returns the view id."""
         now = time.time()
         with self._writing(f"add a view to {ident}"), self.conn:
             cur = self.conn.execute(
@@ -132,8 +179,8 @@ class ViewsMixin:
                     vis.tobytes() if vis is not None else None,
                     now,
                     run,
-                    match.distance,
-                    match.margin,
+                    distance,
+                    margin,
                 ),
             )
             view_id = int(cur.lastrowid or 0)
@@ -141,16 +188,7 @@ class ViewsMixin:
                 self.conn.execute(
                     "INSERT INTO view_crops VALUES (?, ?, ?)", (view_id, b, png_bytes(crop))
                 )
-            self._event(
-                ident,
-                now,
-                "add view",
-                run,
-                match.distance,
-                match.margin,
-                view_id,
-                f"{anchor:.3f} from the enrolment view" if anchor is not None else "",
-            )
+            self._event(ident, now, action, run, distance, margin, view_id, note)
             active = [
                 r[0]
                 for r in self.conn.execute(
@@ -158,13 +196,13 @@ class ViewsMixin:
                     (ident,),
                 )
             ]
-            for old in active[: max(0, len(active) - rule.max_views)]:
+            for old in active[: max(0, len(active) - max_views)]:
                 self.conn.execute(
                     "UPDATE views SET active = 0, evicted_by = ? WHERE view_id = ?", (view_id, old)
                 )
                 self._event(ident, now, "evict view", run, view_id=old, note=f"by view {view_id}")
         self._invalidate()
-        return decision
+        return view_id
 
     def _enrolment_distance(self, identity: str, emb: np.ndarray, vis: np.ndarray | None) -> float:
         """Side distance of a scan to ``identity``'s enrolment view alone."""

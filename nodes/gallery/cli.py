@@ -11,6 +11,7 @@
     btrun gallery evaluate pallets.sqlite         # how far apart the enrolled sides are
     btrun gallery history pallets.sqlite 7A       # enrolment, added views, rollbacks of 7A
     btrun gallery rollback pallets.sqlite 7A      # undo the latest view added to 7A
+                                                  # (or a pallet enrolled in btrun console's review)
     btrun gallery demo                            # build (if needed) and show the demo gallery
     btrun gallery list demo --rig rigs/aisle.yaml # the aisle's demo gallery (the rig's world)
 
@@ -30,6 +31,9 @@ import time
 from typing import Any
 
 import numpy as np
+
+#: how an operator's review (``btrun console``) names itself in a gallery's history ``run``
+REVIEW_RUN = "console review"
 
 
 class GalleryCommandError(Exception):
@@ -153,6 +157,13 @@ def _rollback(args: argparse.Namespace) -> int:
     if args.gallery == "demo":
         raise GalleryCommandError("the demo gallery is generated: nothing to roll back")
     _, g = _open(args)
+    if args.view is None and args.name in g.identities() and not g.views(args.name):
+        enrolled = [e for e in g.history(args.name) if e["action"] in ("enrol", "re-enrol")]
+        last = enrolled[-1] if enrolled else None
+        if last and last["action"] == "enrol" and (last["run"] or "").startswith(REVIEW_RUN):
+            g.remove(args.name)  # an operator's "new pallet" (btrun console): undone whole
+            print(f"rolled back the review enrolment of {args.name}: removed from {g.path}")
+            return 0
     view = g.rollback(args.name, args.view, run="btrun gallery rollback")
     left = len(g.views(args.name))
     print(f"rolled back view {view} of {args.name} in {g.path} ({left} added views active)")
