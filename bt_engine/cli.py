@@ -71,6 +71,13 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         "inventory) carry it over and skip what is done",
     )
     r.add_argument(
+        "--store",
+        metavar="URL",
+        help="site store the run's inventory rows are recorded in: sqlite:///FILE or "
+        "postgresql://... (default: site.sqlite beside the run folder, or $BTRUN_STORE; "
+        "none: record nothing; docs/store.md)",
+    )
+    r.add_argument(
         "--max-time", type=float, default=900.0, help="mission time limit in s (default 900)"
     )
     r.add_argument(

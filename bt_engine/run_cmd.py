@@ -240,6 +240,7 @@ def prepare(
             "seed": args.seed,
             "run_dir": run_dir,
             "resume_from": getattr(args, "resume", None),
+            "store": getattr(args, "store", None),  # opaque: the plug-in's site store URL
             **(target.resources() if target is not None else {}),
             **(resources or {}),
         },

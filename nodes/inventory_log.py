@@ -209,6 +209,7 @@ class InventoryLog:
         sink: Callable[[InventoryLog], None] | None = None,
         layout: dict[str, list] | None = None,
         run: str = "",
+        recorder: Any = None,
     ) -> None:
         self.run_dir = run_dir
         #: the ``run`` column of new rows: the run folder's name (a fleet's drones give
@@ -220,6 +221,9 @@ class InventoryLog:
         self.planned: list[str] = []
         self.truth_source = truth
         self.sink = sink
+        #: the site store's recorder (``store.recorder.RunRecorder``; docs/store.md): takes
+        #: every write's rows, never blocks or fails the run
+        self.recorder = recorder
         #: place -> [rack, bay, level] (the report draws the racks from it)
         self.layout: dict[str, list] = dict(layout or {})
         self._plans: dict[str, list[str]] = {}  # a fleet's merged log: each drone's plan
@@ -262,6 +266,7 @@ class InventoryLog:
                 layout,
                 res.get("inventory_run") or "",
             )
+            log.recorder = _recorder(res)
             ctx.resources["inventory"] = log
         return log
 
@@ -301,6 +306,8 @@ class InventoryLog:
             write_inventory(self.run_dir, rows, self.planned)
         if self.sink is not None:
             self.sink(self)
+        if self.recorder is not None:
+            self.recorder.record(rows)
 
     def absorb(self, other: InventoryLog) -> None:
         """Take ``other``'s rows and plan into this one (a fleet's merged inventory is the
@@ -358,6 +365,18 @@ class InventoryLog:
                     f"btrun {mission} --resume {self.run_dir}"
                 )
         return out
+
+
+def _recorder(resources: dict) -> Any:
+    """The site store's recorder of a run (nodes.site.recording.recorder_for); a store that
+    cannot be used is refused before flight, located at ``--store``."""
+    from nodes.site.recording import recorder_for
+    from store import StoreError
+
+    try:
+        return recorder_for(resources)
+    except StoreError as exc:
+        raise InventoryError(str(exc), Loc("--store", 0, 0)) from None
 
 
 def _mission_of(run_dir: str) -> str | None:

@@ -12,7 +12,7 @@ Importing it imports :mod:`nodes` (which registers every leaf). It gives the eng
 * :meth:`DronePlugin.run_sections` - ``motions`` in ``summary.json``: each motion's
   tracking figures (what the report's motion table shows, for campaigns to tabulate);
 * :meth:`DronePlugin.commands` - ``btrun sim serve ...``, ``btrun rig ...``,
-  ``btrun fleet ...`` and ``btrun gallery ...``.
+  ``btrun fleet ...``, ``btrun gallery ...`` and ``btrun inventory ...`` (the site store).
 """
 
 from __future__ import annotations
@@ -83,6 +83,12 @@ class RigTarget:
 
     def finished(self, summary_written: bool = True) -> None:
         """The run is over: let the guard process go (idempotent)."""
+        mission = getattr(self, "mission", None)
+        if mission is not None:  # the site store: the run's end and its last rows
+            from nodes.site.recording import finish_recording
+
+            self.mission = None
+            finish_recording(mission.ctx.resources, getattr(self, "run_dir", None))
         guard = getattr(self, "guard", None)
         if guard is not None:
             guard.finished(summary_written)
@@ -93,6 +99,7 @@ class RigTarget:
         (``run_dir``, set by ``btrun``)."""
         from nodes.mcap_log import make_mcap_recorder
 
+        self.mission = mission  # finished() ends its inventory's recording
         hook = make_safety_hook(self.rig, platform, mission)
         hooks: list[Any] = [hook] if hook is not None else []
         guard = getattr(self, "guard", None)
@@ -150,6 +157,7 @@ class DronePlugin:
         """``btrun sim serve crazyflie|aideck ...`` and ``btrun gallery ...``."""
         from nodes.fleet import run as fleet_run
         from nodes.gallery import cli as gallery_cli
+        from nodes.site import cli as site_cli
 
         return {
             "sim": Command(
@@ -169,6 +177,12 @@ class DronePlugin:
                 "enrolled pallets: btrun gallery list|enrol|remove|export|evaluate|demo",
                 gallery_cli.setup,
                 gallery_cli.run,
+            ),
+            "inventory": Command(
+                "the site store: btrun inventory history PLACE | diff RUN_A RUN_B | runs | "
+                "import RUN_DIR... (docs/store.md)",
+                site_cli.setup,
+                site_cli.run,
             ),
         }
 

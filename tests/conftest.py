@@ -65,3 +65,17 @@ def pallet_scan_flight(_btrun_cache) -> SharedFlight:
     run.on_tick = record
     result = run.run(max_time_s=300)
     return SharedFlight(m, run, pf, result, ticks)
+
+
+@pytest.fixture(scope="session")
+def postgresql_server():
+    """A PostgreSQL server of its own for this session (tests/pg_server.py): initdb into a
+    temporary folder, started on a free port, stopped at the end. Skipped, saying why, on a
+    machine without PostgreSQL's binaries (``.ci/run`` installs Debian's package)."""
+    from pg_server import pg_bin, start_server
+
+    if pg_bin() is None:
+        pytest.skip("no PostgreSQL binaries (apt-get install postgresql; .ci/run does)")
+    server = start_server()
+    yield server
+    server.stop()

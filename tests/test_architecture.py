@@ -14,7 +14,7 @@ from collections.abc import Iterator
 import pytest
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PACKAGES = ("bt_engine", "nodes", "drivers", "perception")
+PACKAGES = ("bt_engine", "nodes", "drivers", "perception", "store")
 #: Modules at the top of the repository: btrun_launcher is the ``btrun`` console script,
 #: which must catch Ctrl-C before ``bt_engine`` is imported (so it cannot live inside it).
 TOP_MODULES = ("btrun_launcher",)
@@ -47,6 +47,12 @@ FORBIDDEN: list[tuple[str, str, str]] = [
     ("btrun_launcher", "nodes", "the console script starts the engine, which loads plug-ins"),
     ("btrun_launcher", "drivers", "the console script starts the engine, which loads plug-ins"),
     ("btrun_launcher", "perception", "the console script starts the engine only"),
+    ("store", "bt_engine", "the store is the bottom layer: it imports nothing of btrun"),
+    ("store", "nodes", "the store is the bottom layer: it imports nothing of btrun"),
+    ("store", "drivers", "the store is the bottom layer: it imports nothing of btrun"),
+    ("store", "perception", "the store is the bottom layer: it imports nothing of btrun"),
+    ("bt_engine", "store", "the engine passes --store on as an opaque option"),
+    ("drivers", "store", "drivers know no inventory"),
     ("drivers.guard", "drivers.sim", "the guard owns a real link; it knows no simulator"),
     ("drivers.guard", "drivers.rig", "the rig floor starts the guard, not the reverse"),
     ("drivers.guard", "drivers.safety", "the guard's landing needs no policy: it is the last"),

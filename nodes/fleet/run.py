@@ -54,6 +54,12 @@ def setup(p: argparse.ArgumentParser) -> None:
         help="continue an interrupted fleet run: its inventory's answered places are kept "
         "and not flown again",
     )
+    p.add_argument(
+        "--store",
+        metavar="URL",
+        help="site store the merged inventory is recorded in (sqlite:///FILE, "
+        "postgresql://...; default site.sqlite beside the run folder; docs/store.md)",
+    )
     p.add_argument("--quiet", "-q", action="store_true", help="print only the results")
     p.add_argument("--no-report", action="store_true", help="skip the reports")
     p.add_argument("--no-mcap", action="store_true", help="do not record each drone's run.mcap")
@@ -113,6 +119,7 @@ def run(args: Any) -> int:
         merged = InventoryLog(out, args.resume, "fleet", _truth(rig, world), None, _layout(world))
     except InventoryError as exc:
         raise MissionError([exc.problem()]) from None
+    merged.recorder = _recorder(args, out, spec)
     split = _split(spec, world, merged, common)
     common = [item for item in common if item.partition("=")[0] != "places"]
     os.makedirs(out, exist_ok=True)
@@ -153,6 +160,19 @@ def run(args: Any) -> int:
             release(r.target, *r.hooks, written=False)
         raise
     return _fly(spec, args, runs, merged, out, seed, printer)
+
+
+def _recorder(args: Any, out: str, spec: FleetSpec) -> Any:
+    """The merged inventory's recorder into the site store (docs/store.md); a store that
+    cannot be used is refused before anything flies."""
+    from nodes.site.recording import open_recorder
+    from store import StoreError
+
+    extra = {"fleet": spec.data["name"], "mission": os.path.abspath(spec.mission)}
+    try:
+        return open_recorder(getattr(args, "store", None), out, extra=extra)
+    except StoreError as exc:
+        raise MissionError([Problem(Loc("--store", 0, 0), str(exc))]) from None
 
 
 def _text(value: Any) -> str:
@@ -279,6 +299,8 @@ def _fly(
 
         summary["report"] = os.path.relpath(write_fleet_report(out, summary, runners, runs), out)
     atomic_write_text(os.path.join(out, "summary.json"), json.dumps(summary, indent=2))
+    if merged.recorder is not None:  # the run's end and its last rows in the site store
+        merged.recorder.finish(summary["status"])
     _print(summary, out, args.fleet)
     return 0 if all(c == 0 for c in codes.values()) and runs else 1
 

@@ -1,0 +1,174 @@
+"""``btrun inventory``: what the site store knows of the inventories flown.
+
+::
+
+    btrun inventory history A-03-2                 # what was found at A-03-2, run by run
+    btrun inventory diff RUN_A RUN_B               # places whose answer changed
+    btrun inventory runs                           # the runs recorded
+    btrun inventory import runs/inventory-*        # load run folders flown before
+    btrun inventory history A-03-2 --store postgresql://btrun@db.site/btrun --json
+
+``--store`` as in ``btrun run`` (default ``$BTRUN_STORE``, else ``runs/site.sqlite``).
+Errors are one line each, exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Any
+
+from store import InventoryStore, StoreError, default_url, disabled
+
+
+def setup(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``btrun inventory``."""
+    sub = p.add_subparsers(dest="inventory_command", metavar="SUBCOMMAND", required=True)
+    hi = sub.add_parser("history", help="what was found at a place, run by run")
+    hi.add_argument("place", help="place name, e.g. A-03-2")
+    hi.add_argument("--limit", type=int, default=None, metavar="N", help="the newest N runs")
+    di = sub.add_parser("diff", help="what changed between two inventories")
+    di.add_argument("run_a", help="the earlier run (its folder's name)")
+    di.add_argument("run_b", help="the later run")
+    rs = sub.add_parser("runs", help="the runs the store holds")
+    rs.add_argument("--limit", type=int, default=None, metavar="N", help="the newest N runs")
+    im = sub.add_parser("import", help="record run folders (flown before, or offline)")
+    im.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
+    for sp in (hi, di, rs, im):
+        sp.add_argument(
+            "--store",
+            metavar="URL",
+            default=None,
+            help="sqlite:///FILE or postgresql://... (default: $BTRUN_STORE, else "
+            "runs/site.sqlite)",
+        )
+        sp.add_argument("--json", action="store_true", help="JSON instead of a table")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run one ``btrun inventory`` subcommand; return the exit code."""
+    url = args.store or default_url()
+    if disabled(url):
+        print("btrun inventory: --store none has nothing to show", file=sys.stderr)
+        return 2
+    try:
+        with InventoryStore.open(url, create=args.inventory_command == "import") as store:
+            return _COMMANDS[args.inventory_command](store, args)
+    except StoreError as exc:
+        print(f"btrun inventory: {exc}", file=sys.stderr)
+        return 2
+
+
+def _when(t: Any) -> str:
+    return time.strftime("%Y-%m-%d %H:%M", time.localtime(t)) if t else "-"
+
+
+def _table(title: str, columns: list[str], rows: list[list[Any]]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, title_justify="left", box=None, header_style="bold")
+    for c in columns:
+        table.add_column(c)
+    for r in rows:
+        table.add_row(*["-" if v is None or v == "" else str(v) for v in r])
+    Console(width=max(100, 20 * len(columns))).print(table)
+
+
+def _number(v: Any) -> str | None:
+    return f"{v:.3f}" if isinstance(v, float) else None
+
+
+def _history(store: InventoryStore, args: argparse.Namespace) -> int:
+    found = store.history(args.place, args.limit)
+    if not found:
+        import difflib
+
+        close = difflib.get_close_matches(args.place, store.places(), n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise StoreError(f"{store.shown}: no row for place {args.place!r}{hint}")
+    if args.json:
+        print(json.dumps(found, indent=1))
+        return 0
+    _table(
+        f"{args.place}: {len(found)} runs ({store.shown})",
+        ["run", "started", "answer", "status", "drone", "distance", "margin", "run status"],
+        [
+            [
+                h["run"],
+                _when(h["started"]),
+                h["answer"],
+                h["status"],
+                h["drone"],
+                _number(h["distance"]),
+                _number(h["margin"]),
+                h["run_status"],
+            ]
+            for h in found
+        ],
+    )
+    return 0
+
+
+def _diff(store: InventoryStore, args: argparse.Namespace) -> int:
+    changes = store.diff(args.run_a, args.run_b)
+    if args.json:
+        print(json.dumps({"a": args.run_a, "b": args.run_b, "changes": changes}, indent=1))
+        return 0
+    if not changes:
+        print(f"{args.run_a} -> {args.run_b}: no place changed")
+        return 0
+    counts: dict[str, int] = {}
+    for c in changes:
+        counts[c["change"]] = counts.get(c["change"], 0) + 1
+    _table(
+        f"{args.run_a} -> {args.run_b}: "
+        + ", ".join(f"{n} {k}" for k, n in sorted(counts.items())),
+        ["place", "change", args.run_a, args.run_b],
+        [[c["place"], c["change"], c["a"], c["b"]] for c in changes],
+    )
+    return 0
+
+
+def _runs(store: InventoryStore, args: argparse.Namespace) -> int:
+    runs = store.runs(args.limit)
+    if args.json:
+        print(json.dumps(runs, indent=1))
+        return 0
+    _table(
+        f"{len(runs)} runs ({store.shown})",
+        ["run", "started", "status", "rows", "fleet", "seed", "host"],
+        [
+            [
+                r["run"],
+                _when(r["started"]),
+                r["status"],
+                r["rows"],
+                r["fleet"],
+                r["seed"],
+                r["host"],
+            ]
+            for r in runs
+        ],
+    )
+    return 0
+
+
+def _import(store: InventoryStore, args: argparse.Namespace) -> int:
+    from nodes.site.importer import import_run
+    from nodes.site.recording import run_id
+
+    done = {}
+    for run_dir in args.run_dirs:
+        done[run_id(run_dir)] = import_run(store, run_dir)
+    if args.json:
+        print(json.dumps(done, indent=1))
+    else:
+        for run, n in done.items():
+            print(f"imported {run}: {n} rows into {store.shown}")
+    return 0
+
+
+_COMMANDS = {"history": _history, "diff": _diff, "runs": _runs, "import": _import}

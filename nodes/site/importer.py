@@ -1,0 +1,42 @@
+"""Run folders into the site store: ``btrun inventory import RUN_DIR...``.
+
+A run flown before the store existed, or while it was away (its rows stay in the run
+folder: the source of truth), is loaded from its ``inventory.json``, tick log header or
+fleet record and ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import os
+
+from nodes.inventory_log import InventoryError, read_inventory
+from nodes.site.recording import read_json, run_id, run_info
+from store import InventoryStore, StoreError
+
+
+def import_run(store: InventoryStore, run_dir: str) -> int:
+    """Record the run folder ``run_dir`` (its ``inventory.json``, tick log or fleet record
+    and ``summary.json``) in ``store``; the number of rows. Idempotent: importing again
+    replaces. :class:`StoreError` for a folder without an inventory."""
+    if not os.path.isdir(run_dir):
+        raise StoreError(f"{run_dir}: no such run folder")
+    if not os.path.exists(os.path.join(run_dir, "inventory.json")):
+        raise StoreError(f"{run_dir}: not an inventory run (no inventory.json)")
+    try:
+        rows = read_inventory(run_dir)
+    except InventoryError as exc:
+        raise StoreError(str(exc)) from None
+    run = run_id(run_dir)
+    store.begin_run(run, **run_info(run_dir, imported=True))
+    n = store.record_rows(run, rows)
+    status = read_json(os.path.join(run_dir, "summary.json")).get("status")
+    if isinstance(status, str):
+        try:
+            ended = os.path.getmtime(os.path.join(run_dir, "summary.json"))
+        except OSError:
+            ended = None
+        store.end_run(run, status, ended)
+    return n
+
+
+__all__ = ["import_run"]

@@ -1,0 +1,196 @@
+"""The site store (store/): one interface on SQLite and on a real PostgreSQL server started
+by the tests (conftest's ``postgresql_server``): schema and upgrade path, idempotent
+recording, history, diff, two concurrent writers losing nothing, the recorder's thread."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import sqlite3
+import threading
+import time
+
+import pytest
+
+from store import InventoryStore, StoreError, default_url, parse_url, redact
+from store.recorder import RunRecorder, start_recorder
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store_url(request, tmp_path) -> str:
+    """A fresh empty store of each kind."""
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path}/site.sqlite"
+    server = request.getfixturevalue("postgresql_server")
+    name = "t_" + request.node.name.replace("[", "_").replace("]", "").replace("-", "_")[:50]
+    return server.database(name.lower())
+
+
+def _row(place: str, answer: str, status: str = "identified", **kw) -> dict:
+    return {"place": place, "answer": answer, "status": status, **kw}
+
+
+def test_urls_and_defaults(tmp_path, monkeypatch) -> None:
+    assert parse_url("sqlite:///runs/site.sqlite").target == "runs/site.sqlite"
+    assert parse_url("sqlite:////srv/site.sqlite").target == "/srv/site.sqlite"
+    assert parse_url("site.sqlite").kind == "sqlite"
+    pg = parse_url("postgresql://btrun:s3cret@db.site:5432/btrun")
+    assert pg.kind == "postgresql" and "s3cret" not in pg.shown and "***" in pg.shown
+    assert "s3cret" not in redact("postgresql://h/db?user=a&password=s3cret")
+    with pytest.raises(StoreError, match="unknown scheme 'mysql'"):
+        parse_url("mysql://h/db")
+    monkeypatch.delenv("BTRUN_STORE", raising=False)
+    assert default_url(str(tmp_path / "runs" / "inv-1")) == str(tmp_path / "runs" / "site.sqlite")
+    assert default_url() == os.path.join("runs", "site.sqlite")
+    monkeypatch.setenv("BTRUN_STORE", "postgresql://h/db")
+    assert default_url("anything") == "postgresql://h/db"
+
+
+def test_record_history_diff(store_url) -> None:
+    with InventoryStore.open(store_url) as s:
+        s.begin_run("inv-1", mission="missions/inventory.xml", seed=0, started=1000.0)
+        s.record_rows("inv-1", [_row("A-01-1", "3A"), _row("A-01-2", "empty", "empty")])
+        s.record_rows("inv-1", [_row("A-02-1", "4B", drone="cf2")])
+        s.end_run("inv-1", "SUCCESS")
+        s.begin_run("inv-2", started=2000.0, fleet="aisle_2")
+        s.record_rows(
+            "inv-2",
+            [
+                _row("A-01-1", "5A"),
+                _row("A-01-2", "2B"),
+                _row("A-02-1", "empty", "empty"),
+                _row("A-03-1", "unknown", "unknown"),
+            ],
+        )
+        # a re-record of the same run/place replaces: never a second row
+        s.record_rows("inv-2", [_row("A-01-1", "5A", distance=0.25)])
+        assert len(s.rows("inv-2")) == 4
+        hist = s.history("A-01-1")
+        assert [(h["run"], h["answer"]) for h in hist] == [("inv-1", "3A"), ("inv-2", "5A")]
+        assert hist[1]["distance"] == 0.25 and hist[0]["run_status"] == "SUCCESS"
+        assert [h["run"] for h in s.history("A-01-1", limit=1)] == ["inv-2"]
+        changes = {d["place"]: d["change"] for d in s.diff("inv-1", "inv-2")}
+        assert changes == {
+            "A-01-1": "changed",
+            "A-01-2": "appeared",
+            "A-02-1": "disappeared",
+            "A-03-1": "only in B",
+        }
+        with pytest.raises(StoreError, match=r"no run 'inv-3' \(did you mean inv-[12]\?\)"):
+            s.diff("inv-1", "inv-3")
+        assert [r["run"] for r in s.runs()] == ["inv-1", "inv-2"]
+        assert s.runs()[0]["rows"] == 3 and s.runs()[1]["status"] == "running"
+
+
+def test_carried_rows_are_not_history_of_the_resumed_run(store_url) -> None:
+    with InventoryStore.open(store_url) as s:
+        s.begin_run("inv-1", started=1.0)
+        s.record_rows("inv-1", [_row("A-01-1", "3A")])
+        s.begin_run("inv-1-resumed", started=2.0)
+        s.record_rows("inv-1-resumed", [_row("A-01-1", "3A", run="inv-1"), _row("A-01-2", "1B")])
+        assert [h["run"] for h in s.history("A-01-1")] == ["inv-1"]
+        assert not s.diff("inv-1", "inv-1-resumed")[0]["place"] == "A-01-1"
+
+
+def test_a_run_name_of_another_folder_is_refused(store_url, tmp_path) -> None:
+    with InventoryStore.open(store_url) as s:
+        s.begin_run("inv-1", folder=str(tmp_path / "a" / "inv-1"))
+        s.begin_run("inv-1", folder=str(tmp_path / "a" / "inv-1"))  # the same folder: fine
+        with pytest.raises(StoreError, match="already recorded from .*--out"):
+            s.check_run("inv-1", str(tmp_path / "b" / "inv-1"))
+
+
+def test_schema_upgrade_path_and_newer_store(tmp_path) -> None:
+    path = tmp_path / "site.sqlite"
+    InventoryStore.open(str(path)).close()
+    conn = sqlite3.connect(path)
+    assert conn.execute("SELECT MAX(version) FROM store_schema").fetchone()[0] == 1
+    conn.execute("INSERT INTO store_schema VALUES (99, 0)")
+    conn.commit()
+    conn.close()
+    with pytest.raises(StoreError, match="store schema 99, this btrun knows up to 1"):
+        InventoryStore.open(str(path))
+
+
+def test_unreachable_postgresql_is_one_line_without_password() -> None:
+    with pytest.raises(StoreError) as err:
+        InventoryStore.open("postgresql://u:pw@127.0.0.1:1/db?connect_timeout=2")
+    msg = str(err.value)
+    assert "cannot connect" in msg and "pw" not in msg.replace("postgresql", "")
+    assert "\n" not in msg
+
+
+def _writer(url: str, run: str, places: int, barrier) -> None:
+    s = InventoryStore.open(url)
+    barrier.wait()
+    s.begin_run(run)
+    for i in range(places):  # one transaction per row, as a flight records
+        s.record_rows(run, [_row(f"P-{i:03d}", f"{i}A", drone=run)])
+    s.end_run(run, "SUCCESS")
+    s.close()
+
+
+def test_two_fleets_writing_at_once_lose_nothing(store_url) -> None:
+    """Two processes (two fleets) record into one store at the same moment: every row of
+    both is there, and the store was created once."""
+    ctx = multiprocessing.get_context("spawn")
+    barrier = ctx.Barrier(2)
+    places = 60
+    procs = [
+        ctx.Process(target=_writer, args=(store_url, run, places, barrier))
+        for run in ("fleet-a", "fleet-b")
+    ]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(120)
+        assert p.exitcode == 0
+    with InventoryStore.open(store_url) as s:
+        assert s.version() == 1
+        for run in ("fleet-a", "fleet-b"):
+            assert len(s.rows(run)) == places and s.run(run)["status"] == "SUCCESS"
+        assert len(s.history("P-007")) == 2
+
+
+def test_threads_writing_at_once_lose_nothing(store_url) -> None:
+    errors: list[BaseException] = []
+
+    def write(run: str) -> None:
+        try:
+            with InventoryStore.open(store_url) as s:
+                s.begin_run(run)
+                for i in range(30):
+                    s.record_rows(run, [_row(f"P-{i:02d}", "1A")])
+        except BaseException as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=write, args=(f"t{k}",)) for k in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors
+    with InventoryStore.open(store_url) as s:
+        assert sum(r["rows"] for r in s.runs()) == 120
+
+
+def test_recorder_writes_changes_and_survives_a_store_that_goes_away(tmp_path) -> None:
+    url = str(tmp_path / "site.sqlite")
+    said: list[str] = []
+    rec = start_recorder(url, "inv-1", str(tmp_path / "inv-1"), lambda: {"seed": 3}, said.append)
+    rec.record([_row("A-01-1", "3A")])
+    rec.record([_row("A-01-1", "3A"), _row("A-01-2", "empty", "empty")])
+    assert rec.finish("SUCCESS", timeout=10)
+    with InventoryStore.open(url) as s:
+        assert s.run("inv-1")["status"] == "SUCCESS" and s.run("inv-1")["seed"] == 3
+        assert len(s.rows("inv-1")) == 2
+    # a store that fails mid-run: a message, the rows kept for later, no exception
+    broken = RunRecorder(InventoryStore.open(url), str(tmp_path / "nowhere" / "x" / "y"), "inv-2")
+    broken._say = said.append
+    broken.store.close()  # the next write fails; reconnecting fails too (no such folder)
+    broken.url = "postgresql://u@127.0.0.1:1/db?connect_timeout=1"
+    broken.record([_row("A-01-1", "2B")])
+    t0 = time.monotonic()
+    assert broken.finish("SUCCESS", timeout=1.0) is False
+    assert time.monotonic() - t0 < 5
+    assert any("cannot record inv-2" in m and "run folder keeps every row" in m for m in said)
