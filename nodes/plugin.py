@@ -155,6 +155,7 @@ class DronePlugin:
 
     def commands(self) -> dict[str, Command]:
         """``btrun sim serve crazyflie|aideck ...`` and ``btrun gallery ...``."""
+        from nodes.console import cli as console_cli
         from nodes.fleet import run as fleet_run
         from nodes.gallery import cli as gallery_cli
         from nodes.site import cli as site_cli
@@ -177,6 +178,11 @@ class DronePlugin:
                 "enrolled pallets: btrun gallery list|enrol|remove|export|evaluate|demo",
                 gallery_cli.setup,
                 gallery_cli.run,
+            ),
+            "console": Command(
+                "the operator console in a browser: btrun console [--runs DIR] (docs/console.md)",
+                console_cli.setup,
+                console_cli.run,
             ),
             "inventory": Command(
                 "the site store: btrun inventory history PLACE | diff RUN_A RUN_B | runs | "

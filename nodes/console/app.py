@@ -1,0 +1,310 @@
+"""The console's web application (Starlette): pages, JSON, live events, review, export.
+
+Pages are small HTML shells; ``static/console.js`` draws them from the JSON routes, and
+every asset is served from :mod:`nodes.console`'s ``static/`` folder (no CDN: a site may
+have no internet). Reads are open to whoever reaches the port (loopback by default); the one
+write, a review decision, needs the console's token (``X-Console-Token`` header or a
+``token`` form field, compared in constant time). Every path comes through
+:class:`nodes.console.paths.RunsRoot`; request bodies over :data:`MAX_BODY_BYTES` and URLs
+over :data:`MAX_URL_BYTES` are refused, and so are hosts other than the bound one (a web
+page elsewhere cannot reach the console through DNS rebinding).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import html
+import json
+import os
+import urllib.parse
+from dataclasses import dataclass, field
+from typing import Any
+
+from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
+from starlette.middleware import Middleware
+from starlette.middleware.trustedhost import TrustedHostMiddleware
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+
+from nodes.console import export
+from nodes.console.live import RunFollower
+from nodes.console.paths import PathRefused, RunsRoot
+from nodes.console.review import GalleryDesk, ReviewError, decide, gallery_path
+from nodes.console.runs import list_runs, run_info
+
+STATIC_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
+#: the largest request body (a review decision is a few hundred bytes)
+MAX_BODY_BYTES = 16_384
+#: the longest path and query string
+MAX_URL_BYTES = 2_048
+#: live event streams served at once
+MAX_STREAMS = 16
+#: seconds between two polls of a running run's files
+POLL_S = 0.5
+TOKEN_HEADER = "x-console-token"
+CSP = (
+    "default-src 'self'; img-src 'self' data:; style-src 'self'; script-src 'self'; "
+    "connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'self'"
+)
+#: run files (a run's own report.html) are shown sandboxed: no script, no same origin
+FILE_CSP = "sandbox; default-src 'self'; img-src 'self' data:; style-src 'self' 'unsafe-inline'"
+
+
+@dataclass
+class ConsoleConfig:
+    """What ``btrun console`` was started with."""
+
+    runs: str
+    token: str
+    gallery: str | None = None
+    store: str | None = None
+    hosts: list[str] = field(default_factory=lambda: ["127.0.0.1", "localhost", "[::1]"])
+
+
+class Guard:
+    """ASGI middleware: refuses long URLs, methods other than GET/HEAD/POST and bodies over
+    the limit (by ``Content-Length`` and by counting what arrives), and adds the security
+    headers to every answer."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        raw = scope.get("raw_path") or scope["path"].encode()
+        if len(raw) + len(scope.get("query_string") or b"") > MAX_URL_BYTES:
+            await _plain(414, "URL too long")(scope, receive, send)
+            return
+        if scope["method"] not in ("GET", "HEAD", "POST"):
+            await _plain(405, "method not allowed")(scope, receive, send)
+            return
+        length = dict(scope.get("headers") or []).get(b"content-length")
+        if length is not None and (not length.isdigit() or int(length) > MAX_BODY_BYTES):
+            await _plain(413, "request body too large")(scope, receive, send)
+            return
+        seen = 0
+
+        async def counted() -> dict:
+            nonlocal seen
+            message = await receive()
+            seen += len(message.get("body", b""))
+            if seen > MAX_BODY_BYTES:
+                raise BodyTooLarge()
+            return message
+
+        async def secured(message: dict) -> None:
+            if message["type"] == "http.response.start":
+                headers = list(message.get("headers") or [])
+                names = {k.lower() for k, _ in headers}
+                extra = [
+                    (b"x-content-type-options", b"nosniff"),
+                    (b"referrer-policy", b"no-referrer"),
+                    (b"x-frame-options", b"DENY"),
+                ]
+                if b"content-security-policy" not in names:
+                    extra.append((b"content-security-policy", CSP.encode()))
+                message = {**message, "headers": headers + extra}
+            await send(message)
+
+        try:
+            await self.app(scope, counted, secured)
+        except BodyTooLarge:
+            await _plain(413, "request body too large")(scope, receive, send)
+
+
+class BodyTooLarge(Exception):
+    """A request body grew past :data:`MAX_BODY_BYTES` while it arrived."""
+
+
+def _plain(status: int, text: str) -> Response:
+    return Response(text + "\n", status_code=status, media_type="text/plain")
+
+
+def _shell(page: str, title: str, run: str = "") -> Response:
+    """A page: the shell console.js draws into."""
+    body = f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>{html.escape(title)} - btrun console</title>
+<link rel="stylesheet" href="/static/console.css">
+<script src="/static/common.js" defer></script>
+<script src="/static/console.js" defer></script>
+<script src="/static/review.js" defer></script>
+</head><body>
+<header><a href="/" class="brand">btrun console</a>
+<span id="token-state"></span></header>
+<main id="app" data-page="{page}" data-run="{html.escape(run, quote=True)}">
+<p class="loading">loading...</p></main>
+</body></html>
+"""
+    return Response(body, media_type="text/html; charset=utf-8")
+
+
+def _refused(exc: PathRefused) -> Response:
+    return _plain(exc.status, str(exc))
+
+
+def make_app(config: ConsoleConfig) -> Starlette:
+    """The console application over ``config.runs``."""
+    root = RunsRoot(config.runs)
+    desk = GalleryDesk()
+    streams = {"open": 0}
+
+    async def index(request: Request) -> Response:
+        return _shell("index", "runs")
+
+    async def run_page(request: Request) -> Response:
+        name = request.path_params["name"]
+        try:
+            root.run_dir(name)
+        except PathRefused as exc:
+            return _refused(exc)
+        return _shell("run", name, name)
+
+    async def review_page(request: Request) -> Response:
+        name = request.path_params["name"]
+        try:
+            root.run_dir(name)
+        except PathRefused as exc:
+            return _refused(exc)
+        return _shell("review", f"review {name}", name)
+
+    async def api_runs(request: Request) -> Response:
+        runs = await run_in_threadpool(list_runs, root)
+        return JSONResponse({"runs": runs, "store": config.store})
+
+    async def api_run(request: Request) -> Response:
+        name = request.path_params["name"]
+        try:
+            info = await run_in_threadpool(run_info, root, name, True)
+        except PathRefused as exc:
+            return _refused(exc)
+        gpath = gallery_path(root, root.run_dir(name), config.gallery)
+        info["gallery"] = {"path": os.path.abspath(gpath), "identities": _identities(gpath)}
+        return JSONResponse(info)
+
+    async def events(request: Request) -> Response:
+        name = request.path_params["name"]
+        try:
+            run_dir = root.run_dir(name)
+        except PathRefused as exc:
+            return _refused(exc)
+        if streams["open"] >= MAX_STREAMS:
+            return _plain(503, "too many live views open")
+        follower = RunFollower(run_dir)
+        streams["open"] += 1
+
+        async def stream() -> Any:
+            try:
+                yield "retry: 2000\n\n"
+                while True:
+                    for event, data in await run_in_threadpool(follower.poll):
+                        yield f"event: {event}\ndata: {json.dumps(data)}\n\n"
+                    if follower.done:
+                        yield "event: end\ndata: {}\n\n"
+                        return
+                    await asyncio.sleep(POLL_S)
+            finally:
+                streams["open"] -= 1
+
+        headers = {"Cache-Control": "no-store", "X-Accel-Buffering": "no"}
+        return StreamingResponse(stream(), media_type="text/event-stream", headers=headers)
+
+    async def run_file(request: Request) -> Response:
+        try:
+            path, media = root.file(request.path_params["name"], request.path_params["path"])
+        except PathRefused as exc:
+            return _refused(exc)
+        return FileResponse(path, media_type=media, headers={"Content-Security-Policy": FILE_CSP})
+
+    async def download(request: Request) -> Response:
+        name, kind, fmt = (request.path_params[k] for k in ("name", "kind", "fmt"))
+        if kind not in export.KINDS or fmt not in ("csv", "xlsx"):
+            return _plain(404, "no such export")
+        try:
+            info = await run_in_threadpool(run_info, root, name, True)
+        except PathRefused as exc:
+            return _refused(exc)
+        columns, lines = export.table(info, kind)
+        filename = f"{name}-{kind}.{fmt}"
+        disposition = {"Content-Disposition": f'attachment; filename="{filename}"'}
+        if fmt == "csv":
+            body = export.to_csv(columns, lines)
+            return Response(body, media_type="text/csv; charset=utf-8", headers=disposition)
+        body = await run_in_threadpool(export.to_xlsx, columns, lines, kind)
+        media = "application/vnd.openxmlformats-officedocument.spreadsheetml.sheet"
+        return Response(body, media_type=media, headers=disposition)
+
+    async def review(request: Request) -> Response:
+        name = request.path_params["name"]
+        try:
+            fields = await _body(request)
+        except BodyTooLarge:
+            return _plain(413, "request body too large")
+        except ValueError as exc:
+            return JSONResponse({"error": str(exc)}, status_code=400)
+        token = request.headers.get(TOKEN_HEADER) or str(fields.get("token") or "")
+        if not hmac.compare_digest(token.encode(), config.token.encode()):
+            return JSONResponse({"error": "a review needs the console's token"}, 403)
+        try:
+            record = await run_in_threadpool(decide, root, name, fields, config.gallery, desk)
+        except PathRefused as exc:
+            return _refused(exc)
+        except ReviewError as exc:
+            return JSONResponse({"error": str(exc)}, status_code=exc.status)
+        return JSONResponse({"decision": record})
+
+    routes = [
+        Route("/", index),
+        Route("/favicon.ico", lambda request: Response(status_code=204)),
+        Route("/runs/{name}", run_page),
+        Route("/runs/{name}/review", review_page),
+        Route("/api/runs", api_runs),
+        Route("/api/runs/{name}", api_run),
+        Route("/api/runs/{name}/events", events),
+        Route("/api/runs/{name}/review", review, methods=["POST"]),
+        Route("/files/{name}/{path:path}", run_file),
+        Route("/export/{name}/{kind}.{fmt}", download),
+        Mount("/static", StaticFiles(directory=STATIC_DIR, follow_symlink=False), name="static"),
+    ]
+    middleware = [Middleware(Guard), Middleware(TrustedHostMiddleware, allowed_hosts=config.hosts)]
+    return Starlette(routes=routes, middleware=middleware)
+
+
+def _identities(path: str) -> list[str]:
+    """The identities of the review gallery file ([] before the first decision creates it)."""
+    if not os.path.isfile(path):
+        return []
+    try:
+        from perception.gallery import Gallery
+
+        with Gallery.open(path) as g:
+            return g.identities()
+    except Exception:  # noqa: BLE001 - a damaged gallery shows as none; a decision says why
+        return []
+
+
+async def _body(request: Request) -> dict:
+    """A POST body (JSON, or a urlencoded form) of at most :data:`MAX_BODY_BYTES`."""
+    data = b""
+    async for chunk in request.stream():
+        data += chunk
+        if len(data) > MAX_BODY_BYTES:
+            raise BodyTooLarge()
+    kind = request.headers.get("content-type", "").split(";")[0].strip()
+    if kind == "application/x-www-form-urlencoded":
+        pairs = urllib.parse.parse_qsl(data.decode("utf-8", "replace"), max_num_fields=20)
+        return dict(pairs)
+    try:
+        doc = json.loads(data or b"{}")
+    except (ValueError, RecursionError):
+        raise ValueError("the body is not JSON") from None
+    if not isinstance(doc, dict):
+        raise ValueError("the body must be a JSON object")
+    return doc

@@ -1,0 +1,160 @@
+"""``btrun console``: serve the operator console over HTTP (docs/console.md).
+
+::
+
+    btrun console                          # runs/ on http://127.0.0.1:8080, token printed
+    btrun console --runs /data/runs --port 9000 --token "$CONSOLE_TOKEN"
+    btrun console --host 0.0.0.0           # other machines too: a network you trust
+
+Bad input (a runs folder that does not exist, a port in use) is one line, exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import os
+import secrets
+import socket
+import sys
+import threading
+from typing import Any
+
+from nodes.console.app import ConsoleConfig, make_app
+from nodes.console.paths import RunsRoot
+from nodes.console.review import gallery_path
+
+
+class ConsoleError(Exception):
+    """A user error of ``btrun console`` (one line, exit code 2)."""
+
+
+def setup(p: argparse.ArgumentParser) -> None:
+    """The ``btrun console`` options."""
+    p.add_argument("--runs", default="runs", help="the runs folder to show (default runs/)")
+    p.add_argument("--port", type=int, default=8080, help="HTTP port (default 8080; 0: any free)")
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to bind (default 127.0.0.1: this machine only; 0.0.0.0: every "
+        "interface, only on a network you trust)",
+    )
+    p.add_argument(
+        "--token",
+        default=None,
+        help="the token review decisions need (default: a random one, printed at start)",
+    )
+    p.add_argument(
+        "--gallery",
+        default=None,
+        help="gallery file review decisions update (default: the run's gallery file, else "
+        "RUNS/site-gallery.sqlite, started from the demo gallery); fly the next inventory "
+        "with --set gallery=THIS_FILE",
+    )
+    p.add_argument("--store", default=None, metavar="URL", help="the site store (shown)")
+
+
+def _bind(host: str, port: int) -> socket.socket:
+    """A listening socket, or :class:`ConsoleError` saying why not."""
+    if not 0 <= port <= 65535:
+        raise ConsoleError(f"--port {port}: a port is 0..65535")
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as exc:
+        raise ConsoleError(f"--host {host}: {exc.strerror}") from None
+    family, _, _, _, addr = infos[0]
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(addr)
+        sock.listen(64)
+    except OSError as exc:
+        sock.close()
+        why = "in use" if exc.errno == errno.EADDRINUSE else exc.strerror
+        raise ConsoleError(f"--port {port}: cannot listen on {host}:{port}: {why}") from None
+    sock.set_inheritable(True)
+    return sock
+
+
+def make_config(args: Any) -> ConsoleConfig:
+    """The console's settings from the options; :class:`ConsoleError` for a bad one."""
+    runs = args.runs
+    if not os.path.isdir(runs):
+        raise ConsoleError(f"--runs {runs}: no such folder (fly a run first, or give --runs DIR)")
+    token = args.token if args.token is not None else secrets.token_urlsafe(18)
+    if len(token) < 8 or not token.isprintable() or " " in token:
+        raise ConsoleError("--token: at least 8 printable characters without spaces")
+    if args.gallery is not None and os.path.isdir(args.gallery):
+        raise ConsoleError(f"--gallery {args.gallery}: a folder, expected a gallery file")
+    hosts = ["127.0.0.1", "localhost", "[::1]"]
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        hosts = ["*"]  # reached by whatever name the network gives this machine
+    return ConsoleConfig(runs, token, args.gallery, args.store, hosts)
+
+
+class ConsoleServer:
+    """The console served by uvicorn on a bound socket, in this thread or another."""
+
+    def __init__(self, config: ConsoleConfig, host: str = "127.0.0.1", port: int = 0) -> None:
+        import uvicorn
+
+        self.sock = _bind(host, port)
+        self.host, self.port = host, self.sock.getsockname()[1]
+        self.config = config
+        self.server = uvicorn.Server(
+            uvicorn.Config(
+                make_app(config),
+                log_level="warning",
+                timeout_graceful_shutdown=2,
+                limit_concurrency=64,
+                h11_max_incomplete_event_size=16_384,
+            )
+        )
+        self.thread: threading.Thread | None = None
+
+    @property
+    def url(self) -> str:
+        """The console's address."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"http://{host}:{self.port}"
+
+    def serve(self) -> None:
+        """Serve until stopped (Ctrl-C)."""
+        self.server.run(sockets=[self.sock])
+
+    def start(self) -> ConsoleServer:
+        """Serve on a thread of its own (tests); returns once it answers."""
+        self.thread = threading.Thread(target=self.serve, name="console", daemon=True)
+        self.thread.start()
+        while not self.server.started and self.thread.is_alive():
+            self.thread.join(0.02)
+        return self
+
+    def stop(self) -> None:
+        """Stop serving (and wait for the thread)."""
+        self.server.should_exit = True
+        if self.thread is not None:
+            self.thread.join(10)
+        self.sock.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``btrun console``; return the exit code."""
+    try:
+        config = make_config(args)
+        server = ConsoleServer(config, args.host, args.port)
+    except ConsoleError as exc:
+        print(f"btrun console: {exc}", file=sys.stderr)
+        return 2
+    root = RunsRoot(config.runs)
+    gallery = config.gallery or gallery_path(root, root.root, None)
+    print(f"btrun console: {server.url}/?token={config.token}", flush=True)
+    print(f"  runs: {root.root}", flush=True)
+    print(f"  review decisions update: {gallery}", flush=True)
+    if args.token is None:
+        print(f"  token for review decisions: {config.token}", flush=True)
+    try:
+        server.serve()
+    except KeyboardInterrupt:
+        pass
+    return 0

@@ -1,0 +1,132 @@
+"""The inventory and its discrepancies as a WMS import takes them: CSV and XLSX.
+
+One line per place with the columns a warehouse management system's stock-count import
+expects: ``place``, ``pallet`` (the identity; empty for an empty or unknown place),
+``status`` (``identified``, ``reviewed`` when an operator decided it, ``unknown``,
+``empty``, ``not_scanned``, or the run's own status), ``time`` (when the place was
+answered, UTC ISO 8601: the run's start plus the row's mission time) and ``drone``.
+The discrepancies add ``expected``, ``category`` and ``review``. A review decision
+replaces the run's answer in the export; the run's own files stay as they were.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import time
+from typing import Any
+
+from nodes.console.files import latest_by_place
+from nodes.console.runs import discrepancy, needs_review
+
+COLUMNS = ("place", "pallet", "status", "time", "drone")
+DISCREPANCY_COLUMNS = (*COLUMNS, "expected", "category", "review")
+KINDS = ("inventory", "discrepancies")
+
+
+def _iso(t: float | None) -> str:
+    if t is None:
+        return ""
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
+
+
+def wms_rows(info: dict) -> list[dict]:
+    """The inventory of a run (:func:`nodes.console.runs.run_info` with ``full``) as WMS
+    lines, review decisions applied."""
+    reviews = latest_by_place(info.get("review") or [])
+    out = []
+    for r in info.get("rows") or []:
+        answer, status = r.get("answer") or "", r.get("status") or ""
+        d = reviews.get(r["place"])
+        if d is not None:
+            answer = d.get("answer") or "unknown"
+            status = "reviewed" if answer != "unknown" else "unknown"
+        elif status == "not_identified":
+            status = "unknown"
+        pallet = "" if answer in ("", "unknown", "empty") else answer
+        t = r.get("mission_time_s")
+        when = info["started"] + t if isinstance(t, (int, float)) else None
+        out.append(
+            {
+                "place": r["place"],
+                "pallet": pallet,
+                "status": status,
+                "time": _iso(when),
+                "drone": r.get("drone") or "",
+            }
+        )
+    return out
+
+
+def discrepancy_rows(info: dict) -> list[dict]:
+    """The places that differ from what was expected: a discrepancy category of the run's
+    expected stock, else (no expected stock) every exception of the review queue, and in
+    simulation every answer graded ``wrong`` or ``missed``."""
+    by_place = {r["place"]: r for r in info.get("rows") or []}
+    reviews = latest_by_place(info.get("review") or [])
+    grades, truth = info.get("grades") or {}, info.get("truth") or {}
+    out = []
+    for line in wms_rows(info):
+        row = by_place[line["place"]]
+        category = discrepancy(row)
+        if category is None and needs_review(row):
+            category = "exception"
+        if category is None and grades.get(line["place"]) in ("wrong", "missed"):
+            category = grades[line["place"]]
+        if category in (None, "", "match", "ok"):
+            continue
+        expected = row.get("expected")
+        if expected is None and line["place"] in truth:
+            expected = truth[line["place"]] or "empty"
+        d = reviews.get(line["place"])
+        out.append(
+            {
+                **line,
+                "expected": "" if expected is None else str(expected),
+                "category": category,
+                "review": f"{d['decision']} by {d.get('reviewer')}" if d else "",
+            }
+        )
+    return out
+
+
+def table(info: dict, kind: str) -> tuple[tuple[str, ...], list[dict]]:
+    """Columns and lines of export ``kind`` (``inventory`` or ``discrepancies``)."""
+    if kind == "inventory":
+        return COLUMNS, wms_rows(info)
+    return DISCREPANCY_COLUMNS, discrepancy_rows(info)
+
+
+def _cell(value: Any) -> str:
+    """A text cell a spreadsheet will not run as a formula (CSV injection)."""
+    text = "" if value is None else str(value)
+    return "'" + text if text[:1] in ("=", "+", "-", "@", "\t", "\r") else text
+
+
+def to_csv(columns: tuple[str, ...], lines: list[dict]) -> bytes:
+    """CSV (UTF-8, header line)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\r\n")
+    w.writerow(columns)
+    for line in lines:
+        w.writerow([_cell(line.get(c)) for c in columns])
+    return buf.getvalue().encode("utf-8")
+
+
+def to_xlsx(columns: tuple[str, ...], lines: list[dict], title: str) -> bytes:
+    """An XLSX workbook (openpyxl) with one sheet ``title``: the header row, then a row per
+    line, every cell text."""
+    from openpyxl import Workbook
+
+    wb = Workbook()
+    ws = wb.active
+    ws.title = title[:31]
+    ws.append(list(columns))
+    for line in lines:
+        ws.append([_cell(line.get(c)) for c in columns])
+    for i, c in enumerate(columns):
+        ws.column_dimensions[chr(ord("A") + i)].width = max(10, len(c) + 2)
+    ws.freeze_panes = "A2"
+    buf = io.BytesIO()
+    wb.save(buf)
+    return buf.getvalue()

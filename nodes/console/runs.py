@@ -1,0 +1,336 @@
+"""What the console shows of a run folder: its kind, status, rows, rack layout, tracks,
+evidence per place and review decisions, read with bounded reads and never written.
+
+A solo inventory (``btrun missions/inventory.xml``) is a folder with ``ticks.jsonl`` and
+``inventory.json``; a fleet (``btrun fleet``) has ``fleet.json`` and one folder per drone in
+``drones/<name>/``. ``summary.json`` appears when a run ends; until then a run whose tick log
+grew in the last :data:`RUNNING_WITHIN_S` seconds is ``RUNNING``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import time
+from typing import Any
+
+from nodes.console.files import read_header, read_json, read_review
+from nodes.console.paths import NAME, PathRefused, RunsRoot
+from nodes.inventory_log import EMPTY, UNKNOWN, InventoryError, grade, read_inventory
+from nodes.place_evidence import CANDIDATES_FILE, PLACES_DIR
+
+#: a run whose tick log changed this recently and has no summary is running
+RUNNING_WITHIN_S = 30.0
+#: the largest tick log read for a track, bytes (a 20-minute flight at 50 Hz is ~15 MB)
+MAX_TICKS_BYTES = 256_000_000
+#: track points kept per drone (the tick log is decimated to about this many)
+TRACK_POINTS = 2_000
+#: runs listed on the index page at most
+MAX_RUNS = 500
+#: statuses and discrepancy categories an operator reviews
+REVIEW_STATUSES = ("unknown", "not_identified", "unverified", "mismatch")
+PLACE_CODE = re.compile(r"^([A-Za-z]+)-(\d+)-(\d+)$")
+STAMP = re.compile(r"(\d{8})-(\d{6})$")
+
+
+def drone_dirs(run_dir: str) -> dict[str, str]:
+    """Drone name -> folder relative to the run (``"."`` for a solo run)."""
+    drones = os.path.join(run_dir, "drones")
+    if os.path.isdir(drones):
+        names = sorted(n for n in os.listdir(drones) if NAME.fullmatch(n) and ".." not in n)
+        return {n: f"drones/{n}" for n in names if os.path.isdir(os.path.join(drones, n))}
+    return {"": "."}
+
+
+def is_run(path: str) -> bool:
+    """Whether a folder looks like a btrun run or fleet folder."""
+    return any(
+        os.path.exists(os.path.join(path, f))
+        for f in ("ticks.jsonl", "fleet.json", "summary.json", "inventory.json")
+    )
+
+
+def _mtime(path: str) -> float:
+    try:
+        return os.stat(path).st_mtime
+    except OSError:
+        return 0.0
+
+
+def run_status(run_dir: str, summary: Any) -> str:
+    """SUCCESS / FAILURE / ABORTED from summary.json; else RUNNING or INCOMPLETE."""
+    if isinstance(summary, dict) and isinstance(summary.get("status"), str):
+        return summary["status"]
+    newest = max(
+        (_mtime(os.path.join(run_dir, d, "ticks.jsonl")) for d in drone_dirs(run_dir).values()),
+        default=0.0,
+    )
+    newest = max(newest, _mtime(os.path.join(run_dir, "inventory.json")))
+    return "RUNNING" if time.time() - newest < RUNNING_WITHIN_S else "INCOMPLETE"
+
+
+def read_rows(run_dir: str) -> tuple[list[dict], list[str], str | None]:
+    """The inventory rows (checked by :func:`nodes.inventory_log.read_inventory`), the
+    planned places and an error line (None if fine)."""
+    try:
+        rows = read_inventory(run_dir)
+    except InventoryError as exc:
+        return [], [], str(exc)
+    doc = read_json(os.path.join(run_dir, "inventory.json"), 64_000_000) or {}
+    planned = doc.get("planned") if isinstance(doc, dict) else None
+    planned = [p for p in planned if isinstance(p, str)] if isinstance(planned, list) else []
+    return rows, planned, None
+
+
+def discrepancy(row: dict) -> str | None:
+    """The row's discrepancy category against an expected stock, if the run had one
+    (``discrepancy``/``category`` column, or a ``mismatch``/``unverified`` status)."""
+    for key in ("discrepancy", "category"):
+        v = row.get(key)
+        if isinstance(v, str) and v:
+            return v
+    status = row.get("status")
+    return status if status in ("mismatch", "unverified") else None
+
+
+def needs_review(row: dict) -> bool:
+    """An exception for the operator: unknown, not identified, unverified or a mismatch."""
+    return (
+        row.get("status") in REVIEW_STATUSES
+        or row.get("answer") == UNKNOWN
+        or discrepancy(row) in ("mismatch", "unverified")
+    )
+
+
+def _start_time(name: str, run_dir: str, header_mtime: float) -> float:
+    """The run's start, seconds since 1970: the folder name's stamp (``-YYYYMMDD-HHMMSS``),
+    else ``fleet.json``'s time, else the tick log's."""
+    m = STAMP.search(name)
+    if m:
+        try:
+            return time.mktime(time.strptime(m.group(1) + m.group(2), "%Y%m%d%H%M%S"))
+        except (ValueError, OverflowError):
+            pass
+    fleet = os.path.join(run_dir, "fleet.json")
+    return _mtime(fleet) if os.path.exists(fleet) else header_mtime
+
+
+def layout_of(rows: list[dict], planned: list[str], summary: Any, world: Any) -> dict:
+    """Place -> [rack, bay, level]: the summary's layout, else the world's, else parsed from
+    the names (``A-03-2``)."""
+    inv = summary.get("inventory") if isinstance(summary, dict) else None
+    lay = inv.get("layout") if isinstance(inv, dict) else None
+    if isinstance(lay, dict) and lay:
+        return {str(k): list(v) for k, v in lay.items() if isinstance(v, list) and len(v) == 3}
+    if world is not None and getattr(world, "places", None):
+        return {n: [p.rack, p.bay, p.level] for n, p in world.places.items()}
+    out = {}
+    for name in list(planned) + [r["place"] for r in rows]:
+        m = PLACE_CODE.match(name)
+        if m:
+            out[name] = [m.group(1), int(m.group(2)), int(m.group(3))]
+    return out
+
+
+_WORLDS: dict[tuple, Any] = {}
+
+
+def world_of(header: dict) -> Any:
+    """The simulated world a run flew (its rig, seed and ``world.*`` sets); None if it
+    cannot be loaded (a real drone's run, a moved rig file)."""
+    rig_path = header.get("rig") or header.get("rig_arg")
+    if not isinstance(rig_path, str) or not os.path.isfile(rig_path):
+        return None
+    sets = [s for s in header.get("sets") or [] if isinstance(s, str) and s.startswith("world.")]
+    key = (rig_path, tuple(sets), header.get("seed"))
+    if key not in _WORLDS:
+        try:
+            from drivers.rig.loader import load_rig
+
+            rig = load_rig(rig_path, dict(s.split("=", 1) for s in sets if "=" in s))
+            world = rig.load_world(int(header.get("seed") or 0)) if rig.kind == "sim" else None
+        except Exception:  # noqa: BLE001 - a run's world is a nicety of the map
+            world = None
+        if len(_WORLDS) > 32:
+            _WORLDS.clear()
+        _WORLDS[key] = world
+    return _WORLDS[key]
+
+
+def track(ticks: str, points: int = TRACK_POINTS) -> list[list[float]]:
+    """The drone's track from its tick log: ``[t, x, y, z]`` decimated to about ``points``."""
+    out: list[list[float]] = []
+    try:
+        size = os.path.getsize(ticks)
+        with open(ticks, "rb") as f:
+            if size > MAX_TICKS_BYTES:  # only the newest part of a huge log
+                f.seek(size - MAX_TICKS_BYTES)
+                f.readline()
+            for line in f:
+                p = vehicle_point(line)
+                if p is not None:
+                    out.append(p)
+    except OSError:
+        return []
+    step = max(1, len(out) // points)
+    return out[::step] + ([out[-1]] if out and (len(out) - 1) % step else [])
+
+
+def vehicle_point(line: bytes) -> list[float] | None:
+    """``[t, x, y, z]`` of one tick line with a vehicle row, else None."""
+    if b'"vehicle"' not in line:
+        return None
+    try:
+        rec = json.loads(line)
+        v = rec["vehicle"]
+        return [float(rec["t"]), float(v["x"]), float(v["y"]), float(v["z"])]
+    except (ValueError, KeyError, TypeError, RecursionError):
+        return None
+
+
+def evidence(run_dir: str, rel_drone: str, place: str) -> dict | None:
+    """A place's crops (paths relative to the run) and candidates, if it has any."""
+    if not NAME.fullmatch(place) or ".." in place:
+        return None
+    base = os.path.normpath(os.path.join(rel_drone, PLACES_DIR, place)).replace(os.sep, "/")
+    folder = os.path.join(run_dir, base)
+    if not os.path.isdir(folder):
+        return None
+    crops = sorted(
+        (n for n in os.listdir(folder) if re.fullmatch(r"block_\d+\.png", n)),
+        key=lambda n: int(n[6:-4]),
+    )
+    doc = read_json(os.path.join(folder, CANDIDATES_FILE), 1_000_000) or {}
+    cands = doc.get("candidates") if isinstance(doc, dict) else None
+    ok = [
+        [str(c[0]), c[1] if isinstance(c[1], (int, float)) else None]
+        for c in (cands if isinstance(cands, list) else [])
+        if isinstance(c, list) and len(c) == 2
+    ]
+    return {"crops": [f"{base}/{n}" for n in crops], "candidates": ok[:20]}
+
+
+def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
+    """What the index (``full`` False) or a run's page (``full`` True) shows of run ``name``."""
+    run_dir = root.run_dir(name)
+    summary = read_json(os.path.join(run_dir, "summary.json"))
+    fleet = read_json(os.path.join(run_dir, "fleet.json"), 1_000_000)
+    drones = drone_dirs(run_dir)
+    first = os.path.join(run_dir, next(iter(drones.values())), "ticks.jsonl")
+    header = read_header(first)
+    rows, planned, error = read_rows(run_dir)
+    reviews = read_review(run_dir)
+    mission = (summary or {}).get("mission") if isinstance(summary, dict) else None
+    mission = mission or header.get("mission") or ""
+    world = world_of(header) if full or not isinstance(summary, dict) else None
+    inv = summary.get("inventory") if isinstance(summary, dict) else None
+    inv = inv if isinstance(inv, dict) else {}
+    grades = inv.get("grades") if isinstance(inv.get("grades"), dict) else None
+    truth = inv.get("truth") if isinstance(inv.get("truth"), dict) else None
+    if grades is None and world is not None and getattr(world, "stock", None):
+        stock, not_enrolled = world.places_truth(), set(world.not_enrolled())
+        places = list(dict.fromkeys(planned + [r["place"] for r in rows]))
+        by = {r["place"]: r for r in rows}
+        grades = {}
+        for p in places:
+            grades[p] = grade((by.get(p) or {}).get("answer") or "", stock.get(p), not_enrolled)
+        truth = {p: stock.get(p) for p in places}
+    places_n = len(set(planned) | {r["place"] for r in rows})
+    answered = sum(1 for r in rows if r.get("status") != "not_scanned")
+    discrepancies: dict[str, int] = {}
+    for r in rows:
+        cat = discrepancy(r)
+        if cat:
+            discrepancies[cat] = discrepancies.get(cat, 0) + 1
+    right = sum(1 for g in (grades or {}).values() if g == "right")
+    accuracy = inv.get("accuracy")
+    if accuracy is None and grades:
+        accuracy = round(right / len(grades), 4)
+    exceptions = [r["place"] for r in rows if needs_review(r)]
+    info: dict[str, Any] = {
+        "name": name,
+        "kind": "fleet" if fleet is not None or drones.get("") is None else "run",
+        "mission": os.path.basename(mission) if isinstance(mission, str) else "",
+        "status": run_status(run_dir, summary),
+        "started": _start_time(name, run_dir, _mtime(first)),
+        "modified": max(_mtime(run_dir), _mtime(os.path.join(run_dir, "inventory.json"))),
+        "places": places_n,
+        "answered": answered,
+        "accuracy": accuracy,
+        "discrepancies": discrepancies,
+        "exceptions": len(exceptions),
+        "reviewed": len({d["place"] for d in reviews}),
+        "drones": [d for d in drones if d],
+        "error": error,
+    }
+    if not full:
+        return info
+    by_drone = {n: rel for n, rel in drones.items()}
+    ev = {}
+    for r in rows:
+        rel = by_drone.get(r.get("drone") or "", by_drone.get("", "."))
+        if r.get("drone") not in by_drone and "" not in by_drone:
+            rel = next(iter(by_drone.values()))
+        found = evidence(run_dir, rel, r["place"])
+        if found is not None:
+            ev[r["place"]] = found
+    positions = {}
+    if world is not None:
+        for n, p in getattr(world, "places", {}).items():
+            positions[n] = [round(p.row_m[0], 3), round(p.row_m[1], 3), round(p.row_m[2], 3)]
+    pads = []
+    if world is not None:
+        for pad in (getattr(world, "data", None) or {}).get("pads") or []:
+            try:
+                pads.append({"name": pad["name"], "xy": list(pad["position_m"][:2])})
+            except (KeyError, TypeError):
+                continue
+    info.update(
+        rows=rows,
+        planned=planned,
+        layout=layout_of(rows, planned, summary, world),
+        positions=positions,
+        pads=pads,
+        grades=grades or {},
+        truth=truth or {},
+        evidence=ev,
+        tracks={
+            (n or "drone"): track(os.path.join(run_dir, rel, "ticks.jsonl"))
+            for n, rel in drones.items()
+        },
+        review=reviews,
+        queue=exceptions,
+        header={"rig": header.get("rig"), "seed": header.get("seed"), "sets": header.get("sets")},
+    )
+    return info
+
+
+def list_runs(root: RunsRoot) -> list[dict]:
+    """Every run and fleet folder directly under the root, newest first (at most
+    :data:`MAX_RUNS`)."""
+    found = []
+    try:
+        entries = list(os.scandir(root.root))
+    except OSError:
+        return []
+    for e in entries:
+        if not NAME.fullmatch(e.name) or ".." in e.name:
+            continue
+        try:
+            path = root.run_dir(e.name)
+        except PathRefused:
+            continue
+        if is_run(path):
+            found.append((max(_mtime(path), _mtime(os.path.join(path, "summary.json"))), e.name))
+    found.sort(reverse=True)
+    out = []
+    for _, name in found[:MAX_RUNS]:
+        try:
+            out.append(run_info(root, name))
+        except (PathRefused, OSError):
+            continue
+    return out
+
+
+__all__ = ["EMPTY", "list_runs", "needs_review", "run_info", "read_rows", "track"]

@@ -1,0 +1,109 @@
+// btrun console: helpers shared by the pages (no framework, no CDN: served by btrun console).
+"use strict";
+
+const SVGNS = "http://www.w3.org/2000/svg";
+
+// The token for review decisions: given once as ?token=... (the URL btrun console prints),
+// kept for this browser tab only, and taken out of the address bar.
+(function keepToken() {
+  const url = new URL(window.location.href);
+  const token = url.searchParams.get("token");
+  if (token) {
+    sessionStorage.setItem("console-token", token);
+    url.searchParams.delete("token");
+    history.replaceState(null, "", url.pathname + url.search + url.hash);
+  }
+})();
+
+function consoleToken() {
+  return sessionStorage.getItem("console-token") || "";
+}
+
+// An element with attributes and children (text children become text nodes: data from a
+// run folder never becomes HTML).
+function el(tag, attrs, ...children) {
+  const node = document.createElement(tag);
+  setAttrs(node, attrs);
+  for (const c of children.flat()) {
+    if (c === null || c === undefined || c === false) continue;
+    node.append(c instanceof Node ? c : document.createTextNode(String(c)));
+  }
+  return node;
+}
+
+function svg(tag, attrs, ...children) {
+  const node = document.createElementNS(SVGNS, tag);
+  setAttrs(node, attrs);
+  for (const c of children.flat()) {
+    if (c === null || c === undefined) continue;
+    node.append(c instanceof Node ? c : document.createTextNode(String(c)));
+  }
+  return node;
+}
+
+function setAttrs(node, attrs) {
+  for (const [k, v] of Object.entries(attrs || {})) {
+    if (v === null || v === undefined || v === false) continue;
+    if (k.startsWith("on") && typeof v === "function") node.addEventListener(k.slice(2), v);
+    else node.setAttribute(k, v === true ? "" : String(v));
+  }
+}
+
+async function getJSON(url) {
+  const r = await fetch(url, { headers: { Accept: "application/json" } });
+  if (!r.ok) throw new Error(`${url}: ${r.status} ${await r.text()}`);
+  return r.json();
+}
+
+function fmtNumber(v, digits) {
+  return typeof v === "number" && isFinite(v) ? v.toFixed(digits) : "";
+}
+
+function fmtTime(epochS) {
+  if (typeof epochS !== "number" || !epochS) return "";
+  const d = new Date(epochS * 1000);
+  const p = (n) => String(n).padStart(2, "0");
+  return `${d.getFullYear()}-${p(d.getMonth() + 1)}-${p(d.getDate())} ${p(d.getHours())}:${p(d.getMinutes())}`;
+}
+
+function fileUrl(run, rel) {
+  return `/files/${encodeURIComponent(run)}/${rel.split("/").map(encodeURIComponent).join("/")}`;
+}
+
+// Colours of a place: by answer (status), by grade in simulation, by discrepancy category.
+const COLOURS = {
+  status: {
+    identified: "#2e9d4f", unknown: "#e0a100", not_identified: "#f07f0a", empty: "#c9ccd1",
+    not_scanned: "#ffffff", unverified: "#8e5cc9", mismatch: "#d2342c", reviewed: "#2a7bd0",
+    pending: "#f4f5f7",
+  },
+  grade: {
+    right: "#2e9d4f", wrong: "#d2342c", unknown: "#e0a100", missed: "#f07f0a",
+    not_scanned: "#ffffff", pending: "#f4f5f7",
+  },
+  discrepancy: {
+    match: "#2e9d4f", ok: "#2e9d4f", mismatch: "#d2342c", unverified: "#8e5cc9",
+    missing: "#f07f0a", unexpected: "#c2185b", exception: "#e0a100", none: "#c9ccd1",
+    pending: "#f4f5f7",
+  },
+};
+
+function swatch(colour) {
+  return svg("svg", { class: "swatch", width: 12, height: 12, viewBox: "0 0 12 12" },
+    svg("rect", { x: 0.5, y: 0.5, width: 11, height: 11, fill: colour, stroke: "#666" }));
+}
+
+function legend(scheme) {
+  return el("div", { class: "legend" },
+    Object.entries(COLOURS[scheme]).map(([k, c]) =>
+      el("span", { class: "key" }, swatch(c), k.replace("_", " "))));
+}
+
+function tokenState() {
+  const span = document.getElementById("token-state");
+  if (!span) return;
+  span.textContent = consoleToken() ? "review token set" : "read only (open the URL btrun console printed to review)";
+  span.className = consoleToken() ? "token ok" : "token none";
+}
+
+document.addEventListener("DOMContentLoaded", tokenState);
