@@ -44,7 +44,9 @@ class Match:
     candidate whose blocks' texture matches best, ``texture_z`` its score and
     ``texture_margin`` its lead over the next candidate, ``texture_blocks`` its per-block
     ``z``; ``decided_by`` says which test gave the answer (``embedding``, ``texture``, or
-    ``embedding+texture`` when both agree).
+    ``embedding+texture`` when both agree). ``expected``: the pallet the expected stock
+    names for the place (:mod:`perception.expected`), ``verified_expected`` true when the
+    scan verified 1:1 as that pallet (``decided_by`` ``verified``).
     """
 
     pallet_id: str
@@ -61,6 +63,8 @@ class Match:
     texture_margin: float | None = None
     texture_blocks: tuple[float, ...] | None = None
     decided_by: str = "embedding"
+    expected: str | None = None
+    verified_expected: bool = False
 
 
 @dataclass(frozen=True)
@@ -220,6 +224,32 @@ class MatchingMixin:
         sides = self._texture_sides()
         own = [(k, sides[k][0]) for k in sorted(sides)[: tv.COHORT_FROM_GALLERY]]
         return own + tv.shipped_cohort()
+
+    def verify_sides(
+        self,
+        crops: list[np.ndarray],
+        identities: list[str],
+        visibility: np.ndarray | None = None,
+        cohort_scores: np.ndarray | None = None,
+    ) -> tv.Verification | None:
+        """The texture ``z`` of the query's three BGR ``crops`` against these sides only
+        (a 1:1 verification against an expected pallet's sides, :mod:`perception.expected`),
+        scaled by the same cohort as :meth:`match`; None if none of them has stored crops.
+        ``cohort_scores``: :meth:`texture_cohort_scores` of the same crops, reused."""
+        if len(crops) != BLOCKS:
+            raise GalleryError(f"verify: expected {BLOCKS} crops, got {len(crops)}")
+        sides = self._texture_sides()
+        cands = [(c, sides[c]) for c in identities if c in sides]
+        if not cands:
+            return None
+        qvis = self._check_visibility("verify", visibility)
+        weights = gm.block_weights(qvis)
+        return tv.verify(crops, cands, self._texture_cohort(), weights, cohort_scores)
+
+    def texture_cohort_scores(self, crops: list[np.ndarray]) -> np.ndarray:
+        """The query's raw scores against the verifier's cohort (for :meth:`verify_sides`
+        when one scan is verified against several pallets)."""
+        return tv.cohort_scores(crops, self._texture_cohort())
 
     def _decide_with_texture(
         self,

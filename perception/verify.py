@@ -276,6 +276,7 @@ def verify(
     candidates: Sequence[tuple[str, Sequence[Sequence[np.ndarray]]]],
     cohort: Sequence[tuple[str, Sequence[np.ndarray]]],
     block_weights: np.ndarray | None = None,
+    cohort_scores: np.ndarray | None = None,
 ) -> Verification:
     """Side ``z`` of each candidate ``(identity, views)`` (every view three grey crops; a
     candidate takes, block by block, its best view) against the query's three crops.
@@ -285,11 +286,17 @@ def verify(
     left out of its scale) and against the candidates' *other* blocks (the same look and
     stamp style as the query, whatever the gallery holds): ``z = (score - mean) / std``
     over the :data:`COHORT_TOP` best of these scores, the query's closest impostors (so a
-    query that looks like many pallets, painted or stamped alike, is scaled by those)."""
+    query that looks like many pallets, painted or stamped alike, is scaled by those).
+    ``cohort_scores``: :func:`cohort_scores` of the same query and cohort, computed once
+    when one query is verified against several candidate sets (the expensive part)."""
     queries = [grey(c) for c in query_crops]
     colours = [np.asarray(c) if np.asarray(c).ndim == 3 else None for c in query_crops]
     names = [n for n, _ in cohort]
-    ref = _scores(queries, [side for _, side in cohort], colours)
+    ref = (
+        cohort_scores
+        if cohort_scores is not None
+        else _scores(queries, [side for _, side in cohort], colours)
+    )
     # The candidates' other blocks are impostors of the query's look (same wood, paint,
     # face generator, stamp style): always in the cohort, whatever the gallery holds.
     cross = [
@@ -322,8 +329,19 @@ def verify(
     return Verification(ranking)
 
 
+def cohort_scores(
+    query_crops: Sequence[np.ndarray], cohort: Sequence[tuple[str, Sequence[np.ndarray]]]
+) -> np.ndarray:
+    """Raw scores (len(cohort), 3) of the query's blocks against the cohort's: what
+    :func:`verify` scales every candidate by, reusable for one query."""
+    queries = [grey(c) for c in query_crops]
+    colours = [np.asarray(c) if np.asarray(c).ndim == 3 else None for c in query_crops]
+    return _scores(queries, [side for _, side in cohort], colours)
+
+
 __all__ = [
     "COHORT_PATH",
+    "cohort_scores",
     "agreement",
     "VerifyThresholds",
     "Verification",
