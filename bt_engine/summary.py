@@ -214,13 +214,12 @@ def build_summary(
 
 
 def result_lines(mission: Mission) -> list[str]:
-    """The run's headline lines from the mission's reporting resources (e.g. the pallet)."""
-    return [
-        line
-        for res in mission.ctx.resources.values()
-        if isinstance(res, RunReporter)
-        for line in res.result_lines()
-    ]
+    """The run's headline lines from the mission's reporting resources (e.g. the pallet);
+    a resource with a higher ``result_priority`` (default 0) comes first (an inventory's
+    discrepancies lead)."""
+    reporters = [r for r in mission.ctx.resources.values() if isinstance(r, RunReporter)]
+    reporters.sort(key=lambda r: -int(getattr(r, "result_priority", 0) or 0))
+    return [line for res in reporters for line in res.result_lines()]
 
 
 def handled_failure_lines(mission: Mission, reason: str, limit: int = 10) -> list[str]:

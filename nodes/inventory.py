@@ -30,6 +30,7 @@ from bt_engine.ports import ANY, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from bt_engine.spec import Loc, Problem
 from drivers.settings import ConfigError, did_you_mean
+from nodes.expected_stock import ExpectedStock, read_expected
 from nodes.inventory_log import (
     EMPTY,
     IDENTIFIED,
@@ -143,12 +144,21 @@ class InventoryPlan(SyncActionNode):
     world, bay by bay, up one bay and down the next), names or patterns (``A-01-1;A-0?-2``),
     or a CSV file with a ``place`` column. With ``--resume`` the places the interrupted run
     answered are left out. Unknown places are refused before anything flies (located).
-    SUCCESS with ``queue`` (for LoopString); FAILURE if the list cannot be used."""
+    ``expected``: the WMS's expected stock (a ``place,pallet`` CSV or the same as JSON),
+    checked before flight and kept on the inventory, which then also writes the
+    discrepancy report. SUCCESS with ``queue`` (for LoopString); FAILURE if the list or the
+    expected stock cannot be used."""
 
     bt_id = "InventoryPlan"
     category = CATEGORY_INVENTORY
     ports = (
         input_port("places", STRING, "all", "all, names/patterns (A-01-1;A-02-*) or a .csv file"),
+        input_port(
+            "expected",
+            STRING,
+            "",
+            "expected stock: a place,pallet CSV (or JSON) as a WMS exports; empty: none",
+        ),
         output_port("queue", ANY, "the places left to answer, in order (LoopString's queue)"),
         output_port("total", INT, "places planned (including those already answered)"),
         output_port("remaining", INT, "places left to answer"),
@@ -159,11 +169,17 @@ class InventoryPlan(SyncActionNode):
         where = self.loc or Loc("<mission>")
         return resolve_places(self.get_input("places"), world_of(self.ctx), where, base)
 
+    def _expected(self) -> tuple[ExpectedStock | None, list[Problem]]:
+        base = os.path.dirname(self.loc.file) if self.loc is not None else "."
+        where = self.loc or Loc("<mission>")
+        return read_expected(self.get_input("expected"), world_of(self.ctx), where, base)
+
     def preflight(self) -> list[Any]:
-        """Unknown places, a missing world or an unreadable list or resumed inventory,
-        before anything flies."""
+        """Unknown places, a missing world or an unreadable list, expected stock or resumed
+        inventory, before anything flies."""
         try:
             _, problems = self._resolve()
+            problems += self._expected()[1]
             InventoryLog.of(self.ctx)
         except ConfigError as exc:
             return [("places", f"the rig's world cannot be loaded: {exc}")]
@@ -171,7 +187,9 @@ class InventoryPlan(SyncActionNode):
             return [exc.problem()]
         out: list[Any] = []
         for p in problems:
-            if p.loc == self.loc:  # the list itself (literal, --set or mission input)
+            if p.loc == self.loc and p.message.startswith("expected stock"):
+                out.append(("expected", p.message))
+            elif p.loc == self.loc:  # the list itself (literal, --set or mission input)
                 out.append(("places", p.message))
             else:
                 out.append(p)  # a line of the CSV file
@@ -180,6 +198,8 @@ class InventoryPlan(SyncActionNode):
     def tick_impl(self) -> NodeStatus:
         try:
             places, problems = self._resolve()
+            stock, more = self._expected()
+            problems += more
             log = InventoryLog.of(self.ctx)
         except (ConfigError, InventoryError) as exc:
             self.failure_reason = str(exc)
@@ -188,10 +208,12 @@ class InventoryPlan(SyncActionNode):
             self.failure_reason = "; ".join(str(p) for p in problems[:3])
             return FAILURE
         todo = log.plan(places)
+        log.expected = stock
         done = len(places) - len(todo)
         self.ctx.log(
             f"inventory: {len(places)} places planned"
             + (f", {done} already answered (resumed)" if done else "")
+            + (f"; expected stock {stock.path} ({len(stock.places)} places)" if stock else "")
         )
         log.write()
         self.set_output("queue", todo)
@@ -274,6 +296,12 @@ class RecordPlace(SyncActionNode):
         input_port("margin", FLOAT, None, "match margin"),
         input_port("blocks_seen", INT, -1, "LocatePallet's blocks_seen (without an answer)"),
         input_port("reason", STRING, "", "why there is no answer (for the row)"),
+        input_port(
+            "decided_by",
+            STRING,
+            "",
+            "IdentifyPallet's decided_by (verified: the expected pallet, verified 1:1)",
+        ),
         output_port("recorded", INT, "rows recorded so far in this run"),
     )
 
@@ -312,6 +340,7 @@ class RecordPlace(SyncActionNode):
                 "blocks_seen": seen,
                 "mission_time_s": round(self.now(), 2),
                 "reason": reason or None,
+                "decided_by": (self.get_input("decided_by") or None) if pallet else None,
             }
         )
         self.ctx.log(f"inventory {row['place']}: {answer or '-'} ({status})")

@@ -28,6 +28,8 @@ from typing import Any
 
 from bt_engine.files import atomic_write_text, read_text
 from bt_engine.spec import Loc, Problem
+from nodes import discrepancy
+from nodes.expected_stock import ExpectedStock
 
 #: answers besides pallet identities
 EMPTY, UNKNOWN = "empty", "unknown"
@@ -46,6 +48,7 @@ FIELDS = (
     "drone",
     "run",
     "reason",
+    "decided_by",
 )
 FORMAT = "btrun-inventory-1"
 
@@ -119,6 +122,7 @@ _ROW_KEYS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "drone": (_text, "text or null"),
     "run": (_text, "text or null"),
     "reason": (_text, "text or null"),
+    "decided_by": (_text, "text or null"),
 }
 
 
@@ -228,6 +232,8 @@ class InventoryLog:
         self.layout: dict[str, list] = dict(layout or {})
         self._plans: dict[str, list[str]] = {}  # a fleet's merged log: each drone's plan
         self._truth: tuple[dict[str, str | None], set[str]] | None = None
+        #: what the WMS expects (``expected=`` of InventoryPlan); None: no discrepancies
+        self.expected: ExpectedStock | None = None
         if resume_from:
             for row in read_inventory(resume_from):
                 self.rows[row["place"]] = dict(row)
@@ -270,6 +276,17 @@ class InventoryLog:
             ctx.resources["inventory"] = log
         return log
 
+    @property
+    def result_priority(self) -> int:
+        """With an expected stock the discrepancy counts lead the console's lines."""
+        return 1 if self.expected is not None else 0
+
+    def expected_at(self, place: str) -> str | None:
+        """The pallet the expected stock names for ``place`` (``103``), ``""`` when the
+        place should be empty, None without an expected stock or when it does not list the
+        place. Leaves verify a scan against it (:func:`nodes.identify.identify_scan`)."""
+        return self.expected.at(place) if self.expected is not None else None
+
     # -- what is done ---------------------------------------------------------------------
     def finished(self) -> set[str]:
         """Places with a final answer (carried over or recorded in this run)."""
@@ -304,6 +321,11 @@ class InventoryLog:
         if self.run_dir:
             os.makedirs(self.run_dir, exist_ok=True)
             write_inventory(self.run_dir, rows, self.planned)
+            if self.expected is not None:
+                found = discrepancy.discrepancy_rows(
+                    _with_planned(rows, self.planned), self.expected
+                )
+                discrepancy.write_discrepancies(self.run_dir, found, self.expected)
         if self.sink is not None:
             self.sink(self)
         if self.recorder is not None:
@@ -313,6 +335,8 @@ class InventoryLog:
         """Take ``other``'s rows and plan into this one (a fleet's merged inventory is the
         sink of every drone's log) and write the merged files."""
         self._plans[other.drone] = list(other.planned)
+        if self.expected is None:
+            self.expected = other.expected
         for place, row in other.rows.items():
             if place not in other.carried:
                 self.rows[place] = dict(row)
@@ -332,8 +356,17 @@ class InventoryLog:
     def run_summary(self) -> dict[str, Any]:
         """``summary.json``'s ``inventory``: counts by answer and status, places not
         scanned, and in simulation the grade of every place and the accuracy."""
-        out = summarise(self.ordered_rows(), self.planned, self.truth(), len(self.carried))
+        rows = self.ordered_rows()
+        out = summarise(rows, self.planned, self.truth(), len(self.carried))
         out["layout"] = dict(self.layout)  # every place of the map (the report draws racks)
+        if self.expected is not None:
+            found = discrepancy.discrepancy_rows(_with_planned(rows, self.planned), self.expected)
+            out["expected"] = self.expected.path
+            out["discrepancies"] = discrepancy.counts(found)
+            out["discrepancy_rows"] = found
+            truth = self.truth()
+            if truth is not None:
+                out["discrepancy_grades"] = discrepancy.grade_rows(found, self.expected, truth)
         return out
 
     def result_lines(self) -> list[str]:
@@ -349,7 +382,7 @@ class InventoryLog:
         line = "inventory: " + ", ".join(parts)
         if s.get("carried_over"):
             line += f" ({s['carried_over']} carried over from the resumed run)"
-        out = [line]
+        out = discrepancy_lines(s, self.run_dir) + [line]
         if "right" in s:
             out.append(
                 f"inventory against the simulator: {s['right']} of {s['places']} right, "
@@ -365,6 +398,33 @@ class InventoryLog:
                     f"btrun {mission} --resume {self.run_dir}"
                 )
         return out
+
+
+def _with_planned(rows: list[dict], planned: list[str]) -> list[dict]:
+    """The rows, and an empty (not scanned) row for each planned place without one."""
+    have = {r["place"] for r in rows}
+    return list(rows) + [
+        {"place": p, "answer": "", "status": NOT_SCANNED} for p in planned if p not in have
+    ]
+
+
+def discrepancy_lines(s: dict, run_dir: str | None) -> list[str]:
+    """The console's discrepancy lines of a summary's ``inventory`` (none without an
+    expected stock): the counts per category first, in simulation how many rows are
+    right, and where the report is."""
+    if "discrepancies" not in s:
+        return []
+    out = [discrepancy.counts_line(s["discrepancies"])]
+    g = s.get("discrepancy_grades")
+    if g:
+        n = g["right"] + g["wrong"]
+        out.append(
+            f"discrepancies against the simulator: {g['right']} of {n} right, "
+            f"{len(g['false_alarms'])} false alarms, {len(g['missed'])} missed"
+        )
+    if run_dir:
+        out.append(f"discrepancies: {os.path.join(run_dir, 'discrepancies.csv')}")
+    return out
 
 
 def _recorder(resources: dict) -> Any:

@@ -30,6 +30,7 @@ from bt_engine.node import (
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from nodes.common import is_realtime, vehicle_of
+from nodes.identify import expected_for, identify_described
 from nodes.perception_session import (
     DEMO,
     MIN_SCORE_DOC,
@@ -263,8 +264,11 @@ class IdentifyPallet(StatefulActionNode):
     the best candidates are also compared on the blocks' texture with their enrolment crops:
     a side whose texture matches far above every other pallet's is identified even when it
     aged or is seen from farther away, and an answer whose texture does not match is
-    ``unknown``. SUCCESS with an answer (``unknown`` included); FAILURE if there are not
-    three crops or the gallery cannot be used."""
+    ``unknown``. With ``place`` and an expected stock naming a pallet there, the scan is
+    first verified 1:1 against that pallet (``decided_by`` ``verified``) and identified
+    1:N only if it does not verify (:mod:`nodes.identify`). SUCCESS with an answer
+    (``unknown`` included); FAILURE if there are not three crops or the gallery cannot be
+    used."""
 
     bt_id = "IdentifyPallet"
     category = CATEGORY_PERCEPTION
@@ -291,6 +295,13 @@ class IdentifyPallet(StatefulActionNode):
             True,
             "verify the best candidates on the blocks' texture against their enrolment crops",
         ),
+        input_port(
+            "place",
+            STRING,
+            "",
+            "the inventory place scanned: verify 1:1 first against the pallet the expected "
+            "stock names there (empty: identify only)",
+        ),
         output_port("pallet_id", STRING, "identity (e.g. 3A) or unknown"),
         output_port("best_id", STRING, "closest identity, even when the answer is unknown"),
         output_port("distance", FLOAT, "mean block distance to the closest identity"),
@@ -298,7 +309,9 @@ class IdentifyPallet(StatefulActionNode):
         output_port("ranking", ANY, "top_k [identity, mean distance] pairs, best first"),
         output_port("gallery_updated", BOOL, "true if this scan was added to the gallery"),
         output_port(
-            "decided_by", STRING, "embedding, texture or embedding+texture (empty if unknown)"
+            "decided_by",
+            STRING,
+            "embedding, texture, embedding+texture or verified (empty if unknown)",
         ),
     )
 
@@ -381,6 +394,7 @@ class IdentifyPallet(StatefulActionNode):
             "verify": self.get_input("verify_texture"),
             "update": self.get_input("update_gallery"),
             "gallery_name": self.get_input("gallery"),
+            "expected": expected_for(self.ctx, self.get_input("place")),
         }
 
     def _compute(self, i: dict[str, Any]) -> tuple[Any, str]:
@@ -388,12 +402,15 @@ class IdentifyPallet(StatefulActionNode):
         crops, embedder, g, th = i["crops"], i["embedder"], i["gallery"], i["thresholds"]
         desc = embedder.describe(crops)
         vis = desc.visibility if embedder.occlusion_aware else None
-        match = g.match(
+        match = identify_described(
+            g,
             desc.vectors,
+            vis,
+            crops,
+            th,
+            expected=i["expected"],
             top_k=i["top_k"],
-            thresholds=th,
-            visibility=vis,
-            crops=crops if i["verify"] else None,
+            verify_texture=i["verify"],
         )
         return match, self._update(i, match, desc.vectors, vis)
 
@@ -434,6 +451,8 @@ class IdentifyPallet(StatefulActionNode):
                     ]
                 ),
                 "decided_by": match.decided_by if match.known else "",
+                "expected": match.expected,
+                "verified_expected": match.verified_expected,
                 "crops": crops,
             }
         )
@@ -458,6 +477,8 @@ class IdentifyPallet(StatefulActionNode):
         """Add the scan to the gallery if asked and confident; what happened ("" if not asked)."""
         if not i["update"]:
             return ""
+        if match.verified_expected:  # a 1:1 bar, not the open-set confidence updates need
+            return "not updated: verified against the expected stock, not identified"
         if i["gallery_name"] == DEMO:
             return "not updated: the demo gallery is generated (use your own gallery file)"
         run = os.path.basename(str(self.ctx.resources.get("run_dir") or "")) or "mission"

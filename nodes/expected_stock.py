@@ -1,0 +1,240 @@
+"""The expected stock: which pallet the warehouse's WMS says stands in each place.
+
+A mission input of the inventory (``--set expected=stock.csv``), in the format a WMS
+exports: a header ``place,pallet`` and one row per place; an empty ``pallet`` means the
+place should be empty::
+
+    place,pallet
+    A-01-1,109
+    A-01-2,
+    A-02-1,106
+
+or the same as JSON: a list of ``{"place": ..., "pallet": ...}`` objects (``null`` or
+``""`` for an empty place), the list under ``"rows"``, or a ``{place: pallet}`` object.
+Pallets are named as the WMS names them (``103``); a side name (``103B``) stands for its
+pallet. :func:`read_expected` reads it before flight (bounded, :mod:`bt_engine.files`) and
+reports every problem where it is (``stock.csv:4:8: ...``): a bad header or bad JSON, an
+unknown place (with a "did you mean"), a place listed twice, one pallet expected at two
+places.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+from bt_engine.files import read_text
+from bt_engine.spec import Loc, Problem
+from drivers.settings import did_you_mean
+from perception.expected import pallet_of
+
+#: the largest expected-stock file read, bytes (100,000 places take ~2 MB as CSV)
+MAX_EXPECTED_BYTES = 16_000_000
+#: the most places an expected stock may list
+MAX_EXPECTED_PLACES = 100_000
+#: spellings of "no pallet here" in the pallet column
+EMPTY_SPELLINGS = ("", "empty", "none", "-")
+_LONGEST = 200  # a place or pallet name longer than this is not one
+
+
+@dataclass
+class ExpectedStock:
+    """Place -> the pallet expected there (None: the place should be empty), from ``path``;
+    ``locs`` says where each place was listed."""
+
+    path: str
+    places: dict[str, str | None] = field(default_factory=dict)
+    locs: dict[str, Loc] = field(default_factory=dict)
+
+    def at(self, place: str) -> str | None:
+        """The pallet expected at ``place``: its name, ``""`` when the place should be
+        empty, None when the stock does not list it."""
+        if place not in self.places:
+            return None
+        return self.places[place] or ""
+
+    def place_of(self, pallet: str) -> str | None:
+        """The place where ``pallet`` (or a side of it: ``103B``) is expected, or None."""
+        want = pallet_of(pallet)
+        for place, p in self.places.items():
+            if p is not None and pallet_of(p) == want:
+                return place
+        return None
+
+
+def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+    """(place, pallet, where the place is, where the pallet is) per CSV row."""
+    try:
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:
+        return [], [Problem(Loc(path, 1, 1), f"not a readable CSV file: {exc}")]
+    if not rows:
+        return [], [Problem(Loc(path, 1, 1), "the expected stock is empty: a header place,pallet")]
+    header = [c.strip().lower() for c in rows[0]]
+    if "place" not in header or "pallet" not in header:
+        got = ",".join(rows[0])[:80]
+        return [], [
+            Problem(
+                Loc(path, 1, 1), f"expected a header 'place,pallet' (as a WMS exports), got '{got}'"
+            )
+        ]
+    pc, qc = header.index("place"), header.index("pallet")
+    out = []
+    problems = []
+    for i, row in enumerate(rows[1:], start=2):
+        if not any(c.strip() for c in row):
+            continue  # a blank line
+        place = row[pc].strip() if pc < len(row) else ""
+        pallet = row[qc].strip() if qc < len(row) else ""
+        where_place = Loc(path, i, sum(len(c) + 1 for c in row[:pc]) + 1)
+        where_pallet = Loc(path, i, sum(len(c) + 1 for c in row[:qc]) + 1)
+        if not place:
+            problems.append(Problem(where_place, "a row without a place (expected place,pallet)"))
+            continue
+        out.append((place, pallet, where_place, where_pallet))
+    return out, problems
+
+
+def _offset_loc(path: str, text: str, offset: int) -> Loc:
+    line_start = text.rfind("\n", 0, offset) + 1
+    return Loc(path, text.count("\n", 0, offset) + 1, offset - line_start + 1)
+
+
+def _entries_json(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+    """(place, pallet, where, where) per JSON entry: a list of {place, pallet} objects (or
+    that list under "rows"), or a {place: pallet} object; each located by a search of the
+    text from the previous entry on."""
+    try:
+        data = json.loads(text, object_pairs_hook=list)
+    except json.JSONDecodeError as exc:
+        return [], [Problem(Loc(path, exc.lineno, exc.colno), f"not JSON: {exc.msg}")]
+    except (ValueError, RecursionError) as exc:
+        return [], [Problem(Loc(path, 1, 1), f"not JSON: {exc}")]
+    if isinstance(data, list) and all(isinstance(p, tuple) for p in data):  # an object
+        pairs = data
+        keys = [k for k, _ in pairs]
+        if keys == ["rows"] or ("rows" in keys and isinstance(dict(pairs)["rows"], list)):
+            data = dict(pairs)["rows"]
+        else:
+            return _mapping(path, text, pairs)
+    if not isinstance(data, list):
+        return [], [Problem(Loc(path, 1, 1), "expected a list of {place, pallet} rows")]
+    out, problems, pos = [], [], 0
+    for i, item in enumerate(data):
+        start = text.find("{", pos)
+        pos = start + 1 if start >= 0 else pos
+        where = _offset_loc(path, text, max(start, 0))
+        obj = (
+            dict(item)
+            if isinstance(item, list) and all(isinstance(p, tuple) for p in item)
+            else None
+        )
+        if obj is None or not isinstance(obj.get("place"), str):
+            problems.append(
+                Problem(
+                    where, f'rows[{i}]: expected {{"place": ..., "pallet": ...}}, got {item!r:.60}'
+                )
+            )
+            continue
+        pallet = obj.get("pallet")
+        if pallet is not None and not isinstance(pallet, (str, int)):
+            problems.append(
+                Problem(where, f"rows[{i}]: pallet must be text or null, got {pallet!r:.60}")
+            )
+            continue
+        out.append(
+            (obj["place"].strip(), "" if pallet is None else str(pallet).strip(), where, where)
+        )
+    return out, problems
+
+
+def _mapping(
+    path: str, text: str, pairs: list
+) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+    out, problems, pos = [], [], 0
+    for place, pallet in pairs:
+        m = re.compile(r'"' + re.escape(json.dumps(place)[1:-1]) + r'"\s*:').search(text, pos)
+        start = m.start() if m else pos
+        pos = m.end() if m else pos
+        where = _offset_loc(path, text, start)
+        if pallet is not None and not isinstance(pallet, (str, int)):
+            problems.append(
+                Problem(where, f"{place}: pallet must be text or null, got {pallet!r:.60}")
+            )
+            continue
+        out.append((place.strip(), "" if pallet is None else str(pallet).strip(), where, where))
+    return out, problems
+
+
+def read_expected(
+    spec: str, world: Any, where: Loc, base_dir: str = "."
+) -> tuple[ExpectedStock | None, list[Problem]]:
+    """The expected stock of file ``spec`` (None if ``spec`` is empty), and every problem,
+    located in the file (or at ``where`` when the file cannot be read)."""
+    text_spec = str(spec or "").strip()
+    if not text_spec:
+        return None, []
+    path = (
+        text_spec
+        if os.path.isabs(text_spec) or os.path.exists(text_spec)
+        else os.path.join(base_dir, text_spec)
+    )
+    read: list[Problem] = []
+    text = read_text(path, read, where, what="expected stocks", limit=MAX_EXPECTED_BYTES)
+    if text is None:
+        return None, [Problem(where, f"expected stock: {read[0].message}")]
+    if path.lower().endswith(".json") or text.lstrip()[:1] in ("[", "{"):
+        entries, problems = _entries_json(path, text)
+    else:
+        entries, problems = _entries_csv(path, text)
+    names = list(getattr(world, "places", None) or {})
+    stock = ExpectedStock(path)
+    pallet_at: dict[str, tuple[str, Loc]] = {}
+    for place, pallet, where_place, where_pallet in entries[: MAX_EXPECTED_PLACES + 1]:
+        if len(stock.places) >= MAX_EXPECTED_PLACES:
+            problems.append(Problem(where_place, f"more than {MAX_EXPECTED_PLACES} places listed"))
+            break
+        if len(place) > _LONGEST or len(pallet) > _LONGEST:
+            problems.append(Problem(where_place, f"a name longer than {_LONGEST} characters"))
+            continue
+        if names and place not in names:
+            hint = did_you_mean(place, names) or f" (places: {names[0]} .. {names[-1]})"
+            problems.append(Problem(where_place, f"unknown place '{place}'{hint}"))
+            continue
+        if place in stock.places:
+            first = stock.locs[place]
+            problems.append(
+                Problem(
+                    where_place,
+                    f"place '{place}' listed twice (first at line {first.line}); one row per place",
+                )
+            )
+            continue
+        empty = pallet.lower() in EMPTY_SPELLINGS
+        stock.places[place] = None if empty else pallet
+        stock.locs[place] = where_place
+        if empty:
+            continue
+        key = pallet_of(pallet)
+        if key in pallet_at:
+            other, loc = pallet_at[key]
+            problems.append(
+                Problem(
+                    where_pallet,
+                    f"pallet '{pallet}' expected at two places: {other} (line {loc.line}) and "
+                    f"{place}; a pallet stands in one place",
+                )
+            )
+        else:
+            pallet_at[key] = (place, where_place)
+    if not entries and not problems:
+        problems.append(Problem(Loc(path, 1, 1), "the expected stock lists no place"))
+    return stock, problems
+
+
+__all__ = ["EMPTY_SPELLINGS", "ExpectedStock", "read_expected"]

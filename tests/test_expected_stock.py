@@ -1,0 +1,190 @@
+"""Expected stock (a WMS export) and the discrepancy report (issue 28).
+
+The expected stock is read and checked before flight, every problem located; each
+inventory row becomes a discrepancy row in one of the categories; a scan is verified 1:1
+against the pallet expected at its place before it is identified, and a look-alike of that
+pallet does not verify; the inventory mission writes discrepancies.csv / .json in which
+every injected discrepancy is reported in its category and agreeing places are confirmed.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+
+import pytest
+from helpers import REPO
+
+from bt_engine.spec import Loc
+from drivers.rig.loader import load_rig
+from nodes.discrepancy import categorise, counts_line, discrepancy_rows, grade_rows
+from nodes.expected_stock import ExpectedStock, read_expected
+from nodes.inventory_log import InventoryLog
+from perception.expected import pallet_of, pallet_rank, sides_of
+
+RIG = os.path.join(REPO, "rigs", "aisle.yaml")
+MISSION = os.path.join(REPO, "missions", "inventory.xml")
+WHERE = Loc("--set", 0, 0)
+
+
+@pytest.fixture(scope="module")
+def world():
+    return load_rig(RIG).load_world(0)
+
+
+def _read(tmp_path, name: str, text: str, world):
+    path = tmp_path / name
+    path.write_text(text)
+    return read_expected(str(path), world, WHERE)
+
+
+# -- reading and checking the expected stock ---------------------------------------------
+
+
+def test_a_wms_csv_is_read_with_empty_places(tmp_path, world):
+    stock, problems = _read(tmp_path, "s.csv", "place,pallet\nA-01-1,109\nA-01-2,\n", world)
+    assert problems == []
+    assert stock.places == {"A-01-1": "109", "A-01-2": None}
+    assert stock.at("A-01-1") == "109" and stock.at("A-01-2") == "" and stock.at("A-02-1") is None
+    assert stock.place_of("109B") == "A-01-1" and stock.place_of("110") is None
+
+
+def test_the_same_as_json_in_three_shapes(tmp_path, world):
+    rows = '[{"place": "A-01-1", "pallet": "109"}, {"place": "A-01-2", "pallet": null}]'
+    for text in (rows, '{"rows": ' + rows + "}", '{"A-01-1": "109", "A-01-2": null}'):
+        stock, problems = _read(tmp_path, "s.json", text, world)
+        assert problems == [] and stock.places == {"A-01-1": "109", "A-01-2": None}, text
+
+
+@pytest.mark.parametrize(
+    "name, text, where, message",
+    [
+        ("s.csv", "place,pallet\nA-01-1,109\nA-1-2,3\n", (3, 1), "unknown place 'A-1-2' (did you mean"),
+        ("s.csv", "place,pallet\nA-01-1,109\nA-01-1,3\n", (3, 1), "place 'A-01-1' listed twice (first at line 2)"),
+        ("s.csv", "place,pallet\nA-01-1,109\nA-02-1,109B\n", (3, 8), "pallet '109B' expected at two places: A-01-1 (line 2)"),
+        ("s.csv", "location,pallet_id\nA-01-1,109\n", (1, 1), "expected a header 'place,pallet'"),
+        ("s.csv", "", (1, 1), "the expected stock is empty"),
+        ("s.json", '{"A-01-1": "109",\n "A-01-2": ', (2, 12), "not JSON"),
+        ("s.json", '[{"place": "A-01-1", "pallet": "1"},\n {"place": "B-01-1", "pallet": "3"}]', (2, 2), "unknown place 'B-01-1'"),
+        ("s.json", '[{"place": "A-01-1", "pallet": [1]}]', (1, 2), "pallet must be text or null"),
+    ],
+)  # fmt: skip
+def test_every_problem_is_located_in_the_file(tmp_path, world, name, text, where, message):
+    _, problems = _read(tmp_path, name, text, world)
+    assert len(problems) == 1, problems
+    p = problems[0]
+    assert (p.loc.file, p.loc.line, p.loc.col) == (str(tmp_path / name), *where)
+    assert message in p.message
+
+
+def test_a_missing_file_is_reported_at_the_input(tmp_path, world):
+    stock, problems = read_expected(str(tmp_path / "nope.csv"), world, WHERE)
+    assert stock is None and problems[0].loc == WHERE
+    assert "expected stock" in problems[0].message and "nope.csv" in problems[0].message
+    assert read_expected("", world, WHERE) == (None, [])
+
+
+def test_btrun_refuses_a_bad_expected_stock_before_anything_flies(tmp_path, capsys):
+    from bt_engine.cli import main
+
+    bad = tmp_path / "stock.csv"
+    bad.write_text("place,pallet\nA-01-1,109\nA-01-1,110\nA-09-9,\n")
+    code = main([MISSION, "--rig", RIG, "--set", f"expected={bad}", "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code != 0
+    assert f"{bad}:3:1: place 'A-01-1' listed twice" in err
+    assert f"{bad}:4:1: unknown place 'A-09-9'" in err
+    assert not (tmp_path / "r" / "ticks.jsonl").exists()
+
+
+# -- categories -----------------------------------------------------------------------------
+
+
+def test_pallets_and_sides():
+    assert pallet_of("103B") == "103" and pallet_of("7A") == "7" and pallet_of("PAL-X") == "PAL-X"
+    assert sides_of(["103A", "103B", "1103A", "10A"], "103") == ["103A", "103B"]
+    assert sides_of(["103A", "103B"], "103B") == ["103A", "103B"]
+    ranking = [("5A", 0.3, ()), ("5B", 0.31, ()), ("7A", 0.4, ()), ("9B", 0.5, ())]
+    assert pallet_rank(ranking, "7")[0] == 2 and pallet_rank(ranking, "8") == (None, None)
+
+
+@pytest.mark.parametrize(
+    "expected, answer, category, found",
+    [
+        ("103", "103B", "confirmed", "103"),
+        ("103A", "103B", "confirmed", "103"),  # the other side of the same pallet
+        ("", "empty", "confirmed", "empty"),
+        ("103", "104A", "mismatch", "104"),
+        ("103", "empty", "missing", "empty"),
+        ("", "104A", "unexpected", "104"),
+        ("", "unknown", "unexpected", "unknown"),
+        ("103", "unknown", "unverified", "unknown"),  # unknown where a pallet is expected
+        ("103", "", "not_scanned", ""),
+        (None, "104A", "unlisted", "104"),
+    ],
+)
+def test_categories(expected, answer, category, found):
+    assert categorise(expected, answer) == (category, found)
+
+
+def _stock(places: dict) -> ExpectedStock:
+    return ExpectedStock("stock.csv", dict(places))
+
+
+def test_discrepancy_rows_name_where_a_found_pallet_was_expected():
+    stock = _stock({"A-01-1": "101", "A-01-2": "102", "A-02-1": None, "A-02-2": "104"})
+    rows = [
+        {"place": "A-01-1", "answer": "102A", "status": "identified"},  # swapped
+        {"place": "A-01-2", "answer": "101B", "status": "identified", "decided_by": "texture"},
+        {"place": "A-02-1", "answer": "104A", "status": "identified"},  # moved here
+        {"place": "A-02-2", "answer": "empty", "status": "empty"},
+    ]
+    out = {r["place"]: r for r in discrepancy_rows(rows, stock)}
+    assert out["A-01-1"]["category"] == "mismatch" and out["A-01-1"]["moved_from"] == "A-01-2"
+    assert out["A-01-2"]["moved_from"] == "A-01-1"
+    assert (out["A-02-1"]["category"], out["A-02-1"]["found"]) == ("unexpected", "104")
+    assert out["A-02-2"]["category"] == "missing"
+
+
+def test_grading_against_the_ground_truth():
+    stock = _stock({"A-01-1": "101", "A-01-2": "102", "A-02-1": None, "A-02-2": "115"})
+    truth = ({"A-01-1": "101A", "A-01-2": "103B", "A-02-1": None, "A-02-2": "115A"}, {"115A"})
+    rows = [
+        {"place": "A-01-1", "answer": "101A"},  # confirmed, right
+        {"place": "A-01-2", "answer": "unknown"},  # should be mismatch (103): missed
+        {"place": "A-02-1", "answer": "unknown"},  # should be confirmed: a false alarm
+        {"place": "A-02-2", "answer": "unknown"},  # 115 is not enrolled: unverified, right
+    ]
+    g = grade_rows(discrepancy_rows(rows, stock), stock, truth)
+    assert g["grades"] == {"A-01-1": "right", "A-01-2": "wrong", "A-02-1": "wrong", "A-02-2": "right"}
+    assert g["false_alarms"] == ["A-02-1"] and g["missed"] == ["A-01-2"]
+
+
+def test_the_log_writes_the_report_and_leads_with_the_counts(tmp_path):
+    log = InventoryLog(str(tmp_path), drone="cf1")
+    log.expected = _stock({"A-01-1": "101", "A-01-2": None, "A-02-1": "102"})
+    log.plan(["A-01-1", "A-01-2", "A-02-1"])
+    assert log.expected_at("A-01-1") == "101" and log.expected_at("A-01-2") == ""
+    assert log.expected_at("A-09-9") is None
+    log.record({"place": "A-01-1", "answer": "101A", "status": "identified", "decided_by": "verified"})
+    log.record({"place": "A-01-2", "answer": "103B", "status": "identified"})
+    with open(tmp_path / "discrepancies.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["place"] for r in rows] == ["A-01-1", "A-01-2", "A-02-1"]  # not scanned yet too
+    assert [r["category"] for r in rows] == ["confirmed", "unexpected", "not_scanned"]
+    assert rows[0]["verified"] == "true" and list(rows[0])[:4] == ["place", "expected", "found", "category"]
+    doc = json.loads((tmp_path / "discrepancies.json").read_text())
+    assert doc["counts"]["confirmed"] == 1 and doc["counts"]["unexpected"] == 1
+    lines = log.result_lines()
+    assert lines[0] == counts_line(log.run_summary()["discrepancies"])
+    assert lines[0].startswith("discrepancies: 1 confirmed, 0 mismatch, 0 missing, 1 unexpected")
+
+
+def test_without_an_expected_stock_nothing_changes(tmp_path):
+    log = InventoryLog(str(tmp_path))
+    log.plan(["A-01-1"])
+    log.record({"place": "A-01-1", "answer": "101A", "status": "identified"})
+    assert not (tmp_path / "discrepancies.csv").exists()
+    assert "discrepancies" not in log.run_summary()
+    assert log.result_lines()[0].startswith("inventory: 1 places")
