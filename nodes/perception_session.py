@@ -198,6 +198,7 @@ class PerceptionSession:
         """Open the gallery ``spec`` for ``embedder``'s model (``"demo"``: the demo gallery of
         the rig's world, built on first use; ``create``: make an empty file if missing)."""
         from perception.gallery import Gallery, GalleryError
+        from perception.gallery_pg import is_gallery_url
 
         key = (spec, embedder.model_version)
         if key in self._galleries:
@@ -221,6 +222,14 @@ class PerceptionSession:
                     overrides=getattr(self.rig, "world_overrides", None),
                 )
                 g = Gallery.open(path, embedder.model_version)
+            elif is_gallery_url(spec):  # postgresql://...#NAME: a gallery in the site store
+                try:
+                    g = Gallery.open(spec, embedder.model_version)
+                except GalleryError as exc:
+                    if not create or "no such gallery" not in str(exc):
+                        raise
+                    g = Gallery.create(spec, embedder.model_version, embedder.dim, exist_ok=True)
+                    g.set_thresholds(embedder.thresholds)
             elif os.path.exists(spec):
                 g = Gallery.open(spec, embedder.model_version)
             elif create:

@@ -1,4 +1,5 @@
-"""The gallery of enrolled pallets: an SQLite file of block embeddings, and matching.
+"""The gallery of enrolled pallets: an SQLite file (or a PostgreSQL schema) of block
+embeddings, and matching.
 
 One entry per enrolled pallet side (``"3A"``): the three block embeddings (left to right),
 optionally their stripe visibilities, the model version that computed them, the time, and
@@ -33,12 +34,14 @@ import os
 import sqlite3
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 
 from perception.errors import GalleryError
 from perception.gallery_match import Match, MatchingMixin, Thresholds, _Rows
 from perception.gallery_math import BLOCKS, block_distances
+from perception.gallery_pg import connect_gallery, is_gallery_url, shown
 from perception.gallery_schema import (
     READABLE_SCHEMAS,
     SCHEMA_VERSION,
@@ -49,6 +52,7 @@ from perception.gallery_schema import (
 )
 from perception.gallery_update import UpdateDecision, UpdateRule
 from perception.gallery_views import ViewsMixin, checked_time
+from store.db import db_errors
 
 
 class Gallery(MatchingMixin, ViewsMixin):
@@ -71,7 +75,10 @@ class Gallery(MatchingMixin, ViewsMixin):
     # -- opening -------------------------------------------------------------------------
     @classmethod
     def create(cls, path: str, model_version: str, dim: int, exist_ok: bool = False) -> Gallery:
-        """Create a new, empty gallery file for ``model_version`` embeddings of size ``dim``."""
+        """Create a new, empty gallery file for ``model_version`` embeddings of size ``dim``
+        (``postgresql://...#NAME``: a gallery in PostgreSQL, :mod:`perception.gallery_pg`)."""
+        if is_gallery_url(path):
+            return cls._create_pg(path, model_version, dim, exist_ok)
         if path != ":memory:" and os.path.exists(path):
             if not exist_ok:
                 raise GalleryError(f"{path}: a gallery already exists (remove it or open it)")
@@ -103,7 +110,11 @@ class Gallery(MatchingMixin, ViewsMixin):
     @classmethod
     def open(cls, path: str, model_version: str | None = None) -> Gallery:
         """Open an existing gallery; refuse a damaged file or one of another model version;
-        upgrade a schema-1 file in place."""
+        upgrade a schema-1 file in place. ``postgresql://...#NAME``: a gallery in
+        PostgreSQL (:mod:`perception.gallery_pg`)."""
+        if is_gallery_url(path):
+            conn, tables = connect_gallery(path)
+            return cls._checked(conn, shown(path), tables, model_version)
         if not os.path.exists(path):
             raise GalleryError(
                 f"{path}: no gallery file (enrol pallets first: btrun gallery enrol)"
@@ -114,6 +125,20 @@ class Gallery(MatchingMixin, ViewsMixin):
             if ok != "ok":
                 raise GalleryError(f"{path}: the gallery file is damaged ({ok}); restore a backup")
             tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master")}
+        except sqlite3.DatabaseError as exc:
+            raise GalleryError(f"{path}: not a readable gallery file ({exc})") from None
+        return cls._checked(conn, path, tables, model_version)
+
+    @classmethod
+    def _checked(cls, conn: Any, path: str, tables: set[str], model_version: str | None) -> Gallery:
+        """The gallery on ``conn`` once its tables, metadata, schema and vectors pass."""
+        if not tables and is_gallery_url(path):
+            conn.close()
+            raise GalleryError(
+                f"{path}: no such gallery in the store (enrol pallets first: btrun gallery "
+                "enrol NAME SIDE --store URL)"
+            )
+        try:
             missing = sorted(TABLES[1] - tables)
             if missing:
                 raise GalleryError(
@@ -121,8 +146,9 @@ class Gallery(MatchingMixin, ViewsMixin):
                     "missing); restore a backup or enrol into a new file"
                 )
             meta = dict(conn.execute("SELECT key, value FROM meta").fetchall())
-        except sqlite3.DatabaseError as exc:
-            raise GalleryError(f"{path}: not a readable gallery file ({exc})") from None
+        except db_errors() as exc:
+            what = "gallery" if is_gallery_url(path) else "gallery file"
+            raise GalleryError(f"{path}: not a readable {what} ({exc})") from None
         try:
             schema = int(meta["schema_version"])
             stored_version = meta["model_version"]
@@ -152,6 +178,24 @@ class Gallery(MatchingMixin, ViewsMixin):
                 "re-enrol the pallets with this model"
             )
         return cls(conn, path, stored_version, dim)
+
+    @classmethod
+    def _create_pg(cls, spec: str, model_version: str, dim: int, exist_ok: bool) -> Gallery:
+        conn, tables = connect_gallery(spec, create=True)
+        if tables:
+            conn.close()
+            if not exist_ok:
+                raise GalleryError(
+                    f"{shown(spec)}: a gallery already exists (remove it or open it)"
+                )
+            return cls.open(spec, model_version)
+        try:
+            write_schema(conn, model_version, dim)  # one transaction: all tables or none
+        except db_errors() as exc:
+            conn.close()
+            raise GalleryError(f"{shown(spec)}: cannot create the gallery ({exc})") from None
+        conn.close()
+        return cls.open(spec, model_version)
 
     def close(self) -> None:
         """Close the file."""
@@ -212,7 +256,7 @@ class Gallery(MatchingMixin, ViewsMixin):
         """Store the "unknown" thresholds (calibrated on a validation set) in the file."""
         with self._writing("set thresholds"), self.conn:
             self.conn.executemany(
-                "INSERT OR REPLACE INTO meta VALUES (?, ?)",
+                "INSERT INTO meta VALUES (?, ?) ON CONFLICT (key) DO UPDATE SET value = excluded.value",
                 [
                     ("max_distance", repr(thresholds.max_distance)),
                     ("min_margin", repr(thresholds.min_margin)),
@@ -252,7 +296,7 @@ class Gallery(MatchingMixin, ViewsMixin):
         the transaction is rolled back)."""
         try:
             yield
-        except sqlite3.Error as exc:
+        except db_errors() as exc:
             hint = (
                 "the file or its folder is read-only: check the permissions"
                 if "readonly" in str(exc) or "read-only" in str(exc)
@@ -334,7 +378,7 @@ class Gallery(MatchingMixin, ViewsMixin):
 def _upgrade(conn: sqlite3.Connection, path: str, schema: int) -> None:
     try:
         upgrade(conn, schema)
-    except sqlite3.Error as exc:
+    except db_errors() as exc:
         raise GalleryError(
             f"{path}: gallery schema {schema} must be upgraded to schema {SCHEMA_VERSION} "
             f"(views, history, view crops) but the file cannot be written ({exc}); copy it "

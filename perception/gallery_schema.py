@@ -1,5 +1,8 @@
 """The gallery file's SQLite schema, its versions and the checks run when one is opened.
 
+The same DDL makes a gallery in PostgreSQL (:mod:`perception.gallery_pg`: types translated
+by :func:`store.db.pg_ddl`).
+
 Schema 2 (this btrun) adds to schema 1's ``meta``, ``entries`` and ``crops``:
 
 * ``visibility``: per enrolled side, the stripe visibilities of its three blocks (optional);
@@ -22,6 +25,8 @@ from __future__ import annotations
 
 import sqlite3
 import time
+
+from store.db import pg_ddl
 
 SCHEMA_VERSION = 3
 READABLE_SCHEMAS = (1, 2, 3)
@@ -109,6 +114,8 @@ def write_schema(conn: sqlite3.Connection, model_version: str, dim: int) -> None
 def _step(conn: sqlite3.Connection, script: str, to: int, extra: str = "") -> None:
     with conn:
         conn.execute("BEGIN IMMEDIATE")  # DDL opens no transaction by itself
+        if getattr(conn, "dialect", "sqlite") == "postgresql":
+            script = pg_ddl(script)
         for stmt in script.split(";"):
             if stmt.strip():
                 conn.execute(stmt)
@@ -135,10 +142,16 @@ def upgrade(conn: sqlite3.Connection, schema: int) -> None:
 def check_contents(conn: sqlite3.Connection, dim: int) -> str | None:
     """The first problem with the stored vectors (wrong byte count), or None."""
     want = 3 * dim * 4
+    # PostgreSQL's bytea column holds only bytes; an SQLite column may hold any type
+    blob = (
+        ""
+        if getattr(conn, "dialect", "sqlite") == "postgresql"
+        else "OR typeof(embeddings) != 'blob' "
+    )
     for table in ("entries", "views"):
         bad = conn.execute(
             f"SELECT identity, length(embeddings) FROM {table} WHERE length(embeddings) != ? "  # noqa: S608
-            "OR typeof(embeddings) != 'blob' LIMIT 1",
+            f"{blob}LIMIT 1",
             (want,),
         ).fetchone()
         if bad is not None:

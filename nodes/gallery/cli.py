@@ -14,6 +14,7 @@
                                                   # (or a pallet enrolled in btrun console's review)
     btrun gallery demo                            # build (if needed) and show the demo gallery
     btrun gallery list demo --rig rigs/aisle.yaml # the aisle's demo gallery (the rig's world)
+    btrun gallery enrol pallets 7A --run runs/... --store postgresql://btrun@db/btrun  # in PostgreSQL
 
 ``demo`` stands for the demo gallery of the rig's world (``--rig``, as in a mission run:
 default the warehouse's) wherever a gallery is named. Errors are one line each,
@@ -31,6 +32,8 @@ import time
 from typing import Any
 
 import numpy as np
+
+from perception.gallery_pg import is_gallery_url
 
 #: how an operator's review (``btrun console``) names itself in a gallery's history ``run``
 REVIEW_RUN = "console review"
@@ -77,6 +80,13 @@ def setup(p: argparse.ArgumentParser) -> None:
         )
         sp.add_argument("--embedder", default="", help="embedder weights (default: shipped)")
         sp.add_argument("--detector", default="", help="detector weights (default: shipped)")
+        sp.add_argument(
+            "--store",
+            default=None,
+            metavar="URL",
+            help="a site store on PostgreSQL (postgresql://...): GALLERY is then the name of a "
+            "gallery in it, not a file (docs/store.md)",
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -108,11 +118,27 @@ def _session(args: argparse.Namespace) -> Any:
 def _open(args: argparse.Namespace, create: bool = False) -> tuple[Any, Any]:
     s = _session(args)
     emb = s.embedder(args.embedder)
-    spec = args.gallery
-    if spec != "demo" and not create and not os.path.exists(spec):
+    spec = _spec(args)
+    if spec != "demo" and not create and not is_gallery_url(spec) and not os.path.exists(spec):
         raise GalleryCommandError(f"{spec}: no such gallery file")
     det = s.detector(args.detector) if spec == "demo" else None
     return s, s.gallery(spec, emb, create=create, detector=det)
+
+
+def _spec(args: argparse.Namespace) -> str:
+    """The gallery named: a file, ``demo``, or with ``--store postgresql://...`` the
+    gallery of that name in the store (``URL#NAME``)."""
+    from perception.gallery_pg import gallery_url
+
+    store = getattr(args, "store", None)
+    if not store or args.gallery == "demo":
+        return args.gallery
+    if not is_gallery_url(store):
+        raise GalleryCommandError(
+            f"--store {store}: galleries are kept in a PostgreSQL store (postgresql://...); "
+            "an SQLite gallery is its own file: name the file instead"
+        )
+    return gallery_url(store, args.gallery)
 
 
 def _list(args: argparse.Namespace) -> int:

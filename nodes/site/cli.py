@@ -30,7 +30,7 @@ def setup(p: argparse.ArgumentParser) -> None:
     hi.add_argument("place", help="place name, e.g. A-03-2")
     hi.add_argument("--limit", type=int, default=None, metavar="N", help="the newest N runs")
     di = sub.add_parser("diff", help="what changed between two inventories")
-    di.add_argument("run_a", help="the earlier run (its folder's name)")
+    di.add_argument("run_a", help="the earlier run (its folder's name, or the folder)")
     di.add_argument("run_b", help="the later run")
     rs = sub.add_parser("runs", help="the runs the store holds")
     rs.add_argument("--limit", type=int, default=None, metavar="N", help="the newest N runs")
@@ -69,12 +69,13 @@ def _table(title: str, columns: list[str], rows: list[list[Any]]) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title=title, title_justify="left", box=None, header_style="bold")
+    print(title)
+    table = Table(box=None, header_style="bold")
     for c in columns:
-        table.add_column(c)
+        table.add_column(c, no_wrap=True)
     for r in rows:
         table.add_row(*["-" if v is None or v == "" else str(v) for v in r])
-    Console(width=max(100, 20 * len(columns))).print(table)
+    Console(width=max(100, 24 * len(columns))).print(table)
 
 
 def _number(v: Any) -> str | None:
@@ -112,7 +113,15 @@ def _history(store: InventoryStore, args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_name(text: str) -> str:
+    """A run named by its id or by its folder (``runs/inventory-...``)."""
+    import os
+
+    return os.path.basename(os.path.normpath(text)) if os.path.isdir(text) else text
+
+
 def _diff(store: InventoryStore, args: argparse.Namespace) -> int:
+    args.run_a, args.run_b = _run_name(args.run_a), _run_name(args.run_b)
     changes = store.diff(args.run_a, args.run_b)
     if args.json:
         print(json.dumps({"a": args.run_a, "b": args.run_b, "changes": changes}, indent=1))

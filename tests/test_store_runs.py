@@ -1,0 +1,128 @@
+"""The site store from btrun's side: runs and fleets recording their rows (SQLite by
+default, PostgreSQL with --store), ``btrun inventory history|diff|runs|import``, and an
+unusable store refused before flight."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+from helpers import REPO
+
+from bt_engine.cli import main
+from nodes.inventory_log import write_inventory
+from store import InventoryStore
+
+FLEET = os.path.join(REPO, "fleets", "aisle_2.yaml")
+MISSION = os.path.join(REPO, "missions", "inventory.xml")
+
+
+def _run_folder(path, rows: list[tuple[str, str, str]], status: str = "SUCCESS") -> str:
+    """A finished inventory run folder written directly (no flight)."""
+    os.makedirs(path, exist_ok=True)
+    full = [
+        {"place": p, "answer": a, "status": s, "drone": "cf1", "run": os.path.basename(path)}
+        for p, a, s in rows
+    ]
+    write_inventory(str(path), full, [r[0] for r in rows])
+    with open(os.path.join(path, "ticks.jsonl"), "w") as f:
+        f.write(json.dumps({"header": {"mission": MISSION, "seed": 4, "rig": "rigs/aisle.yaml"}}))
+        f.write("\n")
+    with open(os.path.join(path, "summary.json"), "w") as f:
+        json.dump({"status": status}, f)
+    return str(path)
+
+
+def test_import_history_diff_commands(tmp_path, capsys) -> None:
+    store = f"sqlite:///{tmp_path}/site.sqlite"
+    a = _run_folder(
+        tmp_path / "inventory-20261101-080000",
+        [("A-01-1", "3A", "identified"), ("A-01-2", "empty", "empty")],
+    )
+    b = _run_folder(
+        tmp_path / "inventory-20261102-080000",
+        [("A-01-1", "5B", "identified"), ("A-01-2", "2A", "identified")],
+        status="FAILURE",
+    )
+    assert main(["inventory", "import", a, b, "--store", store]) == 0
+    assert "imported inventory-20261102-080000: 2 rows" in capsys.readouterr().out
+    assert main(["inventory", "import", a, "--store", store]) == 0  # again: no duplicate
+    capsys.readouterr()
+    assert main(["inventory", "history", "A-01-1", "--store", store, "--json"]) == 0
+    hist = json.loads(capsys.readouterr().out)
+    assert [(h["run"], h["answer"], h["run_status"]) for h in hist] == [
+        ("inventory-20261101-080000", "3A", "SUCCESS"),
+        ("inventory-20261102-080000", "5B", "FAILURE"),
+    ]
+    assert main(["inventory", "history", "A-01-1", "--store", store]) == 0
+    out = capsys.readouterr().out
+    assert "A-01-1: 2 runs" in out and "5B" in out and "cf1" in out
+    assert main(["inventory", "diff", "inventory-20261101-080000", b, "--store", store]) == 0
+    out = capsys.readouterr().out
+    assert "1 appeared, 1 changed" in out and "3A" in out and "5B" in out
+    assert main(["inventory", "runs", "--store", store, "--json"]) == 0
+    runs = json.loads(capsys.readouterr().out)
+    assert [(r["rows"], r["seed"]) for r in runs] == [(2, 4), (2, 4)]
+    # unknown runs and places: one line, exit 2, did you mean
+    assert main(["inventory", "diff", "inventory-20261101-08000", b, "--store", store]) == 2
+    err = capsys.readouterr().err
+    assert "did you mean inventory-20261101-080000?" in err and err.count("\n") == 1
+    assert main(["inventory", "history", "A-1-1", "--store", store]) == 2
+    assert "did you mean A-01-1?" in capsys.readouterr().err
+    assert main(["inventory", "import", str(tmp_path / "nope"), "--store", store]) == 2
+    assert "no such run folder" in capsys.readouterr().err
+
+
+def test_an_unreachable_store_is_refused_before_flight(tmp_path, capsys) -> None:
+    out = str(tmp_path / "f")
+    bad = "postgresql://btrun:pw@127.0.0.1:1/site?connect_timeout=2"
+    code = main(["fleet", FLEET, "--out", out, "--store", bad, "-q", "--set", "places=A-01-1"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--store" in err and "cannot connect" in err and ":pw@" not in err
+    assert "Traceback" not in err and not os.path.exists(os.path.join(out, "drones"))
+
+
+@pytest.mark.slow
+def test_a_fleet_records_into_postgresql_and_history_diff_read_it(
+    tmp_path, capsys, postgresql_server
+) -> None:
+    """Two fleet runs of two places each into PostgreSQL; the store holds every row the
+    run folders hold; history and diff read them back."""
+    url = postgresql_server.database("fleet_store")
+    runs = []
+    for k, seed in enumerate((0, 5)):
+        out = str(tmp_path / f"aisle_2-{k}")
+        args = ["fleet", FLEET, "--out", out, "--store", url, "--seed", str(seed), "-q"]
+        args += ["--no-report", "--no-mcap", "--set", "places=A-01-1;A-08-1"]
+        assert main(args) == 0
+        runs.append(out)
+    capsys.readouterr()
+    with InventoryStore.open(url) as s:
+        for out in runs:
+            with open(os.path.join(out, "inventory.json")) as f:
+                on_disk = {r["place"]: r["answer"] for r in json.load(f)["rows"]}
+            name = os.path.basename(out)
+            assert {r["place"]: r["answer"] for r in s.rows(name)} == on_disk
+            assert s.run(name)["status"] == "SUCCESS" and s.run(name)["fleet"] == "aisle_2"
+            assert {r["drone"] for r in s.rows(name)} == {"cf1", "cf2"}
+    assert main(["inventory", "history", "A-08-1", "--store", url, "--json"]) == 0
+    hist = json.loads(capsys.readouterr().out)
+    assert [h["run"] for h in hist] == ["aisle_2-0", "aisle_2-1"]
+    assert main(["inventory", "diff", "aisle_2-0", "aisle_2-1", "--store", url, "--json"]) == 0
+    diff = json.loads(capsys.readouterr().out)
+    assert diff["a"] == "aisle_2-0" and isinstance(diff["changes"], list)
+
+
+@pytest.mark.slow
+def test_a_solo_run_records_into_the_default_sqlite_store(tmp_path, monkeypatch) -> None:
+    monkeypatch.delenv("BTRUN_STORE", raising=False)
+    out = tmp_path / "runs" / "inv-1"
+    args = [MISSION, "--rig", os.path.join(REPO, "rigs", "aisle.yaml"), "--out", str(out)]
+    args += ["--set", "places=A-01-1", "-q", "--no-report", "--no-mcap"]
+    assert main(args) == 0
+    with InventoryStore.open(str(tmp_path / "runs" / "site.sqlite")) as s:
+        run = s.run("inv-1")
+        assert run["status"] == "SUCCESS" and run["mission"] == MISSION and run["seed"] == 0
+        rows = s.rows("inv-1")
+        assert [r["place"] for r in rows] == ["A-01-1"] and rows[0]["drone"] == "aisle"
