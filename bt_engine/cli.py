@@ -114,6 +114,15 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         help="serve Groot2 live monitoring on PORT (default 1667) and PORT+1 (docs/monitoring.md)",
     )
     r.add_argument(
+        "--foxglove",
+        nargs="?",
+        const=8765,
+        type=int,
+        metavar="PORT",
+        help="serve the run live to Foxglove (WebSocket on 127.0.0.1:PORT, default 8765; "
+        "the channels of run.mcap; docs/monitoring.md)",
+    )
+    r.add_argument(
         "--groot-address",
         default="127.0.0.1",
         metavar="ADDR",

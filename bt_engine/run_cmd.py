@@ -267,6 +267,7 @@ def prepare(
     if target is not None:  # a target may write files of its own beside the tick log
         target.run_dir = run_dir  # type: ignore[attr-defined]
         target.record_mcap = not getattr(args, "no_mcap", False)  # type: ignore[attr-defined]
+        target.foxglove_port = getattr(args, "foxglove", None)  # type: ignore[attr-defined]
     rows = spec_rows(spec)
     header = {
         "mission": os.path.abspath(args.mission),

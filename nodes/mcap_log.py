@@ -107,8 +107,17 @@ class McapRecorder:
         safety: the safety hook (its ``summary()``), optional.
     """
 
-    def __init__(self, run_dir: str, mission: Any, platform: Any = None, safety: Any = None):
+    def __init__(
+        self,
+        run_dir: str,
+        mission: Any,
+        platform: Any = None,
+        safety: Any = None,
+        tee: Any = None,
+    ):
         self.mission, self.platform, self.safety = mission, platform, safety
+        #: also publishes every message live (``--foxglove``: :mod:`nodes.foxglove_live`)
+        self.tee = tee
         self.path = os.path.join(run_dir, FILE_NAME)
         self.error: str | None = None
         self.counts: dict[str, int] = dict.fromkeys(CHANNELS, 0)
@@ -159,6 +168,8 @@ class McapRecorder:
             if self._f is not None:
                 self._f.close()
             self._log.close()
+            if self.tee is not None:
+                self.tee.close()
 
     # -- internals --------------------------------------------------------------------------
     def _guard(self, fn: Any) -> None:
@@ -179,8 +190,17 @@ class McapRecorder:
     def _put(self, topic: str, t: float, data: str) -> None:
         ns = round(t * 1e9) if t > 0 else 0
         n = self.counts[topic]
-        self._add(self._ids[topic], ns, data.encode(), ns, n)
+        payload = data.encode()
+        self._add(self._ids[topic], ns, payload, ns, n)
         self.counts[topic] = n + 1
+        if self.tee is not None:
+            try:
+                self.tee.log(topic, ns, payload)
+            except Exception as exc:  # noqa: BLE001 - the live view never stops the file
+                self.tee = None
+                ctx = getattr(self.mission, "ctx", None)
+                if ctx is not None:
+                    ctx.log(f"foxglove: live stream stopped: {type(exc).__name__}: {exc}")
 
     def _follow(self) -> None:
         chunk = self._log.read()
@@ -492,10 +512,11 @@ def repair_previous(run_dir: str | None) -> str | None:
 
 
 def make_mcap_recorder(
-    run_dir: str | None, platform: Any, mission: Any, safety: Any = None
+    run_dir: str | None, platform: Any, mission: Any, safety: Any = None, tee: Any = None
 ) -> McapRecorder | None:
     """The recorder of a run in ``run_dir`` (None without a run folder or tick log, or if the
-    file cannot be opened: recording is never a reason not to fly)."""
+    file cannot be opened: recording is never a reason not to fly); ``tee`` also publishes
+    every message live (a :class:`nodes.foxglove_live.FoxgloveTee`)."""
     ctx = getattr(mission, "ctx", None)
     previous = (getattr(ctx, "resources", None) or {}).get("resume_from")
     if previous and os.path.abspath(previous) != os.path.abspath(run_dir or ""):
@@ -505,7 +526,7 @@ def make_mcap_recorder(
     if not run_dir or not os.path.exists(os.path.join(run_dir, "ticks.jsonl")):
         return None
     try:
-        return McapRecorder(run_dir, mission, platform, safety)
+        return McapRecorder(run_dir, mission, platform, safety, tee)
     except Exception as exc:  # noqa: BLE001
         ctx = getattr(mission, "ctx", None)
         if ctx is not None:

@@ -107,8 +107,28 @@ class RigTarget:
             hooks.insert(0, guard)
         recorder = None
         if getattr(self, "record_mcap", True):  # btrun run --no-mcap; campaign rows
-            recorder = make_mcap_recorder(getattr(self, "run_dir", None), platform, mission, hook)
+            tee = self._foxglove()
+            recorder = make_mcap_recorder(
+                getattr(self, "run_dir", None), platform, mission, hook, tee
+            )
+            if recorder is None and tee is not None:
+                tee.close()
         return hooks + ([recorder] if recorder is not None else [])
+
+    def _foxglove(self) -> Any:
+        """The live Foxglove server of ``btrun run --foxglove [PORT]`` (None without it);
+        a port that cannot be served is refused before anything flies."""
+        port = getattr(self, "foxglove_port", None)
+        if port is None:
+            return None
+        from nodes.foxglove_live import FoxgloveError, FoxgloveTee
+
+        try:
+            tee = FoxgloveTee(port)
+        except FoxgloveError as exc:
+            raise MissionError([Problem(Loc("--foxglove", 0, 0), str(exc))]) from None
+        print(f"btrun: Foxglove live on ws://{tee.host}:{tee.port}", flush=True)
+        return tee
 
     def at_rest(self, platform: Platform) -> bool:
         """On the ground (not flying): a long tick there harms nothing."""
