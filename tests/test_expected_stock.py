@@ -157,7 +157,12 @@ def test_grading_against_the_ground_truth():
         {"place": "A-02-2", "answer": "unknown"},  # 115 is not enrolled: unverified, right
     ]
     g = grade_rows(discrepancy_rows(rows, stock), stock, truth)
-    assert g["grades"] == {"A-01-1": "right", "A-01-2": "wrong", "A-02-1": "wrong", "A-02-2": "right"}
+    assert g["grades"] == {
+        "A-01-1": "right",
+        "A-01-2": "wrong",
+        "A-02-1": "wrong",
+        "A-02-2": "right",
+    }
     assert g["false_alarms"] == ["A-02-1"] and g["missed"] == ["A-01-2"]
 
 
@@ -167,13 +172,20 @@ def test_the_log_writes_the_report_and_leads_with_the_counts(tmp_path):
     log.plan(["A-01-1", "A-01-2", "A-02-1"])
     assert log.expected_at("A-01-1") == "101" and log.expected_at("A-01-2") == ""
     assert log.expected_at("A-09-9") is None
-    log.record({"place": "A-01-1", "answer": "101A", "status": "identified", "decided_by": "verified"})
+    log.record(
+        {"place": "A-01-1", "answer": "101A", "status": "identified", "decided_by": "verified"}
+    )
     log.record({"place": "A-01-2", "answer": "103B", "status": "identified"})
     with open(tmp_path / "discrepancies.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert [r["place"] for r in rows] == ["A-01-1", "A-01-2", "A-02-1"]  # not scanned yet too
     assert [r["category"] for r in rows] == ["confirmed", "unexpected", "not_scanned"]
-    assert rows[0]["verified"] == "true" and list(rows[0])[:4] == ["place", "expected", "found", "category"]
+    assert rows[0]["verified"] == "true" and list(rows[0])[:4] == [
+        "place",
+        "expected",
+        "found",
+        "category",
+    ]
     doc = json.loads((tmp_path / "discrepancies.json").read_text())
     assert doc["counts"]["confirmed"] == 1 and doc["counts"]["unexpected"] == 1
     lines = log.result_lines()
@@ -188,3 +200,135 @@ def test_without_an_expected_stock_nothing_changes(tmp_path):
     assert not (tmp_path / "discrepancies.csv").exists()
     assert "discrepancies" not in log.run_summary()
     assert log.result_lines()[0].startswith("inventory: 1 places")
+
+
+# -- verification against the expected pallet ----------------------------------------------
+
+
+@pytest.mark.slow
+def test_a_look_alike_of_the_expected_pallet_does_not_verify():
+    """Rendered through the mission's detector and embedder: the expected pallet verifies
+    1:1 (also aged), a look-alike of it standing where it should be (the same wood, stamp
+    and wear, other grain) does not, nor does another enrolled pallet; the answer for the
+    look-alike is never the expected pallet."""
+    import numpy as np
+
+    import perception.robustness as rb
+    from nodes.identify import identify_described
+    from perception.detector import BlockDetector
+    from perception.embedder import BlockEmbedder
+    from perception.expected import check_expected
+    from perception.synth.ageing import Ageing
+    from perception.synth.appearance import SideStyle
+
+    pipe = rb.Pipeline(BlockDetector.load(), BlockEmbedder.load())
+    names = ["lk0001A", "lk0001B", "lk0002A", "lk0002B", "lk0003A", "lk0003B"]
+    g, n, _ = rb.enrol_gallery(pipe, names, rb.Condition("t", "clean"), seed=5)
+    assert n == len(names)
+    rng = np.random.default_rng(11)
+
+    def scan(name: str, seed: int, ageing=None):
+        style = SideStyle(texture_seed=rb.SEED0 + seed, ageing=ageing)
+        s = pipe.scan(name, style, rng)
+        assert s.complete
+        vec, vis = pipe.describe(s.crops)
+        return vec, vis, s.crops
+
+    genuine = scan("lk0002A", 2, Ageing(stains=0.12, seed=3))  # enrolled as index 2
+    assert check_expected(g, *genuine, "lk0002").verified
+    twin = scan("lk0002A", 60_000)  # same pallet id and side: same look, other grain
+    check = check_expected(g, *twin, "lk0002")
+    assert not check.verified and check.reason.startswith("not lk0002")
+    answer = identify_described(g, *twin, g.thresholds, expected="lk0002")
+    assert not answer.verified_expected and not answer.pallet_id.startswith("lk0002")
+    other = scan("lk0003B", 5)
+    assert not check_expected(g, *other, "lk0002").verified
+    assert identify_described(g, *other, g.thresholds, expected="lk0002").pallet_id in (
+        "lk0003B",
+        "unknown",
+    )
+
+
+# -- the mission, end to end ------------------------------------------------------------
+
+
+def _injected(world) -> tuple[list[str], dict[str, str | None], dict[str, str]]:
+    """(places to fly, expected stock, the category each flown place must get) built from
+    the world's ground truth with a swap, a missing, an unexpected and a moved pallet, an
+    unverifiable one (not enrolled) and agreeing places."""
+    truth, ne = world.places_truth(), set(world.not_enrolled())
+    full = [p for p, t in truth.items() if t and t not in ne]
+    empty = [p for p, t in truth.items() if t is None]
+    unknown = [p for p, t in truth.items() if t in ne]
+    placed = {pallet_of(t) for t in truth.values() if t}
+    spare = [
+        i for i in sorted({pallet_of(i) for i in world.enrolled_identities()}) if i not in placed
+    ]
+    pal = {p: pallet_of(truth[p]) for p in full}
+    same, swap_a, swap_b, moved, unexpected, far = (
+        full[0],
+        full[1],
+        full[2],
+        full[3],
+        full[4],
+        full[-1],
+    )
+    expected: dict[str, str | None] = {
+        same: pal[same],
+        swap_a: pal[swap_b],
+        swap_b: pal[swap_a],
+        moved: spare[0],  # expected another pallet; its own is expected at `far`
+        far: pal[moved],  # (not flown)
+        unexpected: None,
+        empty[0]: spare[1],  # expected a pallet, empty
+        empty[1]: None,  # expected empty, empty
+        unknown[0]: pallet_of(truth[unknown[0]]),  # a pallet the gallery does not enrol
+    }
+    want = {
+        same: "confirmed",
+        swap_a: "mismatch",
+        swap_b: "mismatch",
+        moved: "mismatch",
+        unexpected: "unexpected",
+        empty[0]: "missing",
+        empty[1]: "confirmed",
+        unknown[0]: "unverified",
+    }
+    return list(want), expected, want
+
+
+@pytest.mark.slow
+def test_the_mission_reports_every_injected_discrepancy(tmp_path, world, capsys):
+    from bt_engine.cli import main
+
+    places, expected, want = _injected(world)
+    stock = tmp_path / "stock.csv"
+    stock.write_text("place,pallet\n" + "".join(f"{p},{q or ''}\n" for p, q in expected.items()))
+    out = tmp_path / "run"
+    code = main(
+        [MISSION, "--rig", RIG, "--out", str(out), "--set", f"expected={stock}",
+         "--set", "places=" + ";".join(places)]
+    )  # fmt: skip
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    with open(out / "discrepancies.csv", newline="") as f:
+        rows = {r["place"]: r for r in csv.DictReader(f)}
+    assert {p: r["category"] for p, r in rows.items()} == want
+    truth = world.places_truth()
+    swap_a, swap_b, moved = [p for p, c in want.items() if c == "mismatch"]
+    assert rows[swap_a]["moved_from"] == swap_b and rows[swap_b]["moved_from"] == swap_a
+    far = next(p for p, q in expected.items() if p not in want and q)
+    assert rows[moved]["found"] == pallet_of(truth[moved]) and rows[moved]["moved_from"] == far
+    agreeing = [p for p, c in want.items() if c == "confirmed" and truth[p]]
+    assert all(rows[p]["verified"] == "true" for p in agreeing)  # verified 1:1, not searched
+    summary = json.loads((out / "summary.json").read_text())
+    inv = summary["inventory"]
+    assert inv["discrepancies"]["mismatch"] == 3 and inv["wrong"] == 0
+    g = inv["discrepancy_grades"]
+    assert g["wrong"] == 0 and g["false_alarms"] == [] and g["missed"] == []
+    lines = printed.splitlines()
+    after = lines[next(i for i, ln in enumerate(lines) if ln.startswith("SUCCESS")) + 1 :]
+    result = [ln for ln in after if not ln.startswith("pallet")]
+    assert result[0].startswith("discrepancies: 2 confirmed, 3 mismatch, 1 missing, 1 unexpected")
+    html = (out / "report.html").read_text()
+    assert html.index("discrepancies: 2 confirmed") < html.index("inventory: 8 places")

@@ -29,7 +29,7 @@ from drivers.settings import ConfigError
 from nodes.fleet.plan import split_places
 from nodes.fleet.spec import FleetSpec, load_fleet
 from nodes.inventory import resolve_places
-from nodes.inventory_log import InventoryError, InventoryLog
+from nodes.inventory_log import InventoryError, InventoryLog, discrepancy_lines
 
 DRONE_CONTACT_M = 0.12  # two Crazyflie collision spheres (2 x 0.06 m) touch
 
@@ -380,6 +380,8 @@ def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
         )
     inv = summary.get("inventory")
     if inv:
+        for line in discrepancy_lines(inv, out):  # the counts per category lead
+            print(line)
         parts = [f"{v} {k.replace('_', ' ')}" for k, v in inv["status"].items()]
         line = f"inventory: {inv['places']} places, " + ", ".join(parts)
         if inv.get("carried_over"):

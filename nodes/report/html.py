@@ -143,12 +143,28 @@ def _motion_table(rows: list[dict]) -> str:
     return '<div class="wide"><table>' + head + "".join(body) + "</table></div>"
 
 
+def discrepancy_counts(inv: dict) -> str:
+    """``discrepancies: 12 confirmed, 1 mismatch, ...`` of a summary's ``inventory`` (and,
+    in simulation, how many rows are right)."""
+    c = inv.get("discrepancies") or {}
+    line = "discrepancies: " + ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in c.items())
+    g = inv.get("discrepancy_grades")
+    if g:
+        line += (
+            f"; against the simulator {g['right']} right, {len(g['false_alarms'])} false "
+            f"alarms, {len(g['missed'])} missed"
+        )
+    return line
+
+
 def answer_section(summary: dict) -> str:
     """The run's answer first, as the console's lines give it: each identification (pallet,
     distance, margin, what decided it) and, for an inventory, the places and counts."""
     esc = html.escape
     items = []
     inv = summary.get("inventory") or {}
+    if inv.get("discrepancies"):  # with an expected stock the counts per category lead
+        items.append(discrepancy_counts(inv))
     if inv.get("places"):
         status = inv.get("status") or {}
         counts = ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in status.items() if n)

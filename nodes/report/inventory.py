@@ -98,7 +98,7 @@ def inventory_section(run_dir: str, summary: dict) -> str:
     if not inv or not inv.get("places"):
         return ""
     esc = html.escape
-    out = ["<h2>Inventory</h2>"]
+    out = ["<h2>Inventory</h2>"] + discrepancy_part(inv)
     png = plot_racks(run_dir, inv)
     if png:
         out.append(f'<img src="{esc(png, quote=True)}" alt="the racks, place by place">')
@@ -129,3 +129,54 @@ def inventory_section(run_dir: str, summary: dict) -> str:
         "(written as each place was done).</p>"
     )
     return "\n".join(out)
+
+
+CATEGORY_COLOURS = {
+    "confirmed": "#c8e6c9",
+    "mismatch": "#ffcdd2",
+    "missing": "#e1bee7",
+    "unexpected": "#ffe0b2",
+    "unverified": "#fff9c4",
+    "not_scanned": "#eeeeee",
+    "unlisted": "#eeeeee",
+}
+
+
+def discrepancy_part(inv: dict) -> list[str]:
+    """With an expected stock: the counts per category first, then every place that
+    disagrees (confirmed places are only counted), graded in simulation."""
+    counts = inv.get("discrepancies")
+    if not counts:
+        return []
+    esc = html.escape
+    boxes = "".join(
+        f'<span style="background:{CATEGORY_COLOURS.get(k, "#eee")};padding:2px 8px;'
+        f'margin-right:6px">{n} {esc(k.replace("_", " "))}</span>'
+        for k, n in counts.items()
+    )
+    out = [f"<h3>Discrepancies against the expected stock</h3><p>{boxes}</p>"]
+    grades = (inv.get("discrepancy_grades") or {}).get("grades") or {}
+    head = ["place", "expected", "found", "category", "moved from", "verified", "reason"]
+    if grades:
+        head.append("grade")
+    body = []
+    for r in inv.get("discrepancy_rows") or []:
+        if r.get("category") == "confirmed" and grades.get(r["place"], "right") == "right":
+            continue
+        vals = [r.get(k) for k in ("place", "expected", "found", "category", "moved_from")]
+        vals += ["yes" if r.get("verified") else "", r.get("reason")]
+        if grades:
+            vals.append(grades.get(r["place"], ""))
+        colour = CATEGORY_COLOURS.get(r.get("category", ""), "#fff")
+        tds = "".join(f"<td class=l>{esc('' if v is None else str(v))}</td>" for v in vals)
+        body.append(f'<tr style="background:{colour}">{tds}</tr>')
+    if body:
+        th = "".join(f"<th>{h}</th>" for h in head)
+        out.append(f'<div class="wide"><table><tr>{th}</tr>{"".join(body)}</table></div>')
+    else:
+        out.append("<p>Every place agrees with the expected stock.</p>")
+    out.append(
+        '<p class="note">discrepancies.csv and discrepancies.json in the run folder hold one '
+        "row per place.</p>"
+    )
+    return out
