@@ -28,6 +28,8 @@ def run_id(run_dir: str) -> str:
 
 
 def read_json(path: str, limit: int = 2_000_000) -> dict:
+    """The JSON object in ``path`` (a run record: bounded, regular file), {} if there is
+    none or it is not one."""
     if not os.path.isfile(path):
         return {}
     text = read_text(path, [], what="run records", limit=limit)
