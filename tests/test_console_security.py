@@ -217,3 +217,26 @@ def test_bad_command_lines_are_one_line_and_exit_2(tmp_path):
     assert r.stderr.strip() == (
         f"btrun console: --port {port}: cannot listen on 127.0.0.1:{port}: in use"
     )
+
+
+def test_an_expected_stocks_discrepancies_are_counted_queued_and_exported(runs):
+    doc = {
+        "format": "btrun-discrepancies-1",
+        "rows": [
+            {"place": "A-01-1", "expected": "101", "found": "102", "category": "mismatch"},
+            {"place": "A-01-2", "expected": "103", "found": "unknown", "category": "unverified"},
+        ],
+    }
+    with open(os.path.join(runs, RUN, "discrepancies.json"), "w") as f:
+        json.dump(doc, f)
+    with console(runs) as server:
+        status, body = _raw(server.port, "GET", "/api/runs")
+        run = json.loads(body)["runs"][0]
+        assert run["discrepancies"] == {"mismatch": 1, "unverified": 1}
+        assert run["exceptions"] == 2  # both are in the review queue
+        status, body = _raw(server.port, "GET", f"/export/{RUN}/discrepancies.csv")
+    lines = body.decode().splitlines()[1:]
+    assert [(x.split(",")[0], x.split(",")[5], x.split(",")[6]) for x in lines] == [
+        ("A-01-1", "101", "mismatch"),
+        ("A-01-2", "103", "unverified"),
+    ]

@@ -73,7 +73,7 @@ def discrepancy_rows(info: dict) -> list[dict]:
             category = "exception"
         if category is None and grades.get(line["place"]) in ("wrong", "missed"):
             category = grades[line["place"]]
-        if category in (None, "", "match", "ok"):
+        if category in (None, "", "confirmed"):
             continue
         expected = row.get("expected")
         if expected is None and line["place"] in truth:

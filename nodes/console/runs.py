@@ -80,7 +80,31 @@ def read_rows(run_dir: str) -> tuple[list[dict], list[str], str | None]:
     doc = read_json(os.path.join(run_dir, "inventory.json"), 64_000_000) or {}
     planned = doc.get("planned") if isinstance(doc, dict) else None
     planned = [p for p in planned if isinstance(p, str)] if isinstance(planned, list) else []
-    return rows, planned, None
+    return with_discrepancies(run_dir, rows), planned, None
+
+
+def with_discrepancies(run_dir: str, rows: list[dict]) -> list[dict]:
+    """The rows with their discrepancy against the expected stock (``discrepancy``,
+    ``expected``, ``moved_from``) when the run wrote ``discrepancies.json``
+    (:mod:`nodes.discrepancy`); the rows as they are otherwise."""
+    doc = read_json(os.path.join(run_dir, "discrepancies.json"))
+    if not isinstance(doc, dict) or doc.get("format") != "btrun-discrepancies-1":
+        return rows
+    found = {
+        d["place"]: d
+        for d in doc.get("rows") or []
+        if isinstance(d, dict) and isinstance(d.get("place"), str)
+    }
+    out = []
+    for r in rows:
+        d = found.get(r["place"])
+        if d is not None and isinstance(d.get("category"), str):
+            r = {**r, "discrepancy": d["category"]}
+            for key in ("expected", "moved_from"):
+                if isinstance(d.get(key), str):
+                    r[key] = d[key]
+        out.append(r)
+    return out
 
 
 def discrepancy(row: dict) -> str | None:
@@ -241,7 +265,7 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
     discrepancies: dict[str, int] = {}
     for r in rows:
         cat = discrepancy(r)
-        if cat:
+        if cat and cat != "confirmed":
             discrepancies[cat] = discrepancies.get(cat, 0) + 1
     right = sum(1 for g in (grades or {}).values() if g == "right")
     accuracy = inv.get("accuracy")

@@ -82,9 +82,9 @@ const COLOURS = {
     not_scanned: "#ffffff", pending: "#f4f5f7",
   },
   discrepancy: {
-    match: "#2e9d4f", ok: "#2e9d4f", mismatch: "#d2342c", unverified: "#8e5cc9",
-    missing: "#f07f0a", unexpected: "#c2185b", exception: "#e0a100", none: "#c9ccd1",
-    pending: "#f4f5f7",
+    confirmed: "#2e9d4f", mismatch: "#d2342c", missing: "#f07f0a", unexpected: "#c2185b",
+    unverified: "#8e5cc9", not_scanned: "#ffffff", unlisted: "#9aa4b2", exception: "#e0a100",
+    none: "#c9ccd1", pending: "#f4f5f7",
   },
 };
 
