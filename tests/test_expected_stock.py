@@ -193,6 +193,23 @@ def test_the_log_writes_the_report_and_leads_with_the_counts(tmp_path):
     assert lines[0].startswith("discrepancies: 1 confirmed, 0 mismatch, 0 missing, 1 unexpected")
 
 
+def test_a_fleets_merged_folder_gets_the_report_too(tmp_path):
+    merged = InventoryLog(str(tmp_path / "fleet"), drone="fleet")
+    drone = InventoryLog(
+        str(tmp_path / "fleet" / "drones" / "cf1"), drone="cf1", sink=merged.absorb
+    )
+    drone.expected = _stock({"A-01-1": "101", "A-01-2": "102"})
+    drone.plan(["A-01-1", "A-01-2"])
+    drone.record({"place": "A-01-1", "answer": "102B", "status": "identified"})
+    with open(tmp_path / "fleet" / "discrepancies.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["place"], r["category"], r["moved_from"]) for r in rows] == [
+        ("A-01-1", "mismatch", "A-01-2"),
+        ("A-01-2", "not_scanned", ""),
+    ]
+    assert merged.run_summary()["discrepancies"]["mismatch"] == 1
+
+
 def test_without_an_expected_stock_nothing_changes(tmp_path):
     log = InventoryLog(str(tmp_path))
     log.plan(["A-01-1"])
