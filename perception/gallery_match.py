@@ -21,6 +21,7 @@ import numpy as np
 from perception import gallery_math as gm
 from perception import verify as tv
 from perception.errors import GalleryError
+from perception.gallery_index import SearchIndex, TextureSides
 from perception.gallery_math import BLOCKS, block_distances
 
 #: embedding candidates verified on texture (best first)
@@ -79,15 +80,14 @@ class Thresholds:
 @dataclass
 class _Rows:
     """Every active view in memory: identities, rows (m, 3, dim), owner index (m,),
-    stripe visibilities (m, 3, parts) or None, and for the fast screen the unit stripes
-    and the blocks' squared norms."""
+    stripe visibilities (m, 3, parts) or None, and the screen over them
+    (:class:`perception.gallery_index.SearchIndex`)."""
 
     ids: list[str]
     rows: np.ndarray
     owner: np.ndarray
     vis: np.ndarray | None
-    unit: np.ndarray | None = None  # unit stripes (m, 3 * parts, dim / parts), float32
-    sq: np.ndarray | None = None  # squared norms of the rows' blocks (m, 3)
+    index: SearchIndex | None = None
 
 
 class MatchingMixin:
@@ -119,13 +119,20 @@ class MatchingMixin:
                     v = np.frombuffer(b, np.float32)
                     if v.size == BLOCKS * parts:
                         vis[k] = v.reshape(BLOCKS, parts)
-        all_rows = np.concatenate(rows) if rows else np.zeros((0, BLOCKS, self.dim), np.float32)
-        unit = all_rows.reshape(len(owner), BLOCKS, parts, -1).astype(np.float32)
-        unit = unit / np.maximum(np.linalg.norm(unit, axis=-1, keepdims=True), 1e-12)
-        unit = np.ascontiguousarray(unit.reshape(len(owner), BLOCKS * parts, -1))
-        sq = np.einsum("nbd,nbd->nb", all_rows, all_rows)
-        self._rows[parts] = _Rows(ids, all_rows, owner, vis, unit, sq)
+        all_rows = np.concatenate(rows) if len(rows) > 1 else enrol  # no copy without views
+        index = SearchIndex.build(all_rows, owner, len(ids), vis, parts)
+        self._rows[parts] = _Rows(ids, all_rows, owner, vis, index)
         return self._rows[parts]
+
+    def _check_changed(self) -> None:
+        """Forget the vectors and crops in memory when another connection (another process:
+        an enrolment, a flight adding a view) committed a change to the file since they
+        were read (SQLite's ``data_version``; this connection's own writes invalidate them
+        as they happen)."""
+        version = self.conn.execute("PRAGMA data_version").fetchone()[0]
+        if version != getattr(self, "_data_version", version):
+            self._invalidate()
+        self._data_version = version
 
     # -- matching --------------------------------------------------------------------------
     def match(
@@ -151,19 +158,18 @@ class MatchingMixin:
                 f"match: expected a query of shape {(BLOCKS, self.dim)}, got {q.shape}"
             )
         qvis = self._check_visibility("match", visibility)
+        self._check_changed()
         ids, _ = self.matrix()
         if not ids:
             raise GalleryError(f"{self.path}: the gallery is empty: enrol pallets first")
         parts = qvis.shape[1] if qvis is not None else 1
         data = self._all_rows(parts)
         weights = gm.block_weights(qvis)
-        screen = gm.side_distance(self._screen(q, qvis, data, parts), weights)
-        k = min(len(ids), max(top_k, 2) + 16)
-        cand = np.argpartition(screen, k - 1)[:k] if k < len(ids) else np.arange(len(ids))
-        exact = self._exact(q, qvis, data, np.sort(cand))
+        cand = data.index.candidates(q, qvis, weights, max(top_k, 2) + 16)  # type: ignore[union-attr]
+        exact = self._exact(q, qvis, data, cand)
         means = gm.side_distance(exact, weights)
         local = np.argsort(means, kind="stable")
-        order, per_block, means = np.sort(cand)[local], exact[local], means[local]
+        order, per_block, means = cand[local], exact[local], means[local]
         th = thresholds or self.thresholds
         best = int(order[0])
         second = int(order[1]) if len(order) > 1 else None
@@ -198,31 +204,43 @@ class MatchingMixin:
         )
 
     # -- texture verification ---------------------------------------------------------------
-    def _texture_sides(self) -> dict[str, list[list[np.ndarray]]]:
+    def _texture_sides(self) -> TextureSides:
         """Per side stored with its three crops, its views' grey crops: the enrolment's
-        first, then every active added view's (cached)."""
+        first, then every active added view's (decoded when first asked for, then kept)."""
         if self._grey is None:
-            sides: dict[str, list[list[np.ndarray]]] = {}
-            enrol = self.conn.execute("SELECT identity, block, png FROM crops ORDER BY 1, 2")
-            for key, side in _grey_views(enrol).items():
-                sides[key] = [side]
-            added = self.conn.execute(
-                "SELECT v.identity || char(0) || v.view_id, c.block, c.png FROM view_crops c "
-                "JOIN views v ON v.view_id = c.view_id WHERE v.active ORDER BY v.view_id, 2"
-            )
-            for key, side in _grey_views(added).items():
-                ident = key.split("\0")[0]
-                if ident in sides:
-                    sides[ident].append(side)
-            self._grey = sides
+            keys = [
+                r[0]
+                for r in self.conn.execute(
+                    "SELECT identity FROM crops GROUP BY identity HAVING COUNT(*) >= ? "
+                    "ORDER BY identity",
+                    (BLOCKS,),
+                )
+            ]
+            self._grey = TextureSides(keys, self._grey_side)
         return self._grey
+
+    def _grey_side(self, identity: str) -> list[list[np.ndarray]] | None:
+        """One side's views' grey crops (enrolment first), None if unreadable."""
+        enrol = self.conn.execute(
+            "SELECT identity, block, png FROM crops WHERE identity = ? ORDER BY block",
+            (identity,),
+        )
+        first = _grey_views(enrol).get(identity)
+        if first is None:
+            return None
+        added = self.conn.execute(
+            "SELECT c.view_id, c.block, c.png FROM view_crops c JOIN views v "
+            "ON v.view_id = c.view_id WHERE v.active AND v.identity = ? ORDER BY 1, 2",
+            (identity,),
+        )
+        return [first, *_grey_views(added).values()]
 
     def _texture_cohort(self) -> list[tuple[str, list[np.ndarray]]]:
         """The verifier's cohort: up to :data:`perception.verify.COHORT_FROM_GALLERY` of the
         gallery's sides (each candidate's own is left out of its scale) and the shipped
         cohort."""
         sides = self._texture_sides()
-        own = [(k, sides[k][0]) for k in sorted(sides)[: tv.COHORT_FROM_GALLERY]]
+        own = [(k, sides[k][0]) for k in sides.first(tv.COHORT_FROM_GALLERY)]
         return own + tv.shipped_cohort()
 
     def verify_sides(
@@ -313,27 +331,6 @@ class MatchingMixin:
             f"(needs <= {TEXTURE_TOP_RANK})"
         )
         return replace(match, reason=reason, **out)
-
-    def _screen(
-        self, q: np.ndarray, qvis: np.ndarray | None, data: _Rows, parts: int
-    ) -> np.ndarray:
-        """Approximate per-identity block distances (n, 3) with float32 dot products:
-        ``|g|^2 + |q|^2 - 2 g.q`` per block, or per-stripe cosines when the query has
-        stripe visibilities."""
-        # einsum, not BLAS: OpenBLAS's threads stall for milliseconds per call when the
-        # other core is busy (the mission shares the machine with the simulator).
-        m = len(data.owner)
-        if qvis is None:
-            dots = np.einsum("nbd,bd->nb", data.rows, q)
-            d2 = data.sq + np.einsum("bd,bd->b", q, q)[None, :] - 2.0 * dots
-            per_row = np.sqrt(np.maximum(d2, 0.0))
-        else:
-            qs = q.reshape(BLOCKS * parts, -1)
-            qs = qs / np.maximum(np.linalg.norm(qs, axis=-1, keepdims=True), 1e-12)
-            cos = np.einsum("nkd,kd->nk", data.unit, qs).reshape(m, BLOCKS, parts)
-            w = gm.stripe_weights(qvis, data.vis, m, parts)
-            per_row = gm.weighted_block_distances(cos, w)
-        return gm.closest_views(per_row, data.owner, len(data.ids))
 
     def _exact(
         self, q: np.ndarray, qvis: np.ndarray | None, data: _Rows, cand: np.ndarray
