@@ -13,4 +13,6 @@ from nodes import (  # noqa: F401  (registration)
     perception,
     reactive_scan,
     safety,
+    sweep,
+    sweep_plan,
 )

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import statistics
+from typing import Any
 
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, ConditionNode, NodeStatus, StatefulActionNode
 from bt_engine.ports import DURATION, FLOAT, STRING, VEC3, input_port
@@ -60,11 +61,33 @@ class EnoughEnergy(ConditionNode):
         input_port("landing_time", DURATION, 8.0, "time to land, s"),
         input_port("reserve", FLOAT, 15.0, "charge to keep at touchdown, %"),
         input_port("endurance", DURATION, 360.0, "flight time of a full battery until measured, s"),
+        input_port(
+            "period",
+            DURATION,
+            0.0,
+            "re-evaluate at most this often (between two: the last answer); for a check "
+            "ticked every tick beside a long action, such as a sweep pass, s",
+        ),
     )
 
     def check(self) -> bool:
         v = vehicle_of(self)
-        now, pct = self.now(), v.battery.percent
+        now = self.now()
+        last = getattr(self, "_last", None)
+        period = self.get_input("period")
+        if (
+            last is not None
+            and period > 0
+            and now - last[0] < period - 1e-9
+            and v.is_flying == last[2]
+        ):
+            return last[1]
+        ok = self._evaluate(v, now)
+        self._last = (now, ok, v.is_flying)
+        return ok
+
+    def _evaluate(self, v: Any, now: float) -> bool:
+        pct = v.battery.percent
         hist = getattr(self, "_hist", None)
         if hist is None or pct > hist[-1][1] + NEW_BATTERY_JUMP or not v.is_flying:
             hist = self._hist = []  # a new battery (or on the ground): measure afresh

@@ -4,7 +4,10 @@
 about the same number of places each and never splitting a bay (two drones never work on
 one bay at once), gives each drone the block nearest its start (trying every assignment:
 at most 4! = 24); every block is flown in the list's direction, so the drones sweep the
-aisle side by side, a block apart. ``round_robin`` deals
+aisle side by side, a block apart. ``faces`` gives each drone whole rack faces (a sweep flies
+a face's levels one after the other; two drones never share a face): faces are dealt out so
+that the drones get about the same number of places (largest first to the drone with the
+fewest), or, with fewer faces than drones, the faces' levels are. ``round_robin`` deals
 the places out in turn (drones then meet often: the airspace keeps them apart, at a cost in
 time).
 """
@@ -44,6 +47,23 @@ def bay_blocks(places: list[str], world: Any, n: int) -> list[list[str]]:
     return blocks
 
 
+def face_blocks(places: list[str], world: Any, n: int) -> list[list[str]]:
+    """``places`` cut into ``n`` groups of whole rack faces (of whole face levels when there
+    are fewer faces than drones), about equal in places, each in the list's order."""
+    groups: dict[tuple, list[str]] = {}
+    racks = {world.places[p].rack for p in places}
+    by_level = len(racks) < n
+    for name in places:
+        p = world.places[name]
+        groups.setdefault((p.rack, p.level) if by_level else (p.rack,), []).append(name)
+    blocks: list[list[str]] = [[] for _ in range(n)]
+    for key in sorted(groups, key=lambda k: (-len(groups[k]), k)):
+        k = min(range(n), key=lambda i: (len(blocks[i]), i))
+        blocks[k] += groups[key]
+    order = {name: i for i, name in enumerate(places)}
+    return [sorted(b, key=order.__getitem__) for b in blocks]
+
+
 def split_places(
     places: list[str], world: Any, starts: dict[str, tuple[float, float, float]], mode: str = "bays"
 ) -> dict[str, list[str]]:
@@ -53,7 +73,10 @@ def split_places(
         return {n: [] for n in names}
     if mode == "round_robin":
         return {n: places[i :: len(names)] for i, n in enumerate(names)}
-    blocks = bay_blocks(places, world, len(names))
+    if mode == "faces":
+        blocks = face_blocks(places, world, len(names))
+    else:
+        blocks = bay_blocks(places, world, len(names))
     best: tuple[float, tuple[int, ...]] | None = None
     for perm in itertools.permutations(range(len(names))):
         cost = sum(

@@ -100,8 +100,9 @@ FLEET_SCHEMA = M(
             "choice",
             "bays",
             "bays: each drone a block of neighbouring bays (the block nearest its pad); "
+            "faces: each drone whole rack faces (a sweep; no face shared); "
             "round_robin: place by place in turn",
-            choices=("bays", "round_robin"),
+            choices=("bays", "faces", "round_robin"),
         ),
         "set": F(
             "dict",

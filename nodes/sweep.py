@@ -1,0 +1,422 @@
+"""SweepPass: fly one rack level in one continuous line and answer its places on the fly.
+
+The pass (planned by ``PlanSweep``, :mod:`nodes.sweep_plan`) starts a little before the first
+place not answered yet and ends a little past the last: the drone goes there around the
+racks (transit speed), turns to face the rack, then flies the line at ``speed`` and
+``standoff`` from the faces. While it flies, the detector looks at the frames a pallet's
+blocks are expected to be centred in (:class:`perception.sweep.SweepCollector`; real time:
+every frame the perception worker gets to), each block is matched to its place's slot, and
+each place is answered as the drone passes it:
+
+* three blocks: identified against the gallery (``IdentifyPallet``'s matching, texture
+  verification included): the pallet side, or ``unknown`` for a pallet the gallery does not
+  know; an answer near the thresholds is left to the rescan instead;
+* no block on its face: ``empty``;
+* anything else (a block or two, frames missing): left for the rescan (``rescan`` output,
+  the reactive per-place scan after the passes), with a ``not_scanned`` row meanwhile.
+
+Every answer is a row of ``inventory.csv`` at once (:class:`nodes.inventory_log.InventoryLog`)
+with its crops and candidates (:mod:`nodes.place_evidence`). Halted (the battery ran low: a
+``ReactiveSequence`` with ``EnoughEnergy`` on ``next_point``), the places answered so far stay
+answered; run again, the pass starts at the first place not answered, not at the level's
+start. In real time, identifications run on a thread of their own so the tick never waits.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+from typing import Any
+
+from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode
+from bt_engine.ports import ANY, DURATION, FLOAT, INT, STRING, input_port, output_port
+from bt_engine.registry import register
+from nodes.common import is_realtime, vehicle_of
+from nodes.identify import expected_for, identify_scan
+from nodes.inventory import CATEGORY_INVENTORY, world_of
+from nodes.inventory_log import EMPTY, IDENTIFIED, NOT_SCANNED, UNKNOWN, InventoryLog
+from nodes.perception_feed import FrameFeed
+from nodes.perception_session import DEMO, MIN_SCORE_DOC, PerceptionError, PerceptionSession
+from nodes.place_evidence import write_place_evidence
+from nodes.sweep_plan import footprints, geofence_inside, route, sweep_plan_of
+
+FIXED_YAW = 2
+#: an unknown answer whose best distance is within this factor of the gallery's threshold is
+#: rescanned rather than answered (validation seeds: docs/performance.md, Sweep)
+RESCAN_DISTANCE_FACTOR = 1.25
+
+
+def _round(v: Any, nd: int = 4) -> Any:
+    return round(float(v), nd) if isinstance(v, (int, float)) and math.isfinite(v) else None
+
+
+@register
+class SweepPass(StatefulActionNode):
+    """Fly the pass ``pass`` (a name from PlanSweep's ``passes``) and answer each of its
+    places as the drone passes it: identified, ``unknown`` or ``empty``, written to the
+    inventory at once; places the pass could not answer go to ``rescan``. SUCCESS at the end
+    of the line (also when every place was answered before); FAILURE on a refused motion,
+    a perception or gallery error, or after ``timeout``."""
+
+    bt_id = "SweepPass"
+    category = CATEGORY_INVENTORY
+    ports = (
+        input_port("pass", STRING, description="pass name (PlanSweep's passes, e.g. A/2)"),
+        input_port("gallery", STRING, DEMO, "gallery file (.sqlite) or demo"),
+        input_port("speed", FLOAT, 0.8, "speed along the pass, m/s"),
+        input_port("standoff", FLOAT, 0.6, "distance from the pallet faces, m"),
+        input_port("transit_speed", FLOAT, 1.0, "speed to the pass start, m/s"),
+        input_port("lead", FLOAT, 0.5, "start this far before the first block, m"),
+        input_port("detector", STRING, "", "detector weights file (empty: the shipped model)"),
+        input_port("min_score", FLOAT, None, MIN_SCORE_DOC),
+        input_port(
+            "host_frame_time",
+            DURATION,
+            0.0,
+            "lock-step: emulate a host that needs this long per frame (frames arriving "
+            "meanwhile are dropped, as in real time), s",
+        ),
+        input_port("timeout", DURATION, 180.0, "FAILURE if the pass is not done within this, s"),
+        output_port(
+            "next_point", ANY, "where the next place is scanned from, x;y;z (EnoughEnergy)"
+        ),
+        output_port("answered", INT, "places this pass answered"),
+        output_port("rescan", ANY, "places left for the per-place scan (LoopString's queue)"),
+    )
+
+    # -- start -------------------------------------------------------------------------------
+    def on_start(self) -> NodeStatus:
+        from perception.face import PalletModel
+        from perception.sweep import PassPlace, SweepCollector, SweepParams
+        from perception.synth.camera_model import CameraModel
+
+        self.vehicle = vehicle_of(self)
+        self.started_s = self.now()
+        self.session = PerceptionSession.of(self.ctx)
+        self.jobs: _Identifications | None = None
+        self.progress: Any = None
+        plan = sweep_plan_of(self.ctx)
+        name = self.get_input("pass")
+        spec = plan.passes.get(name) if plan is not None else None
+        if spec is None:
+            known = ", ".join(plan.order[:6]) if plan else "none: run PlanSweep first"
+            return self._fail(f"unknown pass '{name}' (passes: {known})")
+        self.plan, self.spec = plan, spec
+        self.log = InventoryLog.of(self.ctx)
+        done = self.log.finished() | plan.left_for_rescan()
+        todo = [p for p in spec.places if p not in done]
+        self.set_output("answered", 0)
+        self._rescan_output()
+        if not todo:
+            return SUCCESS
+        try:
+            self.detector = self.session.detector(self.get_input("detector"))
+            self.embedder = self.session.embedder("")
+            self.gallery = self.session.gallery(self.get_input("gallery"), self.embedder)
+        except PerceptionError as exc:
+            return self._fail(str(exc))
+        standoff, lead = self.get_input("standoff"), self.get_input("lead")
+        model = PalletModel()
+        half = max(abs(o) for o in model.offsets()) + 0.08
+        d = spec.direction
+        n = (-math.cos(spec.look_rad), -math.sin(spec.look_rad))  # out of the face
+
+        def at(row: tuple[float, float, float], along: float) -> tuple[float, float, float]:
+            return (
+                row[0] + n[0] * standoff + d[0] * along,
+                row[1] + n[1] * standoff + d[1] * along,
+                row[2],
+            )
+
+        first, last = spec.rows[todo[0]], spec.rows[todo[-1]]
+        self.start_point = at(first, -(half + lead))
+        self.end_point = at(last, half + lead)
+        self.points = {p: at(spec.rows[p], 0.0) for p in todo}
+        places = [PassPlace(p, spec.rows[p], spec.look_rad) for p in todo]
+        params = SweepParams(host_frame_s=self.get_input("host_frame_time"))
+        self.collector = SweepCollector(
+            CameraModel.from_dict(self.session.camera),
+            places,
+            self.start_point,
+            self.end_point,
+            model.offsets(),
+            model.block_height_m,
+            params,
+        )
+        self.realtime = is_realtime(self)
+        self.jobs = _Identifications(self, self.realtime)
+        self.answered = 0
+        self.set_output("next_point", self.points[todo[0]])
+        world = world_of(self.ctx)
+        path = route(
+            self.vehicle.position,
+            self.start_point,
+            footprints(world) if world is not None else [],
+            geofence_inside(self.ctx),
+        )
+        if path is None:
+            return self._fail(f"no way around the racks to the start of pass {name}")
+        self.phase = "transit"
+        self.progress = self.vehicle.follow_path(
+            path, self.get_input("transit_speed"), FIXED_YAW, spec.look_rad
+        )
+        if self.progress.failed:
+            return self._fail(self.progress.reason or "motion refused")
+        self.ctx.log(
+            f"sweep {name}: {len(todo)} places, {todo[0]} .. {todo[-1]}, "
+            f"at {self.get_input('speed'):g} m/s"
+        )
+        return RUNNING
+
+    def _fail(self, reason: str) -> NodeStatus:
+        self.ctx.log(f"{self.describe()} failed: {reason}")
+        self.failure_reason = reason
+        v = getattr(self, "vehicle", None)
+        if v is not None and v.is_flying:
+            v.hover()
+        return FAILURE
+
+    # -- running -----------------------------------------------------------------------------
+    def on_running(self) -> NodeStatus:
+        p = self.progress
+        if p is not None and (p.failed or p.cancelled):
+            return self._fail(p.reason or "motion cancelled")
+        if self.now() - self.started_s >= self.get_input("timeout"):
+            return self._fail(f"time-out after {self.get_input('timeout'):g} s")
+        if self.phase == "transit":
+            if not p.reached:
+                return RUNNING
+            self.phase = "pass"
+            self.feed = (
+                self.session.feed(self.vehicle, True)
+                if self.realtime
+                else FrameFeed(None, 0, self.collector)
+            )
+            self.progress = self.vehicle.go_to(
+                *self.end_point,
+                FIXED_YAW,
+                self.spec.look_rad,
+                self.get_input("speed"),
+                position_tolerance_m=0.1,
+                yaw_tolerance_rad=math.radians(10.0),
+            )
+            if self.progress.failed:
+                return self._fail(self.progress.reason or "motion refused")
+            return RUNNING
+        if self.phase == "pass":
+            try:
+                self._look()
+            except PerceptionError as exc:
+                return self._fail(str(exc))
+            for w in self.collector.finish_passed(self.vehicle.position):
+                self._answer(w)
+            self._next_point()
+            if p.reached:
+                for w in self.collector.finish_all("the pass ended before the place was in view"):
+                    self._answer(w)
+                self.phase = "finishing"
+        status = self._collect()
+        if status is not None:
+            return status
+        if self.phase == "finishing" and self.jobs.idle():
+            self.ctx.log(
+                f"sweep {self.spec.name}: {self.answered} answered, "
+                f"{len(self.plan.rescan.get(self.spec.name, []))} left for the rescan, "
+                f"{self.collector.frames} frames looked at"
+                + (f", {self.collector.dropped} dropped" if self.collector.dropped else "")
+            )
+            return SUCCESS
+        return RUNNING
+
+    def _look(self) -> None:
+        from perception.synth.camera_model import CameraPose
+
+        for obs in self.session.observations(
+            self.feed, self.vehicle, self.detector, self.get_input("min_score"), self.now()
+        ):
+            pose = obs.frame.pose
+            cam = CameraPose.from_quaternion(pose.x_m, pose.y_m, pose.z_m, pose.quaternion)
+            self.collector.add(cam, obs.bgr, obs.dets, obs.frame.index, obs.frame.t_s)
+
+    def _next_point(self) -> None:
+        for w in self.collector.watches:
+            if not w.outcome:
+                self.set_output("next_point", self.points[w.name])
+                return
+        self.set_output("next_point", self.end_point)
+
+    # -- answers -----------------------------------------------------------------------------
+    def _answer(self, w: Any) -> None:
+        from perception.sweep import EMPTY as SWEEP_EMPTY
+        from perception.sweep import IDENTIFY
+
+        if w.outcome == IDENTIFY:
+            self.jobs.submit(w)
+        elif w.outcome == SWEEP_EMPTY:
+            self._record(w, EMPTY, EMPTY, None, w.reason)
+        else:
+            self._to_rescan(w, w.reason)
+
+    def _to_rescan(self, w: Any, reason: str) -> None:
+        self.plan.rescan.setdefault(self.spec.name, []).append(w.name)
+        self._record(w, "", NOT_SCANNED, None, f"sweep: {reason}; rescan")
+        self._rescan_output()
+
+    def _rescan_output(self) -> None:
+        """``rescan``: the places this pass left that have no answer yet (a pass flown again
+        after a battery change keeps those of its first attempt)."""
+        done = self.log.finished()
+        left = self.plan.rescan.get(self.spec.name, [])
+        self.set_output("rescan", [p for p in left if p not in done])
+
+    def _collect(self) -> NodeStatus | None:
+        for w, match, error in self.jobs.done():
+            if error is not None:
+                if isinstance(error, PerceptionError):
+                    return self._fail(str(error))
+                raise error
+            th = self.gallery.thresholds
+            near = match.distance <= th.max_distance * RESCAN_DISTANCE_FACTOR
+            if not match.known and near:
+                self._to_rescan(w, f"unsure: {match.reason} (closest {match.best_id})")
+                continue
+            status = IDENTIFIED if match.known else UNKNOWN
+            self._record(w, match.pallet_id, status, match, "" if match.known else match.reason)
+        return None
+
+    def _record(self, w: Any, answer: str, status: str, match: Any, reason: str) -> None:
+        row = self.log.record(
+            {
+                "place": w.name,
+                "answer": answer,
+                "status": status,
+                "best_id": match.best_id if match is not None else None,
+                "distance": _round(match.distance) if match is not None else None,
+                "margin": _round(match.margin) if match is not None else None,
+                "blocks_seen": w.blocks_seen,
+                "mission_time_s": round(self.now(), 2),
+                "reason": reason or None,
+            }
+        )
+        if status != NOT_SCANNED:
+            self.answered += 1
+            self.set_output("answered", self.answered)
+        self.ctx.log(f"inventory {row['place']}: {answer or '-'} ({status}; sweep)")
+        run_dir = self.ctx.resources.get("run_dir")
+        if run_dir and status != NOT_SCANNED:
+            ranking = [(r[0], r[1]) for r in (match.ranking if match is not None else [])]
+            try:
+                write_place_evidence(run_dir, w.name, w.ordered_crops(), ranking)
+            except (OSError, ValueError) as exc:
+                self.ctx.log(f"inventory {w.name}: evidence not written: {exc}")
+
+    def on_halted(self) -> None:
+        """Stopped (the battery): the places answered stay; pending identifications are
+        still recorded when they finish; open places are flown again next time."""
+        if self.jobs is not None:
+            for w, match, error in self.jobs.drain():
+                if error is None:
+                    status = IDENTIFIED if match.known else UNKNOWN
+                    self._record(w, match.pallet_id, status, match, "")
+        v = getattr(self, "vehicle", None)
+        if v is not None and v.is_flying and v.motion is getattr(self, "progress", None):
+            v.hover()
+
+
+class _Identifications:
+    """Identify finished places: at once (lock-step) or on one worker thread (real time)."""
+
+    #: real time: a place identification waiting longer than this fails the pass, s
+    MAX_WAIT_S = 60.0
+
+    def __init__(self, leaf: SweepPass, threaded: bool) -> None:
+        self.leaf, self.threaded = leaf, threaded
+        self.results: list[tuple[Any, Any, BaseException | None]] = []
+        self.pending = 0
+        self._lock = threading.Lock()
+        self._queue: queue.Queue | None = None
+        if threaded:
+            self._queue = queue.Queue()
+            threading.Thread(target=self._work, name="sweep-identify", daemon=True).start()
+
+    def submit(self, w: Any) -> None:
+        """Identify the place ``w`` (its three crops)."""
+        if self._queue is None:
+            self.results.append(self._identify(w))
+            return
+        with self._lock:
+            self.pending += 1
+        self._queue.put(w)
+
+    def _work(self) -> None:
+        assert self._queue is not None
+        while True:
+            w = self._queue.get()
+            if w is None:
+                return
+            out = self._identify(w)
+            with self._lock:
+                self.results.append(out)
+                self.pending -= 1
+
+    def _identify(self, w: Any) -> tuple[Any, Any, BaseException | None]:
+        try:
+            return w, identify_crops(self.leaf, w.ordered_crops(), w.name), None
+        except BaseException as exc:  # handed to the tick thread
+            return w, None, exc
+
+    def done(self) -> list[tuple[Any, Any, BaseException | None]]:
+        """The identifications finished since the last call."""
+        with self._lock:
+            out, self.results = self.results, []
+        return out
+
+    def idle(self) -> bool:
+        """True when nothing is waiting to be identified."""
+        with self._lock:
+            return self.pending == 0 and not self.results
+
+    def drain(self) -> list[tuple[Any, Any, BaseException | None]]:
+        """Stop the worker; what finished meanwhile."""
+        if self._queue is not None:
+            self._queue.put(None)
+        return self.done()
+
+
+def identify_crops(leaf: SweepPass, crops: list, place: str) -> Any:
+    """Embed three crops and match them against the pass's gallery with the gallery's
+    thresholds and texture verification, verifying 1:1 first against the pallet the expected
+    stock names for ``place`` (:func:`nodes.identify.identify_scan`, as IdentifyPallet
+    does); the match. The session
+    keeps the identification for the report."""
+    from perception.errors import ModelError
+    from perception.gallery import GalleryError
+
+    session, embedder, g = leaf.session, leaf.embedder, leaf.gallery
+    try:
+        match = identify_scan(
+            g, embedder, crops, g.thresholds, expected=expected_for(leaf.ctx, place), top_k=5
+        )
+    except (GalleryError, ModelError) as exc:
+        raise PerceptionError(f"identification at {place}: {exc}") from None
+    session.identifications.append(
+        {
+            "t_s": leaf.now(),
+            "key": f"sweep:{place}",
+            "node": leaf.describe(),
+            "pallet_id": match.pallet_id,
+            "best_id": match.best_id,
+            "distance": match.distance,
+            "margin": match.margin,
+            "known": match.known,
+            "reason": match.reason,
+            "thresholds": [g.thresholds.max_distance, g.thresholds.min_margin],
+            "ranking": [[i, d, list(b)] for i, d, b in match.ranking],
+            "decided_by": match.decided_by if match.known else "",
+            "expected": match.expected,
+            "verified_expected": match.verified_expected,
+            "place": place,
+        }
+    )
+    return match

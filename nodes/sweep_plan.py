@@ -1,0 +1,360 @@
+"""The sweep's plan: which passes fly which places, and routes that go around the racks.
+
+A *pass* flies one level of one rack face in one continuous line at the stand-off, past all
+its places (``A/2``: rack A, level 2). :func:`plan_passes` orders a place list into passes:
+a serpentine over the levels of each rack face (up one level, back along the next), the
+faces taken nearest first, each pass flown from the end nearer to where the last one ended.
+``PlanSweep`` writes that order as a queue of pass names (for BT.CPP's ``LoopString``) and
+keeps the plan for ``SweepPass``.
+
+Between passes, home and to the pad, the drone must go around racks, never through or over
+them: :func:`route` finds the shortest way through the aisles (a visibility graph over the
+corners of the racks' footprints, grown by a clearance; the geofence is respected). The
+``FlyRoute`` leaf flies such a route.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode, SyncActionNode
+from bt_engine.ports import ANY, DURATION, FLOAT, INT, VEC3, input_port, output_port
+from bt_engine.registry import register
+from nodes.common import vehicle_of
+from nodes.inventory import CATEGORY_INVENTORY, world_of
+
+#: keep this far from a rack's footprint when flying around it, m
+CLEARANCE_M = 0.45
+#: the corners a route turns at are this much further out than the clearance, m
+CORNER_EXTRA_M = 0.15
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """A rack's footprint on the floor: a rectangle in the rack's frame (``origin``, unit
+    ``right`` along the bays, unit ``inward`` into the rack), ``length`` x ``depth``."""
+
+    name: str
+    origin: tuple[float, float]
+    right: tuple[float, float]
+    inward: tuple[float, float]
+    length: float
+    depth: float
+
+    def local(self, p: tuple[float, float]) -> tuple[float, float]:
+        """(along, in) of a floor point."""
+        dx, dy = p[0] - self.origin[0], p[1] - self.origin[1]
+        return (
+            dx * self.right[0] + dy * self.right[1],
+            dx * self.inward[0] + dy * self.inward[1],
+        )
+
+    def world(self, along: float, inward: float) -> tuple[float, float]:
+        """The floor point at (along, in)."""
+        return (
+            self.origin[0] + self.right[0] * along + self.inward[0] * inward,
+            self.origin[1] + self.right[1] * along + self.inward[1] * inward,
+        )
+
+    def crosses(self, a: tuple[float, float], b: tuple[float, float], grow: float) -> bool:
+        """True if the segment a-b passes within ``grow`` of the footprint (Liang-Barsky)."""
+        (a0, a1), (b0, b1) = self.local(a), self.local(b)
+        lo, hi = (-grow, -grow), (self.length + grow, self.depth + grow)
+        t0, t1 = 0.0, 1.0
+        for p0, d, mn, mx in ((a0, b0 - a0, lo[0], hi[0]), (a1, b1 - a1, lo[1], hi[1])):
+            if abs(d) < 1e-12:
+                if p0 < mn or p0 > mx:
+                    return False
+                continue
+            u0, u1 = (mn - p0) / d, (mx - p0) / d
+            if u0 > u1:
+                u0, u1 = u1, u0
+            t0, t1 = max(t0, u0), min(t1, u1)
+            if t0 > t1:
+                return False
+        return True
+
+    def corners(self, grow: float) -> list[tuple[float, float]]:
+        """The footprint's corners, pushed out by ``grow``."""
+        return [
+            self.world(a, i)
+            for a in (-grow, self.length + grow)
+            for i in (-grow, self.depth + grow)
+        ]
+
+
+def footprints(world: Any) -> list[Footprint]:
+    """The footprints of the world's racks (none for a world without racks)."""
+    out = []
+    for rack in getattr(world, "data", {}).get("racks") or []:
+        f = math.radians(rack["facing_deg"])
+        n = (math.cos(f), math.sin(f))
+        right = (-n[1], n[0])
+        out.append(
+            Footprint(
+                rack["name"],
+                tuple(rack["origin_m"]),
+                right,
+                (-n[0], -n[1]),
+                rack["bays"] * rack["bay_width_m"],
+                rack["depth_m"],
+            )
+        )
+    return out
+
+
+def route(
+    start: tuple[float, float, float],
+    goal: tuple[float, float, float],
+    racks: list[Footprint],
+    inside: Any = None,
+    clearance: float = CLEARANCE_M,
+) -> list[tuple[float, float, float]] | None:
+    """Waypoints from ``start`` to ``goal`` (goal included, start not) that keep
+    ``clearance`` from every rack footprint: straight if nothing is in the way, else the
+    shortest path over the footprints' grown corners. ``inside(p) -> bool`` rejects corners
+    outside the flying area (the geofence). Heights go linearly from start to goal. None if
+    no route exists."""
+    a, b = (start[0], start[1]), (goal[0], goal[1])
+
+    def free(p: tuple[float, float], q: tuple[float, float]) -> bool:
+        return not any(r.crosses(p, q, clearance) for r in racks)
+
+    if free(a, b):
+        return [tuple(goal)]  # type: ignore[list-item]
+    nodes = [a, b]
+    for r in racks:
+        for c in r.corners(clearance + CORNER_EXTRA_M):
+            if inside is None or inside((c[0], c[1], goal[2])):
+                nodes.append(c)
+    dist = {0: 0.0}
+    prev: dict[int, int] = {}
+    heap = [(0.0, 0)]
+    done: set[int] = set()
+    while heap:
+        d, i = heapq.heappop(heap)
+        if i in done:
+            continue
+        done.add(i)
+        if i == 1:
+            break
+        for j in range(len(nodes)):
+            if j in done or not free(nodes[i], nodes[j]):
+                continue
+            nd = d + math.dist(nodes[i], nodes[j])
+            if nd < dist.get(j, math.inf) - 1e-12:
+                dist[j], prev[j] = nd, i
+                heapq.heappush(heap, (nd, j))
+    if 1 not in done:
+        return None
+    path = [1]
+    while path[-1] != 0:
+        path.append(prev[path[-1]])
+    pts = [nodes[k] for k in reversed(path)][1:]
+    total = sum(math.dist(p, q) for p, q in zip([a] + pts, pts, strict=False)) or 1.0
+    out, run, last = [], 0.0, a
+    for p in pts:
+        run += math.dist(last, p)
+        last = p
+        z = start[2] + (goal[2] - start[2]) * run / total
+        out.append((p[0], p[1], z))
+    out[-1] = tuple(goal)  # type: ignore[assignment]
+    return out
+
+
+@dataclass
+class PassSpec:
+    """One pass: rack, level, places in flying order, the yaw facing the face, its
+    direction along the face (unit x, y)."""
+
+    name: str
+    rack: str
+    level: int
+    places: list[str]
+    look_rad: float
+    direction: tuple[float, float]
+    rows: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+
+
+@dataclass
+class SweepPlan:
+    """The passes of a sweep, by name and in order; the places left for the rescan."""
+
+    passes: dict[str, PassSpec]
+    order: list[str]
+    #: places each pass left for the per-place scan, by pass name
+    rescan: dict[str, list[str]] = field(default_factory=dict)
+
+    def left_for_rescan(self) -> set[str]:
+        """Every place a pass left for the per-place scan."""
+        return {p for names in self.rescan.values() for p in names}
+
+
+def _ends(spec: PassSpec) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    first, last = spec.rows[spec.places[0]], spec.rows[spec.places[-1]]
+    return first, last
+
+
+def plan_passes(places: list[str], world: Any, start: tuple[float, float, float]) -> SweepPlan:
+    """``places`` as passes; see the module doc. Each pass's places are in flying order."""
+    groups: dict[tuple[str, int], list[Any]] = {}
+    for name in places:
+        p = world.places[name]
+        groups.setdefault((p.rack, p.level), []).append(p)
+    faces: dict[str, list[int]] = {}
+    for rack, level in groups:
+        faces.setdefault(rack, []).append(level)
+    passes: dict[str, PassSpec] = {}
+    order: list[str] = []
+    here = start
+    left = set(faces)
+    while left:
+        best = None
+        for rack in sorted(left):
+            levels = sorted(faces[rack])
+            for lv in (levels, levels[::-1]):
+                ps = sorted(groups[(rack, lv[0])], key=lambda p: p.bay)
+                for seq in (ps, ps[::-1]):
+                    d = math.dist(here[:2], seq[0].row_m[:2]) + 0.3 * abs(here[2] - seq[0].row_m[2])
+                    if best is None or d < best[0] - 1e-9:
+                        best = (d, rack, lv, seq[0].bay < seq[-1].bay or len(seq) == 1)
+        assert best is not None
+        _, rack, levels, ascending = best
+        left.discard(rack)
+        for lv in levels:
+            ps = sorted(groups[(rack, lv)], key=lambda p: p.bay, reverse=not ascending)
+            look = math.radians(ps[0].look_deg)
+            f = (math.cos(look), math.sin(look))
+            right = (f[1], -f[0])  # the camera's right while facing the face
+            # bays are numbered left to right seen from the aisle: ascending flies to the right
+            direction = right if ascending else (-right[0], -right[1])
+            name = f"{rack}/{lv}"
+            passes[name] = PassSpec(
+                name,
+                rack,
+                lv,
+                [p.name for p in ps],
+                look,
+                direction,
+                {p.name: tuple(p.row_m) for p in ps},
+            )
+            order.append(name)
+            here = tuple(ps[-1].row_m)
+            ascending = not ascending
+    return SweepPlan(passes, order)
+
+
+def sweep_plan_of(ctx: Any) -> SweepPlan | None:
+    """The plan ``PlanSweep`` made in this run (None before it ran)."""
+    return ctx.resources.get("sweep_plan")
+
+
+def geofence_inside(ctx: Any) -> Any:
+    """``inside(p) -> bool`` of the rig's geofence (with a small clearance), or None."""
+    supervisor = ctx.resources.get("safety")
+    config = getattr(supervisor, "config", None)
+    if config is None or not getattr(config, "geofence_enabled", False):
+        return None
+    return lambda p: config.inside(p, 0.1)
+
+
+@register
+class PlanSweep(SyncActionNode):
+    """Order the places left to answer (``InventoryPlan``'s queue) into sweep passes: one
+    per rack face and level, a serpentine over each face's levels, the faces nearest first
+    from the drone. SUCCESS with ``passes`` (a queue of pass names such as ``A/2`` for
+    LoopString); FAILURE without a world map."""
+
+    bt_id = "PlanSweep"
+    category = CATEGORY_INVENTORY
+    ports = (
+        input_port("places", ANY, description="the places left to answer (InventoryPlan's queue)"),
+        output_port("passes", ANY, "pass names in flying order (LoopString's queue)"),
+        output_port("count", INT, "passes planned"),
+        output_port("first_point", ANY, "the first place's block row, x;y;z (EnoughEnergy)"),
+    )
+
+    def tick_impl(self) -> NodeStatus:
+        world = world_of(self.ctx)
+        if world is None or not getattr(world, "places", None):
+            self.failure_reason = "a sweep needs a world with racks (e.g. --rig rigs/site.yaml)"
+            return FAILURE
+        places = [str(p) for p in (self.get_input("places") or [])]
+        unknown = [p for p in places if p not in world.places]
+        if unknown:
+            self.failure_reason = f"unknown places {unknown[:3]}"
+            return FAILURE
+        v = self.ctx.vehicle
+        start = tuple(v.position) if v is not None else (0.0, 0.0, 0.0)
+        plan = plan_passes(places, world, start)
+        self.ctx.resources["sweep_plan"] = plan
+        self.ctx.log(
+            f"sweep: {len(places)} places in {len(plan.order)} passes "
+            f"({', '.join(plan.order[:8])}{' ...' if len(plan.order) > 8 else ''})"
+        )
+        self.set_output("passes", list(plan.order))
+        self.set_output("count", len(plan.order))
+        if plan.order:
+            first = plan.passes[plan.order[0]]
+            self.set_output("first_point", first.rows[first.places[0]])
+        elif v is not None:
+            self.set_output("first_point", start)
+        return SUCCESS
+
+
+@register
+class FlyRoute(StatefulActionNode):
+    """Fly to ``pose`` around the racks of the world's map (never through or over them):
+    straight when nothing is in the way, else through the aisles' ends. Yaw: PATH_FACING.
+    SUCCESS at the goal; FAILURE if no route exists inside the geofence, on a refused
+    motion or after ``timeout``."""
+
+    bt_id = "FlyRoute"
+    category = CATEGORY_INVENTORY
+    ports = (
+        input_port("pose", VEC3, description="goal x;y;z in m"),
+        input_port("max_speed", FLOAT, 0.5, "speed, m/s"),
+        input_port("timeout", DURATION, 120.0, "FAILURE if not there within this time, s"),
+    )
+
+    def on_start(self) -> NodeStatus:
+        self.vehicle = vehicle_of(self)
+        self.started_s = self.now()
+        goal = tuple(float(v) for v in self.get_input("pose"))
+        world = world_of(self.ctx)
+        racks = footprints(world) if world is not None else []
+        path = route(self.vehicle.position, goal, racks, geofence_inside(self.ctx))
+        if path is None:
+            self.failure_reason = f"no way around the racks to {goal}"
+            return FAILURE
+        if len(path) > 1:
+            self.ctx.log(
+                f"{self.describe()}: around the racks via "
+                + ", ".join(f"({p[0]:.1f}, {p[1]:.1f})" for p in path[:-1])
+            )
+        self.progress = self.vehicle.follow_path(path, self.get_input("max_speed"), 1, 0.0)
+        if self.progress.failed:
+            self.failure_reason = self.progress.reason or "motion refused"
+            return FAILURE
+        return RUNNING
+
+    def on_running(self) -> NodeStatus:
+        p = self.progress
+        if p.failed or p.cancelled:
+            self.failure_reason = p.reason or "motion cancelled"
+            return FAILURE
+        if p.reached:
+            return SUCCESS
+        if self.now() - self.started_s >= self.get_input("timeout"):
+            self.failure_reason = f"time-out after {self.get_input('timeout'):g} s"
+            self.vehicle.hover()
+            return FAILURE
+        return RUNNING
+
+    def on_halted(self) -> None:
+        v = getattr(self, "vehicle", None)
+        if v is not None and v.is_flying and v.motion is getattr(self, "progress", None):
+            v.hover()
