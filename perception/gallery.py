@@ -332,14 +332,16 @@ class Gallery(MatchingMixin, ViewsMixin):
         """Enrolled identities, sorted."""
         return [r[0] for r in self.conn.execute("SELECT identity FROM entries ORDER BY identity")]
 
-    def entries(self) -> list[dict]:
+    def entries(self, limit: int | None = None, offset: int = 0) -> list[dict]:
         """Identity, creation time, source, crop count and active added views of every entry
+        (or of ``limit`` entries from ``offset``, in identity order: a page)
         (:class:`GalleryError` if a creation time of a damaged file is not a date)."""
         rows = self.conn.execute(
             "SELECT e.identity, e.created, e.source, "
             "(SELECT COUNT(*) FROM crops c WHERE c.identity = e.identity), "
             "(SELECT COUNT(*) FROM views v WHERE v.identity = e.identity AND v.active) "
-            "FROM entries e ORDER BY e.identity"
+            "FROM entries e ORDER BY e.identity" + ("" if limit is None else " LIMIT ? OFFSET ?"),
+            () if limit is None else (max(0, int(limit)), max(0, int(offset))),
         )
         return [
             {

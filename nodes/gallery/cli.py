@@ -3,6 +3,8 @@
 ::
 
     btrun gallery list pallets.sqlite
+    btrun gallery list site.sqlite --page 3 --per-page 100   # a page of a big gallery
+    btrun gallery stats site.sqlite               # sides, pallets, views, model, size, dates
     btrun gallery enrol pallets.sqlite 7A --crops b1.png b2.png b3.png   # three crops, left to right
     btrun gallery enrol pallets.sqlite 7A --run runs/20261122-101500      # what a flight scanned
     btrun gallery enrol pallets.sqlite 2B --world-side 2B                 # a rendered scan (simulator)
@@ -39,6 +41,12 @@ from perception.gallery_pg import is_gallery_url
 REVIEW_RUN = "console review"
 
 
+#: ``btrun gallery list`` shows every side of a gallery up to this size, else a page
+LIST_ALL_UP_TO = 1000
+#: sides per page of ``btrun gallery list``
+PER_PAGE = 100
+
+
 class GalleryCommandError(Exception):
     """A user error of ``btrun gallery`` (printed, exit code 2)."""
 
@@ -46,8 +54,18 @@ class GalleryCommandError(Exception):
 def setup(p: argparse.ArgumentParser) -> None:
     """Arguments of ``btrun gallery``."""
     sub = p.add_subparsers(dest="gallery_command", metavar="SUBCOMMAND", required=True)
-    ls = sub.add_parser("list", help="the enrolled pallet sides")
+    ls = sub.add_parser("list", help="the enrolled pallet sides (a page of them)")
     ls.add_argument("gallery")
+    ls.add_argument("--page", type=int, default=None, help="page number, from 1")
+    ls.add_argument(
+        "--per-page",
+        type=int,
+        default=None,
+        help=f"sides per page (default {PER_PAGE}; every side of a gallery of at most "
+        f"{LIST_ALL_UP_TO} when neither option is given)",
+    )
+    st = sub.add_parser("stats", help="sides, pallets, views, model, thresholds, size, dates")
+    st.add_argument("gallery")
     en = sub.add_parser("enrol", help="enrol a pallet side from crops, a run or a rendered scan")
     en.add_argument("gallery", help="gallery file (created if missing)")
     en.add_argument("name", help="identity, e.g. 7A")
@@ -72,7 +90,7 @@ def setup(p: argparse.ArgumentParser) -> None:
     rb.add_argument("name")
     rb.add_argument("--view", type=int, default=None, help="view id (default: the latest)")
     sub.add_parser("demo", help="build (if needed) the demo gallery and print its path")
-    for sp in (ls, en, rm, ex, ev, hi, rb, sub.choices["demo"]):
+    for sp in (ls, st, en, rm, ex, ev, hi, rb, sub.choices["demo"]):
         sp.add_argument(
             "--rig",
             default=None,
@@ -142,14 +160,60 @@ def _spec(args: argparse.Namespace) -> str:
 
 
 def _list(args: argparse.Namespace) -> int:
+    from perception.gallery_stats import page_bounds
+
     _, g = _open(args)
     th = g.thresholds
-    print(f"{g.path}: {len(g)} pallet sides, model {g.model_version}")
+    total = len(g)
+    print(f"{g.path}: {total} pallet sides, model {g.model_version}")
     print(f"unknown above mean distance {th.max_distance:.3f} or below margin {th.min_margin:.3f}")
-    for e in g.entries():
+    page, per_page = getattr(args, "page", None), getattr(args, "per_page", None)
+    if page is None and per_page is None and total <= LIST_ALL_UP_TO:
+        entries, footer = g.entries(), ""
+    else:
+        try:
+            offset, count, pages = page_bounds(total, page or 1, per_page or PER_PAGE)
+        except ValueError as exc:
+            raise GalleryCommandError(str(exc)) from None
+        entries = g.entries(limit=count, offset=offset)
+        footer = f"sides {offset + 1}-{offset + count} of {total}, page {page or 1} of {pages}"
+        if (page or 1) < pages:
+            footer += f" (next: --page {(page or 1) + 1}; btrun gallery stats for the figures)"
+    for e in entries:
         when = time.strftime("%Y-%m-%d %H:%M", time.localtime(e["created"]))
         views = f"  +{e['views']} views" if e["views"] else ""
         print(f"  {e['identity']:<12} {when}  {e['crops']} crops{views}  {e['source']}")
+    if footer:
+        print(footer)
+    return 0
+
+
+def _stats(args: argparse.Namespace) -> int:
+    from perception.gallery_stats import gallery_stats
+
+    _, g = _open(args)
+    st = gallery_stats(g)
+    size = st["size_bytes"]
+    when = st["last_update"]
+    build = st["build_seconds"]
+    lines = [
+        ("gallery", g.path),
+        ("pallet sides", st["sides"]),
+        ("pallets", st["pallets"]),
+        ("added views", st["views"]),
+        ("sides with crops", st["sides_with_crops"]),
+        ("model", st["model_version"]),
+        ("unknown above", f"mean distance {st['max_distance']:.3f}"),
+        ("or below", f"margin {st['min_margin']:.3f}"),
+        ("size on disk", "in memory" if size is None else f"{size / 1e6:.1f} MB"),
+        (
+            "last update",
+            "never" if when is None else time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(when)),
+        ),
+        ("build time", "-" if build is None else f"{build:.0f} s (generated)"),
+    ]
+    for name, value in lines:
+        print(f"{name + ':':<18} {value}")
     return 0
 
 
@@ -312,6 +376,7 @@ def _demo(args: argparse.Namespace) -> int:
 
 _COMMANDS = {
     "list": _list,
+    "stats": _stats,
     "enrol": _enrol,
     "remove": _remove,
     "export": _export,
