@@ -103,7 +103,10 @@ class SideStyle:
     BGR triple, over ``paint_parts`` (``all`` or ``blocks``); ``marking``: ``burnt``,
     ``ink``, ``stencil``, ``label`` or ``none`` (default: the identity's burnt or ink brand);
     ``generator``: the block-face family (:data:`perception.synth.looks.FACE_GENERATORS`);
-    ``ageing``: changes since enrolment (:class:`perception.synth.ageing.Ageing`).
+    ``ageing``: changes since enrolment (:class:`perception.synth.ageing.Ageing`);
+    ``grain``: contrast of the block faces' grain (1: the generator's; 0.2: faint grain,
+    planed or weathered wood whose rings hardly show in colour; the relief stays,
+    :mod:`perception.synth.relief`).
     """
 
     stamp: str | None = None
@@ -117,6 +120,7 @@ class SideStyle:
     marking: str | None = None
     generator: str = "wood"
     ageing: Ageing | None = None
+    grain: float = 1.0
 
     def __post_init__(self) -> None:
         if self.wood is not None:
@@ -136,6 +140,8 @@ class SideStyle:
             )
         if not 0.0 <= self.saturation <= 3.0:
             raise ValueError(f"saturation must be within 0..3, got {self.saturation}")
+        if not 0.0 <= self.grain <= 2.0:
+            raise ValueError(f"grain must be within 0..2, got {self.grain}")
 
     def unaged(self) -> SideStyle:
         """The same side before any :attr:`ageing` (what was enrolled)."""
@@ -288,6 +294,9 @@ def _block_face(
             warp_px=rng.uniform(3.0, 10.0),
             knots=knots,
         )
+    if style.grain != 1.0:  # faint (or strong) grain: the same pattern, less contrast
+        mean = np.float32(lum.mean())
+        lum = mean + np.float32(style.grain) * (lum - mean)
     img = colourise(lum, base, _dark(base)).astype(np.float32)
     if not look.chip and look.generator == "wood":
         marks.cracks(img, rng, int(rng.poisson(0.4 + 1.2 * look.wear)))

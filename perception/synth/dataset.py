@@ -32,6 +32,8 @@ from perception.white_balance import calibrate, preprocess, render_white_target
 Conditions = ViewConditions | Callable[[np.random.Generator], ViewConditions] | None
 
 NOMINAL_K = 4000.0  # colour temperature the white balance is calibrated under
+#: the lamps of the local scenes: one in front of the face and above it, one behind it
+NOMINAL_LIGHT = SceneLight(0.6, (((-1.5, 0.0, 4.0), 1.0), ((0.5, 1.0, 4.0), 0.7)), NOMINAL_K)
 
 
 def identity_names(n: int, prefix: str = "p", start: int = 1) -> list[str]:
@@ -49,8 +51,13 @@ def _block_centre_z(base_z: float) -> float:
 
 
 @lru_cache(maxsize=64)
-def _scene(pallet_id: str, side: str, style: SideStyle | None, base_z: float) -> Scene:
-    light = SceneLight(0.6, (((-1.5, 0.0, 4.0), 1.0), ((0.5, 1.0, 4.0), 0.7)), NOMINAL_K)
+def _scene(
+    pallet_id: str,
+    side: str,
+    style: SideStyle | None,
+    base_z: float,
+    light: SceneLight = NOMINAL_LIGHT,
+) -> Scene:
     pallet = PalletSpec(
         pallet_id, side, 0.0, 0.0, base_z, math.pi, EPAL, (((side, style),) if style else ())
     )
@@ -77,7 +84,7 @@ def _rack_scene(
     from perception.synth.looks import random_look
     from perception.synth.rack_context import neighbour_slots, rack_boxes, rack_variant
 
-    light = SceneLight(0.6, (((-1.5, 0.0, 4.0), 1.0), ((0.5, 1.0, 4.0), 0.7)), NOMINAL_K)
+    light = NOMINAL_LIGHT
     v = rack_variant(np.random.default_rng([variant, 31]))
     pallets = [
         PalletSpec(

@@ -3,7 +3,8 @@
 A :class:`Scene` is a list of textured, pre-shaded planar quads (:class:`Quad`) built once
 from plain values (no simulator types): :class:`PalletSpec` for each pallet, boxes for stands
 and obstacles, a floor rectangle and the surrounding walls. Lamps shade every quad once at
-build time (ambient + Lambert with distance fall-off); per-frame light changes happen in the
+build time (ambient + Lambert with distance fall-off; the long faces of pallets per pixel,
+over their relief: :mod:`perception.synth.relief`); per-frame light changes happen in the
 sensor stage of :mod:`perception.synth.render`.
 """
 
@@ -18,6 +19,7 @@ import cv2
 import numpy as np
 
 from perception.synth import appearance as ap
+from perception.synth import relief
 from perception.synth.appearance import EPAL, PalletGeometry, SideStyle
 from perception.synth.materials import MATERIALS
 
@@ -134,8 +136,21 @@ def _shaded(make: Callable[[], np.ndarray], shade: float) -> Callable[[], list[n
     return levels
 
 
+def _relit(make: Callable[[], np.ndarray]) -> Callable[[], list[np.ndarray]]:
+    """A deferred texture already shaded (per pixel), as mip levels."""
+
+    def levels() -> list[np.ndarray]:
+        return ap.pyramid(make())
+
+    return levels
+
+
 def pallet_quads(p: PalletSpec, light: SceneLight) -> list[Quad]:
-    """Quads of a pallet: both long faces (with their blocks), both ends and the top."""
+    """Quads of a pallet: both long faces (with their blocks), both ends and the top.
+
+    The long faces carry their relief, shaded per pixel by the lamps
+    (:mod:`perception.synth.relief`; unless :data:`perception.synth.relief.ENABLED` is
+    off); the ends and the top one shade each."""
     g = p.geometry
     n = np.array([math.cos(p.facing_rad), math.sin(p.facing_rad), 0.0])
     right = np.array([-n[1], n[0], 0.0])
@@ -146,8 +161,12 @@ def pallet_quads(p: PalletSpec, light: SceneLight) -> list[Quad]:
     other = "B" if p.side == "A" else "A"
     for side, normal, fc in ((p.side, n, front), (other, -n, front - n * g.width_m)):
         corners = _rect(fc, normal, g.length_m, top, base)
-        make = partial(ap.face_texture, p.pallet_id, side, p.style(side), g)
-        q = Quad(corners, _shaded(make, light.shade(corners.mean(0), normal)), normal)
+        if relief.ENABLED:
+            lit = partial(relief.lit_face, p.pallet_id, side, p.style(side), g, corners, light)
+            q = Quad(corners, _relit(lit), normal)
+        else:
+            make = partial(ap.face_texture, p.pallet_id, side, p.style(side), g)
+            q = Quad(corners, _shaded(make, light.shade(corners.mean(0), normal)), normal)
         r = np.array([-normal[1], normal[0], 0.0])
         b0, b1 = base + g.board_m, base + g.board_m + g.block_height_m
         for k, (off, w) in enumerate(zip(g.block_offsets_m(), g.block_widths_m(), strict=True)):
