@@ -30,7 +30,7 @@ import numpy as np
 
 ENROL_SPEED_MPS = 0.1  # camera speed along the scan line while enrolling
 ENROL_RATE_HZ = 15.0
-ENROL_VERSION = 3  # bump when the enrolment procedure changes (invalidates cached galleries)
+ENROL_VERSION = 5  # bump when enrolment or the renderer changes (invalidates cached galleries)
 
 
 def cache_dir() -> str:
