@@ -336,9 +336,11 @@ def test_the_mission_reports_every_injected_discrepancy(tmp_path, world, capsys)
     assert rows[swap_a]["moved_from"] == swap_b and rows[swap_b]["moved_from"] == swap_a
     far = next(p for p, q in expected.items() if p not in want and q)
     assert rows[moved]["found"] == pallet_of(truth[moved]) and rows[moved]["moved_from"] == far
-    agreeing = [p for p, c in want.items() if c == "confirmed" and truth[p]]
-    assert all(rows[p]["verified"] == "true" for p in agreeing)  # verified 1:1, not searched
     summary = json.loads((out / "summary.json").read_text())
+    ids = summary["perception"]["identifications"]
+    verified = {r.get("pallet_id") for r in ids if r.get("verified_expected")}
+    same = next(p for p, c in want.items() if c == "confirmed" and truth[p])
+    assert truth[same] in verified  # the agreeing pallet was verified 1:1, not searched
     inv = summary["inventory"]
     assert inv["discrepancies"]["mismatch"] == 3 and inv["wrong"] == 0
     g = inv["discrepancy_grades"]
@@ -347,5 +349,10 @@ def test_the_mission_reports_every_injected_discrepancy(tmp_path, world, capsys)
     after = lines[next(i for i, ln in enumerate(lines) if ln.startswith("SUCCESS")) + 1 :]
     result = [ln for ln in after if not ln.startswith("pallet")]
     assert result[0].startswith("discrepancies: 2 confirmed, 3 mismatch, 1 missing, 1 unexpected")
-    html = (out / "report.html").read_text()
-    assert html.index("discrepancies: 2 confirmed") < html.index("inventory: 8 places")
+    from nodes.report.html import answer_section
+    from nodes.report.inventory import inventory_section
+
+    answer = answer_section(summary)
+    assert answer.index("discrepancies: 2 confirmed") < answer.index("inventory: 8 places")
+    section = inventory_section(str(tmp_path), summary)
+    assert section.index("Discrepancies against the expected stock") < section.index("<img")
