@@ -109,7 +109,7 @@ STOCK = M(
 
 PALLET_POOL = M(
     {
-        "count": F("int", 0, "generated pallets added to the world's pallets", min=0, max=500),
+        "count": F("int", 0, "generated pallets added to the world's pallets", min=0, max=20_000),
         "first_id": F("int", 101, "id of the first generated pallet", min=1),
         "seed": F("int", 0, "seed of the generated stamps, wear and textures"),
     },

@@ -15,6 +15,13 @@ seconds, into a cache file whose name depends on the pallets' appearance (not th
 places), the light, the camera and both model versions (``$BTRUN_CACHE_DIR``, default
 ``~/.cache/btrun``), so a new model or appearance never reuses a stale gallery. The file is written under a temporary name and renamed, so an
 interrupted build leaves nothing half-made.
+
+A pool of thousands of sides (``--set world.pallet_pool.count=2000``: 4,000 sides) is
+enrolled from a few rendered views per side, not a whole scan flight: the frames of the
+canonical scan in which a block crosses the block sequencer's window (plus the one that
+commits it, and the auto-exposure's frames), through the same renderer, detector and
+sequencer (:func:`enrolment_frames`), over two worker processes, with a progress line per
+100 sides. Figures in docs/pallet-identification.md.
 """
 
 from __future__ import annotations
@@ -31,6 +38,19 @@ import numpy as np
 ENROL_SPEED_MPS = 0.1  # camera speed along the scan line while enrolling
 ENROL_RATE_HZ = 15.0
 ENROL_VERSION = 5  # bump when enrolment or the renderer changes (invalidates cached galleries)
+#: frames fed to the block sequencer while each block crosses its window (left of the image
+#: centre by at most ``max_distance_left_px``): the sequencer keeps the sharpest of them
+VIEWS_PER_BLOCK = 5
+#: a block this far right of the centre (px) has been committed by the sequencer (its
+#: ``min_distance_right_px`` 20 px, and a margin for the box's jitter)
+COMMIT_PX = 24.0
+#: at most this many frames between two frames looked at while a block is tracked (the
+#: sequencer forgets a track unseen for ``lost_after_frames``, 8)
+MAX_GAP_FRAMES = 6
+#: worker processes of a demo gallery build (the machine's two cores)
+BUILD_WORKERS = 2
+#: sides per progress line of a build
+PROGRESS_EVERY = 100
 
 
 def cache_dir() -> str:
@@ -99,9 +119,11 @@ def appearance_key(data: dict) -> bytes:
 
 
 def look_overrides(overrides: dict[str, str] | None) -> dict[str, str]:
-    """The ``--set world.KEY`` items that change how the pallets look (``pallet_look.*``):
-    the demo gallery enrols the pallets as the flight will see them (ageing aside)."""
-    return {k: v for k, v in (overrides or {}).items() if k.startswith("pallet_look.")}
+    """The ``--set world.KEY`` items that change which pallets the demo gallery enrols and
+    how they look (``pallet_look.*``, ``pallet_pool.*``): the demo gallery enrols the
+    pallets as the flight will see them (ageing aside)."""
+    keep = ("pallet_look.", "pallet_pool.")
+    return {k: v for k, v in (overrides or {}).items() if k.startswith(keep)}
 
 
 def scan_frames(
@@ -113,11 +135,24 @@ def scan_frames(
 ) -> Iterator[tuple[np.ndarray, float]]:
     """Raw frames (and their times) of a camera moving along the canonical scan line in front
     of ``identity`` standing alone in the canonical slot; motion blur from the scan speed."""
+    from drivers.sim.world import load_world
+
+    data = load_world(world_path, look_overrides(overrides)).data
+    renderer, poses = _canonical_scan(data, world_path, identity, camera, seed)
+    for pose in poses:
+        yield renderer(pose, pose.t_s), pose.t_s
+
+
+def _canonical_scan(
+    data: dict, world_path: str, identity: str, camera: dict | None, seed: int
+) -> tuple[Any, list[Any]]:
+    """A renderer of ``identity`` alone in the canonical slot and the poses of the
+    canonical scan line, one per frame at :data:`ENROL_RATE_HZ` (``pose.t_s``: its time)."""
     from drivers.sim.renderers.pallet import PalletRenderer
-    from drivers.sim.world import World, load_world
+    from drivers.sim.world import World
     from drivers.vehicle.types import Pose
 
-    data = canonical_world_data(load_world(world_path, look_overrides(overrides)).data, identity)
+    data = canonical_world_data(data, identity)
     world = World(data, world_path)
     line = data["scan_line"]
     renderer = PalletRenderer(world, camera, np.random.default_rng(seed))
@@ -126,25 +161,85 @@ def scan_frames(
     y0, y1 = line["y_from_m"], line["y_to_m"]
     step = math.copysign(ENROL_SPEED_MPS / ENROL_RATE_HZ, y1 - y0)
     n = int(abs(y1 - y0) / abs(step)) + 1
-    for k in range(n):
-        t = k / ENROL_RATE_HZ
-        pose = Pose(line["x_m"], y0 + k * step, line["z_m"], yaw, quaternion, t, "enrol")
-        yield renderer(pose, t), t
+    poses = [
+        Pose(line["x_m"], y0 + k * step, line["z_m"], yaw, quaternion, k / ENROL_RATE_HZ, "enrol")
+        for k in range(n)
+    ]
+    return renderer, poses
+
+
+def enrolment_frames(
+    data: dict,
+    world_path: str,
+    identity: str,
+    camera: dict | None,
+    seed: int = 0,
+    per_block: int = VIEWS_PER_BLOCK,
+) -> Iterator[tuple[np.ndarray | None, float]]:
+    """The frames of the canonical scan (:func:`scan_frames`) that the block sequencer
+    needs, and only those: per block, ``per_block`` frames spread over the stretch where it
+    is left of the image centre by at most the sequencer's ``max_distance_left_px``, and
+    the first frame where it is :data:`COMMIT_PX` right of it (where the block is, from
+    the camera model and the scene: no detection). Each is rendered with the motion blur
+    of the scan (from the previous frame's pose) and the auto-exposure of the scan (the
+    frames it adapts on are rendered too, not detected). Every other frame of the scan is
+    yielded as ``(None, t_s)``: not rendered, but counted by the sequencer (a block it
+    tracked is lost after as many frames as in the whole scan). ``data``: the world's
+    data, loaded once for many sides."""
+    from drivers.sim.renderers.pallet import AE_PERIOD
+    from perception.sequencer import SequencerParams
+
+    renderer, poses = _canonical_scan(data, world_path, identity, camera, seed)
+    window = SequencerParams().max_distance_left_px
+    centre = renderer.camera.width / 2.0
+    offsets: dict[int, list[tuple[int, float]]] = {}
+    for k, pose in enumerate(poses):
+        for box in renderer.ground_truth(pose):
+            if box.visible >= 0.99:  # a whole block face, as the detector boxes it
+                offsets.setdefault(box.block, []).append((k, 0.5 * (box.x1 + box.x2) - centre))
+    chosen: set[int] = set()
+    for track in offsets.values():
+        inside = [k for k, dx in track if -window <= dx <= 0.0]
+        after = [k for k, dx in track if dx > COMMIT_PX]
+        if not inside or not after:
+            continue
+        picks = np.linspace(inside[0], inside[-1], min(per_block, len(inside)))
+        chosen.update(int(round(x)) for x in picks)
+        # up to the commit, a frame every MAX_GAP_FRAMES: the sequencer keeps the track
+        chosen.update(range(inside[-1], after[0], MAX_GAP_FRAMES))
+        chosen.add(after[0])
+    last = max(chosen, default=len(poses) - 1)
+    rendered = chosen | set(range(0, last + 1, AE_PERIOD))
+    for k in range(last + 1):
+        if k not in rendered:
+            yield None, poses[k].t_s  # the sequencer counts it: its tracks age as in a scan
+            continue
+        renderer.frames = k  # the auto-exposure adapts on the scan's own frames
+        previous = (poses[k - 1].t_s, poses[k - 1]) if k else None
+        raw = renderer(poses[k], poses[k].t_s, previous)
+        yield (raw if k in chosen else None), poses[k].t_s
 
 
 def scan_blocks(
-    frames: Iterator[tuple[np.ndarray, float]],
+    frames: Iterator[tuple[np.ndarray | None, float]],
     detector: Any,
     factors: tuple[float, float, float],
     min_score: float | None = None,
 ) -> list[np.ndarray]:
-    """The crops the block sequencer commits over a stream of raw frames (stops at three)."""
+    """The crops the block sequencer commits over a stream of raw frames (stops at three);
+    a frame ``None`` was not looked at (:func:`enrolment_frames`): it detects nothing."""
     from perception.sequencer import BlockSequencer
     from perception.white_balance import preprocess
 
     seq = BlockSequencer()
+    blank: np.ndarray | None = None
     for raw, t in frames:
+        if raw is None:
+            if blank is not None:
+                seq.update(blank, [], t)
+            continue
         bgr = preprocess(raw, factors)
+        blank = bgr[:1, :]  # the sequencer reads only the width of a frame without boxes
         seq.update(bgr, detector.detect(bgr, min_score=min_score), t)
         if seq.done:
             break
@@ -177,43 +272,147 @@ def build_gallery(
     camera: dict | None,
     log: Callable[[str], None] = print,
     overrides: dict[str, str] | None = None,
+    workers: int | None = None,
 ) -> None:
-    """Enrol ``identities`` of the world from rendered scans into a new gallery at ``path``
-    (written to a temporary file first, then renamed over ``path``)."""
-    from perception.gallery import Gallery, GalleryError
-    from perception.gallery_views import png_bytes
+    """Enrol ``identities`` of the world from rendered enrolment views
+    (:func:`enrolment_frames`) into a new gallery at ``path`` (written to a temporary file
+    first, then renamed over ``path``). ``workers``: processes rendering and embedding
+    (default :data:`BUILD_WORKERS` from 50 sides on, else this process alone); a line of
+    progress per :data:`PROGRESS_EVERY` sides (per side for small galleries)."""
+    import time
 
-    factors = tuple(float(f) for f in (camera or {}).get("white_balance", (1.0, 1.0, 1.0)))
+    from perception.gallery import Gallery, GalleryError
+    from perception.gallery_stats import BUILD_SECONDS_KEY
+
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     fd, tmp = tempfile.mkstemp(suffix=".sqlite", dir=os.path.dirname(os.path.abspath(path)))
     os.close(fd)
     os.unlink(tmp)
+    n, start = len(identities), time.perf_counter()
+    every = 1 if n <= 50 else PROGRESS_EVERY
     try:
         with Gallery.create(tmp, embedder.model_version, embedder.dim) as g:
             g.set_thresholds(embedder.thresholds)
-            for i, identity in enumerate(identities):
-                crops = scan_blocks(
-                    scan_frames(world_path, identity, camera, 1000 + i, overrides),
-                    detector,
-                    factors,
+            # A temporary file, renamed only once complete: no need to sync every side.
+            g.conn.execute("PRAGMA synchronous = OFF")
+            sides = _enrolled_sides(
+                world_path, identities, detector, embedder, camera, overrides, workers
+            )
+            for i, (identity, found, vectors, vis, pngs) in enumerate(sides):
+                if found < 3:
+                    raise GalleryError(f"enrolment scan of {identity} found {found} of 3 blocks")
+                source = f"rendered scan of {os.path.basename(world_path)}"
+                g.enrol(identity, vectors, pngs, source=source, visibility=vis)
+                done = i + 1
+                if done % every == 0 or done == n:
+                    elapsed = time.perf_counter() - start
+                    rate = done / max(elapsed, 1e-9)
+                    if every == 1:
+                        log(f"  enrolled {identity} ({done}/{n})")
+                    else:
+                        log(
+                            f"  enrolled {done}/{n} sides in {elapsed:.0f} s "
+                            f"({rate:.1f} sides/s, about {(n - done) / rate:.0f} s left)"
+                        )
+            with g.conn:  # what `btrun gallery stats` shows as the build time
+                g.conn.execute(
+                    "INSERT OR REPLACE INTO meta VALUES (?, ?)",
+                    (BUILD_SECONDS_KEY, repr(time.perf_counter() - start)),
                 )
-                if len(crops) < 3:
-                    raise GalleryError(
-                        f"enrolment scan of {identity} found {len(crops)} of 3 blocks"
-                    )
-                desc = embedder.describe(crops)
-                g.enrol(
-                    identity,
-                    desc.vectors,
-                    [png_bytes(c) for c in crops],
-                    source=f"rendered scan of {os.path.basename(world_path)}",
-                    visibility=desc.visibility if embedder.occlusion_aware else None,
-                )
-                log(f"  enrolled {identity} ({i + 1}/{len(identities)})")
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+    log(f"  {n} sides enrolled in {time.perf_counter() - start:.1f} s")
+
+
+#: what a build's worker process holds: the world's data, the models, the camera
+_WORKER: dict[str, Any] = {}
+
+
+def _enrolled_sides(
+    world_path: str,
+    identities: list[str],
+    detector: Any,
+    embedder: Any,
+    camera: dict | None,
+    overrides: dict[str, str] | None,
+    workers: int | None,
+) -> Iterator[tuple[str, int, np.ndarray | None, np.ndarray | None, list[bytes]]]:
+    """Per identity, in order: (identity, blocks found, embeddings, visibilities, crops as
+    PNG), computed here or in ``workers`` processes (each loads the models from their
+    files: torch in a forked child is not safe)."""
+    if workers is None:
+        workers = BUILD_WORKERS if len(identities) >= 50 else 1
+    paths = (getattr(detector, "path", None), getattr(embedder, "path", None))
+    jobs = list(enumerate(identities))
+    if workers <= 1 or not all(p and os.path.isfile(p) for p in paths):
+        _init_worker(world_path, overrides, camera, (detector, embedder))
+        try:
+            yield from map(_enrol_side, jobs)
+        finally:
+            _WORKER.clear()
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(
+        workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_init_worker,
+        initargs=(world_path, overrides, camera, paths),
+    ) as pool:
+        for side in pool.map(_enrol_side, jobs, chunksize=4):
+            versions = side[-1]
+            if versions != (detector.model_version, embedder.model_version):
+                raise RuntimeError(f"a build worker loaded other models: {versions}")
+            yield side[:-1]
+
+
+def _init_worker(
+    world_path: str, overrides: dict[str, str] | None, camera: dict | None, models: tuple
+) -> None:
+    """Load the world's data once, and the models (objects, or their weights files in a
+    worker process, one torch thread each)."""
+    from drivers.sim.world import load_world
+
+    worker = isinstance(models[0], str)
+    if worker:
+        from perception.detector import BlockDetector
+        from perception.embedder import BlockEmbedder
+
+        models = (
+            BlockDetector.load(models[0], threads=1),
+            BlockEmbedder.load(models[1], threads=1),
+        )
+    _WORKER.update(
+        data=load_world(world_path, look_overrides(overrides)).data,
+        world_path=world_path,
+        camera=camera,
+        detector=models[0],
+        embedder=models[1],
+        factors=tuple(float(f) for f in (camera or {}).get("white_balance", (1.0, 1.0, 1.0))),
+        worker=worker,  # a worker process: say which models it loaded
+    )
+
+
+def _enrol_side(job: tuple[int, str]) -> tuple:
+    """Render, detect and embed one side (in the process :func:`_init_worker` set up)."""
+    from perception.gallery_views import png_bytes
+
+    i, identity = job
+    w = _WORKER
+    frames = enrolment_frames(w["data"], w["world_path"], identity, w["camera"], 1000 + i)
+    crops = scan_blocks(frames, w["detector"], w["factors"])
+    out: tuple = (identity, len(crops), None, None, [])
+    if len(crops) >= 3:
+        emb = w["embedder"]
+        desc = emb.describe(crops)
+        vis = desc.visibility if emb.occlusion_aware else None
+        out = (identity, len(crops), desc.vectors, vis, [png_bytes(c) for c in crops])
+    if w["worker"]:
+        out += ((w["detector"].model_version, w["embedder"].model_version),)
+    return out
 
 
 def ensure_demo_gallery(
@@ -241,7 +440,7 @@ def ensure_demo_gallery(
         except (ImportError, OSError):  # no flock here: each builds its own (still atomic)
             pass
         if not os.path.exists(path):
-            identities = load_world(world_path).enrolled_identities()
+            identities = load_world(world_path, look_overrides(overrides)).enrolled_identities()
             log(
                 f"building the demo gallery ({len(identities)} pallet sides of "
                 f"{os.path.basename(world_path)}) in {path}"
