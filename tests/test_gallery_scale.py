@@ -224,3 +224,11 @@ def test_the_faster_enrolment_identifies_whole_scans_of_its_sides(tmp_path):
             crops = scan_blocks(scan_frames(world, side, s.camera, 7000 + i), det, s.factors)
             d = emb.describe(crops)
             assert g.match(d.vectors, visibility=d.visibility, crops=crops).pallet_id == side
+
+
+def test_gallery_commands_take_world_settings(capsys):
+    from bt_engine.cli import main
+
+    code = main(["gallery", "stats", "demo", "--rig", "rigs/aisle.yaml", "--set", "world.pallet_pool.count=many"])  # fmt: skip
+    assert code == 2
+    assert "pallet_pool.count: expected an integer" in capsys.readouterr().err

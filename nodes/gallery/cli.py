@@ -5,6 +5,7 @@
     btrun gallery list pallets.sqlite
     btrun gallery list site.sqlite --page 3 --per-page 100   # a page of a big gallery
     btrun gallery stats site.sqlite               # sides, pallets, views, model, size, dates
+    btrun gallery stats demo --rig rigs/aisle.yaml --set world.pallet_pool.count=2000  # 4,000 sides
     btrun gallery enrol pallets.sqlite 7A --crops b1.png b2.png b3.png   # three crops, left to right
     btrun gallery enrol pallets.sqlite 7A --run runs/20261122-101500      # what a flight scanned
     btrun gallery enrol pallets.sqlite 2B --world-side 2B                 # a rendered scan (simulator)
@@ -99,6 +100,14 @@ def setup(p: argparse.ArgumentParser) -> None:
         sp.add_argument("--embedder", default="", help="embedder weights (default: shipped)")
         sp.add_argument("--detector", default="", help="detector weights (default: shipped)")
         sp.add_argument(
+            "--set",
+            action="append",
+            default=[],
+            metavar="KEY=VALUE",
+            help="a rig or world.KEY setting, as in a mission run (world.pallet_pool.count=2000: "
+            "the demo gallery of a pool of 4,000 sides)",
+        )
+        sp.add_argument(
             "--store",
             default=None,
             metavar="URL",
@@ -130,7 +139,19 @@ def _session(args: argparse.Namespace) -> Any:
     from drivers.rig.loader import load_rig
     from nodes.perception_session import PerceptionSession
 
-    return PerceptionSession(load_rig(args.rig), log=print)
+    overrides = {}
+    for item in getattr(args, "set", None) or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise GalleryCommandError(f"--set {item}: expected KEY=VALUE")
+        overrides[key.strip()] = value.strip()
+    from drivers.settings import ConfigError
+
+    try:
+        rig = load_rig(args.rig, overrides or None)
+    except ConfigError as exc:
+        raise GalleryCommandError(str(exc)) from None
+    return PerceptionSession(rig, log=print)
 
 
 def _open(args: argparse.Namespace, create: bool = False) -> tuple[Any, Any]:
