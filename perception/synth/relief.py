@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from functools import lru_cache
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -38,8 +38,18 @@ from perception.synth import appearance as ap
 from perception.synth.appearance import EPAL, PalletGeometry, SideStyle
 from perception.synth.woodgen import smooth_noise
 
-if TYPE_CHECKING:
-    from perception.synth.scene import SceneLight
+
+class SceneLight(Protocol):
+    """What the shading reads of :class:`perception.synth.scene.SceneLight` (typed as a
+    protocol: the scene module imports this one)."""
+
+    ambient: float
+    lamps: tuple[tuple[tuple[float, float, float], float], ...]
+
+    def shade(self, centre: np.ndarray, normal: np.ndarray) -> float:
+        """Brightness factor of a flat surface at ``centre`` facing ``normal``."""
+        ...
+
 
 #: bump when the relief or its shading changes (caches of rendered galleries key on it)
 RELIEF_VERSION = 1
