@@ -15,6 +15,10 @@ issue 17, met or not. ``--json`` keeps every figure.
     .venv/bin/python bench/robustness.py --clean-unknown 400   # the non-enrolled target
     .venv/bin/python bench/robustness.py --markdown before.json after.json   # a docs table
     .venv/bin/python bench/robustness.py --no-texture          # the embedding alone decides
+    .venv/bin/python bench/robustness.py --flat-faces --only relit   # the renderer before
+                                                               # issue 28 (no relief)
+    .venv/bin/python bench/robustness.py --only relit --record r.json  # every scan's match,
+    .venv/bin/python bench/robustness.py --decide r.json --veto-z 0.5  # decided later
 """
 
 from __future__ import annotations
@@ -30,16 +34,19 @@ if __package__ in (None, ""):
 
 import torch
 
+import perception.robustness as robustness
 from perception.detector import BlockDetector
 from perception.embedder import BlockEmbedder
 from perception.robustness import (
     Pipeline,
     ageing_sequence,
     conditions,
+    decide,
     enrol_gallery,
     evaluate_condition,
     similar_never_absorbed,
 )
+from perception.synth import relief
 from perception.synth.dataset import identity_names
 from perception.verify import VerifyThresholds
 
@@ -134,12 +141,52 @@ def markdown(before_path: str, after_path: str) -> str:
     return "\n".join(lines)
 
 
+def decide_records(paths: list[str], th: VerifyThresholds) -> list[str]:
+    """Rows of recorded scans (``--record``) decided under ``th``: right / wrong / unknown
+    of the enrolled sides, never-enrolled accepted, and the answers left uncertain (see
+    :func:`perception.robustness.decide`)."""
+    recs = [r for p in paths for r in json.load(open(p, encoding="utf-8"))["records"]]
+    rows: dict[tuple[str, str], dict] = {}
+    for rec in recs:
+        row = rows.setdefault(
+            (rec["group"], rec["row"]),
+            {"right": 0, "wrong": 0, "unknown": 0, "known": 0, "acc": 0, "non": 0, "unsure": 0},
+        )
+        answer, sure = decide(rec, th)
+        row["unsure"] += int(not sure)
+        if rec["enrolled"]:
+            row["known"] += 1
+            ok = answer == rec["name"]
+            row["right" if ok else ("unknown" if answer == "unknown" else "wrong")] += 1
+        else:
+            row["non"] += 1
+            row["acc"] += int(answer != "unknown")
+    out = [f"thresholds {th}"]
+    for (group, name), r in rows.items():
+        k = max(1, r["known"])
+        out.append(
+            f"{group:<9} {name:<34} right {r['right']}/{r['known']} "
+            f"({100 * r['right'] / k:.1f} %) wrong {r['wrong']} unknown {r['unknown']}  "
+            f"non-enrolled accepted {r['acc']}/{r['non']}  uncertain {r['unsure']}"
+        )
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the table and print it."""
     if argv is None:
         argv = sys.argv[1:]
     if argv[:1] == ["--markdown"]:
         print(markdown(argv[1], argv[2]))
+        return 0
+    if argv[:1] == ["--decide"]:
+        dp = argparse.ArgumentParser(prog="robustness.py --decide")
+        dp.add_argument("paths", nargs="+")
+        for key, value in vars(VerifyThresholds()).items():
+            dp.add_argument(f"--{key.replace('_', '-')}", type=float, default=value)
+        a = vars(dp.parse_args(argv[1:]))
+        paths = a.pop("paths")
+        print("\n".join(decide_records(paths, VerifyThresholds(**a))))
         return 0
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--enrolled", type=int, default=100, help="enrolled sides per look")
@@ -160,14 +207,38 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="the embedding alone decides (no texture verification: the figures before it)",
     )
+    ap.add_argument(
+        "--flat-faces",
+        action="store_true",
+        help="faces without relief, one shade per face (the renderer before issue 28)",
+    )
+    ap.add_argument(
+        "--record",
+        default="",
+        help="write every scan's match here, verified but never accepted nor vetoed by the "
+        "texture (decide them under any thresholds with --decide)",
+    )
+    ap.add_argument(
+        "--validation",
+        action="store_true",
+        help="the texture calibration's validation pallets (vc*, seeds 30,000+) instead of "
+        "the bench's held-out ones (rb*, 9,000+)",
+    )
     ap.add_argument("--json", default="")
     args = ap.parse_args(argv)
+    if args.validation:
+        robustness.PREFIX, robustness.SEED0 = "vc", 30_000
     torch.set_num_threads(1)
+    relief.ENABLED = not args.flat_faces
+    never = VerifyThresholds(accept_z=float("inf"), margin_z=float("inf"), veto_z=-1e9)
     pipe = Pipeline(
         BlockDetector.load(args.detector, threads=1),
         BlockEmbedder.load(args.embedder, threads=1),
         texture=not args.no_texture,
+        verify_thresholds=never if args.record else None,
     )
+    if args.record:
+        pipe.records = []
     print(
         f"detector {pipe.detector.model_version}, embedder {pipe.embedder.model_version}, "
         f"thresholds {pipe.embedder.thresholds}, texture verification "
@@ -182,7 +253,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         key = cond.look
         if key not in galleries:
-            names = identity_names(args.enrolled, "rb")
+            names = identity_names(args.enrolled, robustness.PREFIX)
             g, n, _ = enrol_gallery(pipe, names, cond, args.seed)
             galleries[key] = (g, n)
         unknown = args.clean_unknown if cond.name == "clean" else args.unknown
@@ -198,6 +269,9 @@ def main(argv: list[str] | None = None) -> int:
         )
         r["seconds"] = round(time.perf_counter() - t, 1)
         rows.append(r)
+        if args.record:  # after every row: a long run stopped early keeps what it did
+            with open(args.record, "w", encoding="utf-8") as f:
+                json.dump({"args": vars(args), "records": pipe.records}, f)
     extra = {}
     log = lambda s: print(s, flush=True)  # noqa: E731
     if args.ageing:
@@ -220,6 +294,7 @@ def main(argv: list[str] | None = None) -> int:
                     "thresholds": list(vars(pipe.embedder.thresholds).values()),
                     "texture": None if args.no_texture else vars(VerifyThresholds()),
                     "args": vars(args),
+                    "relief": relief.RELIEF_VERSION if relief.ENABLED else None,
                     "rows": rows,
                     "extra": extra,
                 },

@@ -30,15 +30,23 @@ from typing import Any
 import numpy as np
 
 from perception.gallery import Gallery, Match
+from perception.gallery_match import TEXTURE_TOP_RANK
 from perception.gallery_views import png_bytes
 from perception.sequencer import Detection
 from perception.synth.ageing import Ageing, progressive
 from perception.synth.appearance import EPAL, SideStyle, split_identity
 from perception.synth.camera_model import CameraModel, CameraPose
-from perception.synth.dataset import _block_centre_z, _scene, _wb_factors, identity_names
+from perception.synth.dataset import (
+    NOMINAL_LIGHT,
+    _block_centre_z,
+    _scene,
+    _wb_factors,
+    identity_names,
+)
 from perception.synth.render import SensorModel, block_boxes
+from perception.synth.scene import SceneLight
 from perception.synth.views import ViewConditions, develop, take_frame
-from perception.verify import VerifyThresholds
+from perception.verify import VerifyThresholds, agreement
 
 #: identity prefix and first texture seed of the bench's pallets (never trained on)
 PREFIX, SEED0 = "rb", 9000
@@ -54,7 +62,9 @@ class Condition:
 
     ``look``: :class:`SideStyle` keywords the side has at enrolment and at the scan;
     ``ageing``: changes between the two (scan only); ``distance_m``, ``yaw_deg``: the
-    scan's view; ``view``: its light, optics and sensor.
+    scan's view; ``view``: its light, optics and sensor; ``light``: the scene's lamps at
+    the scan (None: the enrolment's, :data:`perception.synth.dataset.NOMINAL_LIGHT`; the
+    faces' relief shows another shading under other lamps).
     """
 
     group: str
@@ -64,6 +74,19 @@ class Condition:
     distance_m: float = STANDOFF_M
     yaw_deg: float = 0.0
     view: ViewConditions = field(default_factory=ViewConditions)
+    light: SceneLight | None = None
+
+
+#: lamp layouts of the "relit" rows (the enrolment's: one lamp 1.5 m in front, 4 m high)
+RELIT: dict[str, SceneLight] = {
+    "relit (lamp left)": SceneLight(0.6, (((-1.2, 2.5, 2.5), 1.0),), 4000.0),
+    "relit (lamp right, low)": SceneLight(0.6, (((-1.8, -2.0, 0.9), 1.0),), 4000.0),
+    "relit (two lamps, less ambient)": SceneLight(
+        0.45, (((-0.8, 1.0, 3.0), 0.8), ((-0.8, -1.5, 3.0), 0.8)), 4000.0
+    ),
+}
+#: grain contrast of the "faint grain" rows
+FAINT_GRAIN = 0.2
 
 
 def _c(group: str, name: str, **kw: Any) -> Condition:
@@ -83,6 +106,10 @@ def conditions() -> list[Condition]:
     out.append(_c("faces", "other generator (plank)", look={"generator": "plank"}))
     out.append(_c("faces", "stencil marking", look={"marking": "stencil"}))
     out.append(_c("faces", "paper labels", look={"marking": "label"}))
+    faint = {"grain": FAINT_GRAIN}
+    out.append(_c("faces", "faint grain", look=faint))
+    out.append(_c("faces", "faint grain, grey", look={**faint, "wood": "grey"}))
+    out.append(_c("faces", "faint grain, new stains 12%", look=faint, ageing=Ageing(stains=0.12)))
     for f in (0.07, 0.12, 0.2):
         out.append(_c("ageing", f"new stains {f:.0%}", ageing=Ageing(stains=f)))
     for f in (0.12, 0.25):
@@ -105,6 +132,11 @@ def conditions() -> list[Condition]:
         out.append(_c("distance", f"{d:.2f} m", distance_m=d))
     for y in (15, 30):
         out.append(_c("yaw", f"{y} deg", yaw_deg=float(y)))
+    for name, light in RELIT.items():
+        out.append(_c("relit", name, light=light))
+    out.append(
+        _c("relit", "relit (lamp left), faint grain", look=faint, light=RELIT["relit (lamp left)"])
+    )
     for name, view in (
         ("exposure 0.5", ViewConditions(exposure=0.5)),
         ("exposure 2.0", ViewConditions(exposure=2.0)),
@@ -166,6 +198,7 @@ class Pipeline:
         self.texture = texture  # verify matches on the blocks' texture (perception.verify)
         self.verify_thresholds = verify_thresholds
         self.matches: list[tuple[str, bool, Match]] | None = None  # (name, enrolled, match)
+        self.records: list[dict] | None = None  # scan_record() of every match
 
     def scan(
         self,
@@ -176,11 +209,13 @@ class Pipeline:
         yaw_deg: float = 0.0,
         view: ViewConditions | None = None,
         jitter: bool = True,
+        light: SceneLight | None = None,
     ) -> SideScan:
-        """Three views of a side, one aimed at each block, through the detector."""
+        """Three views of a side, one aimed at each block, through the detector
+        (``light``: the scene's lamps, default the nominal ones)."""
         pallet_id, side = split_identity(identity)
         base_z = 0.194
-        scene = _scene(pallet_id, side, style, base_z)
+        scene = _scene(pallet_id, side, style, base_z, light or NOMINAL_LIGHT)
         out = SideScan([])
         for k, offset in enumerate(EPAL.block_offsets_m()):
             j = (lambda s: float(rng.uniform(-s, s))) if jitter else (lambda s: 0.0)
@@ -335,6 +370,7 @@ def evaluate_condition(
             cond.distance_m,
             cond.yaw_deg,
             cond.view if cond.view != ViewConditions() else None,
+            light=cond.light,
         )
         res["sides"] += 1
         res["all3"] += int(scan.found == 3)
@@ -348,6 +384,8 @@ def evaluate_condition(
             answer = m.pallet_id
             if pipe.matches is not None:
                 pipe.matches.append((name, known, m))
+            if pipe.records is not None:
+                pipe.records.append(scan_record(cond, name, known, m))
         if known:
             key = "right" if answer == name else ("unknown" if answer == "unknown" else "wrong")
             res[key] += 1
@@ -450,6 +488,46 @@ def similar_never_absorbed(
     return res
 
 
+def scan_record(cond: Condition, name: str, known: bool, m: Match) -> dict:
+    """What :func:`decide` needs of one scan's match made with verification that never
+    accepts nor vetoes (the embedding's own answer and the texture's figures)."""
+    ids = [r[0] for r in m.ranking]
+    tid = m.texture_id
+    return {
+        "group": cond.group,
+        "row": cond.name,
+        "name": name,
+        "enrolled": known,
+        "embedding": m.pallet_id,
+        "texture_id": tid,
+        "texture_z": m.texture_z,
+        "texture_margin": m.texture_margin,
+        "agreement": agreement(m.texture_blocks) if m.texture_blocks else None,
+        "texture_rank": ids.index(tid) if tid in ids else None,
+    }
+
+
+def decide(rec: dict, th: VerifyThresholds) -> tuple[str, bool]:
+    """The answer :meth:`Gallery.match` gives a recorded scan under ``th`` (the rule of
+    docs/perception.md, "Texture verification"), and whether it is certain: when the
+    texture prefers another side than the embedding's answer, that answer's own ``z`` is
+    not recorded, only that it is below the best one (the veto is then uncertain when the
+    best ``z`` reaches ``veto_z``)."""
+    emb, tid, tz = rec["embedding"], rec["texture_id"], rec["texture_z"]
+    if tid is None or tz is None:
+        return emb, True
+    rank = rec["texture_rank"]
+    near = rank is not None and rank < TEXTURE_TOP_RANK
+    agree = rec["agreement"] if rec["agreement"] is not None else float("-inf")
+    if tz >= th.accept_z and rec["texture_margin"] >= th.margin_z and agree >= th.block_z and near:
+        return (tid, True) if emb in ("unknown", tid) else ("unknown", True)
+    if emb == "unknown":
+        return emb, True
+    if tid == emb:
+        return (emb, True) if tz >= th.veto_z else ("unknown", True)
+    return ("unknown", True) if tz < th.veto_z else (emb, False)
+
+
 def format_row(r: dict) -> str:
     """One line of the table."""
     return (
@@ -462,13 +540,17 @@ def format_row(r: dict) -> str:
 
 __all__ = [
     "Condition",
+    "FAINT_GRAIN",
     "Pipeline",
+    "RELIT",
     "SideScan",
     "ageing_sequence",
     "conditions",
+    "decide",
     "enrol_gallery",
     "evaluate_condition",
     "format_row",
+    "scan_record",
     "side_style",
     "similar_never_absorbed",
 ]
