@@ -240,7 +240,10 @@ class PerceptionSession:
                     f"gallery '{spec}' does not exist: enrol pallets first "
                     "(missions/enroll_pallet.xml or btrun gallery enrol), or use gallery=demo"
                 )
-            g.matrix()  # read the embeddings now, on the ground, not at the first identification
+            # read the embeddings and build the search index now, on the ground, not at the
+            # first identification
+            aware = getattr(embedder, "occlusion_aware", False)
+            g.prepare_search(embedder.config.parts if aware else 1)
         except GalleryError as exc:
             raise PerceptionError(f"gallery: {exc}") from None
         self._galleries[key] = g

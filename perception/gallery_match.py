@@ -124,6 +124,13 @@ class MatchingMixin:
         self._rows[parts] = _Rows(ids, all_rows, owner, vis, index)
         return self._rows[parts]
 
+    def prepare_search(self, parts: int = 1) -> None:
+        """Read every view and build the search index now (before flight: 40,000 sides take
+        seconds) for queries with ``parts`` stripe visibilities per block (1: none)."""
+        self._check_changed()
+        if self.matrix()[0]:
+            self._all_rows(parts)
+
     def _check_changed(self) -> None:
         """Forget the vectors and crops in memory when another connection (another process:
         an enrolment, a flight adding a view) committed a change to the file since they
