@@ -33,7 +33,7 @@ from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulAction
 from bt_engine.ports import ANY, DURATION, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from nodes.common import is_realtime, vehicle_of
-from nodes.identify import expected_for, identify_scan
+from nodes.identify import expected_for, identify_described
 from nodes.inventory import CATEGORY_INVENTORY, world_of
 from nodes.inventory_log import EMPTY, IDENTIFIED, NOT_SCANNED, UNKNOWN, InventoryLog
 from nodes.perception_feed import FrameFeed
@@ -42,9 +42,11 @@ from nodes.place_evidence import write_place_evidence
 from nodes.sweep_plan import footprints, geofence_inside, route, sweep_plan_of
 
 FIXED_YAW = 2
-#: an unknown answer whose best distance is within this factor of the gallery's threshold is
-#: rescanned rather than answered (validation seeds: docs/performance.md, Sweep)
-RESCAN_DISTANCE_FACTOR = 1.25
+#: an unknown answer whose best distance is within this factor of the gallery's distance
+#: threshold (it failed on the margin or the texture: an enrolled pallet seen badly, or a
+#: close impostor) is rescanned rather than answered; farther, it is a pallet the gallery
+#: does not know (validation seeds: docs/performance.md, Sweep)
+RESCAN_DISTANCE_FACTOR = 1.0
 
 
 def _round(v: Any, nd: int = 4) -> Any:
@@ -65,7 +67,7 @@ class SweepPass(StatefulActionNode):
         input_port("pass", STRING, description="pass name (PlanSweep's passes, e.g. A/2)"),
         input_port("gallery", STRING, DEMO, "gallery file (.sqlite) or demo"),
         input_port("speed", FLOAT, 0.8, "speed along the pass, m/s"),
-        input_port("standoff", FLOAT, 0.6, "distance from the pallet faces, m"),
+        input_port("standoff", FLOAT, 0.45, "distance from the pallet faces, m"),
         input_port("transit_speed", FLOAT, 1.0, "speed to the pass start, m/s"),
         input_port("lead", FLOAT, 0.5, "start this far before the first block, m"),
         input_port("detector", STRING, "", "detector weights file (empty: the shipped model)"),
@@ -84,6 +86,30 @@ class SweepPass(StatefulActionNode):
         output_port("answered", INT, "places this pass answered"),
         output_port("rescan", ANY, "places left for the per-place scan (LoopString's queue)"),
     )
+
+    #: the values a pass can fly with: (port, low, high, what it is)
+    LIMITS = (
+        ("speed", 0.02, 2.0, "a speed along the pass in m/s"),
+        ("standoff", 0.2, 1.5, "a stand-off from the faces in m"),
+        ("transit_speed", 0.05, 3.0, "a transit speed in m/s"),
+        ("lead", 0.0, 3.0, "a run-up in m"),
+        ("host_frame_time", 0.0, 5.0, "a time per frame in s"),
+    )
+
+    def preflight(self) -> list[Any]:
+        """Speeds, stand-off, run-up and emulated frame time outside what a pass can fly
+        (from the mission, its inputs or ``--set``), before anything flies."""
+        out: list[Any] = []
+        for port, lo, hi, what in self.LIMITS:
+            try:
+                value = self.get_input(port)
+            except Exception:  # noqa: BLE001 - written in flight: checked then
+                continue
+            if value is None or not isinstance(value, (int, float)):
+                continue
+            if not (math.isfinite(value) and lo <= value <= hi):
+                out.append((port, f"{port} {value!r}: expected {what}, {lo:g} to {hi:g}"))
+        return out
 
     # -- start -------------------------------------------------------------------------------
     def on_start(self) -> NodeStatus:
@@ -278,7 +304,7 @@ class SweepPass(StatefulActionNode):
                 raise error
             th = self.gallery.thresholds
             near = match.distance <= th.max_distance * RESCAN_DISTANCE_FACTOR
-            if not match.known and near:
+            if not match.known and near and not match.verified_expected:
                 self._to_rescan(w, f"unsure: {match.reason} (closest {match.best_id})")
                 continue
             status = IDENTIFIED if match.known else UNKNOWN
@@ -297,12 +323,16 @@ class SweepPass(StatefulActionNode):
                 "blocks_seen": w.blocks_seen,
                 "mission_time_s": round(self.now(), 2),
                 "reason": reason or None,
+                "decided_by": (match.decided_by or None)
+                if match is not None and match.known
+                else None,
             }
         )
         if status != NOT_SCANNED:
             self.answered += 1
             self.set_output("answered", self.answered)
-        self.ctx.log(f"inventory {row['place']}: {answer or '-'} ({status}; sweep)")
+        states = ",".join(getattr(w, "states", []) or [])
+        self.ctx.log(f"inventory {row['place']}: {answer or '-'} ({status}; sweep; {states})")
         run_dir = self.ctx.resources.get("run_dir")
         if run_dir and status != NOT_SCANNED:
             ranking = [(r[0], r[1]) for r in (match.ranking if match is not None else [])]
@@ -362,7 +392,7 @@ class _Identifications:
 
     def _identify(self, w: Any) -> tuple[Any, Any, BaseException | None]:
         try:
-            return w, identify_crops(self.leaf, w.ordered_crops(), w.name), None
+            return w, identify_views(self.leaf, w.ordered_views(), w.name), None
         except BaseException as exc:  # handed to the tick thread
             return w, None, exc
 
@@ -384,19 +414,34 @@ class _Identifications:
         return self.done()
 
 
-def identify_crops(leaf: SweepPass, crops: list, place: str) -> Any:
-    """Embed three crops and match them against the pass's gallery with the gallery's
+def identify_views(leaf: SweepPass, place_views: list[list], place: str) -> Any:
+    """Embed the views of a place's three blocks (``place_views``: per block its crops,
+    best first), average each block's views (:func:`perception.sweep.fuse_views`) and match
+    them against the pass's gallery with the gallery's
     thresholds and texture verification, verifying 1:1 first against the pallet the expected
     stock names for ``place`` (:func:`nodes.identify.identify_scan`, as IdentifyPallet
     does); the match. The session
     keeps the identification for the report."""
     from perception.errors import ModelError
     from perception.gallery import GalleryError
+    from perception.sweep import fuse_views
 
     session, embedder, g = leaf.session, leaf.embedder, leaf.gallery
+    views = [v for v in place_views if v]
+    crops = [v[0] for v in views]
     try:
-        match = identify_scan(
-            g, embedder, crops, g.thresholds, expected=expected_for(leaf.ctx, place), top_k=5
+        desc = embedder.describe([c for v in views for c in v])
+        vectors, vis = fuse_views(
+            desc.vectors, desc.visibility, [len(v) for v in views], embedder.config.parts
+        )
+        match = identify_described(
+            g,
+            vectors,
+            vis if embedder.occlusion_aware else None,
+            crops,
+            g.thresholds,
+            expected=expected_for(leaf.ctx, place),
+            top_k=5,
         )
     except (GalleryError, ModelError) as exc:
         raise PerceptionError(f"identification at {place}: {exc}") from None
@@ -417,6 +462,7 @@ def identify_crops(leaf: SweepPass, crops: list, place: str) -> Any:
             "expected": match.expected,
             "verified_expected": match.verified_expected,
             "place": place,
+            "crops": crops,
         }
     )
     return match

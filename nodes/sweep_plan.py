@@ -77,6 +77,12 @@ class Footprint:
                 return False
         return True
 
+    def distance(self, p: tuple[float, float]) -> float:
+        """How far a floor point is outside the footprint along the rack's axes (the
+        largest grow :meth:`crosses` can use with it; 0 inside)."""
+        a, i = self.local(p)
+        return max(-a, a - self.length, -i, i - self.depth, 0.0)
+
     def corners(self, grow: float) -> list[tuple[float, float]]:
         """The footprint's corners, pushed out by ``grow``."""
         return [
@@ -119,9 +125,14 @@ def route(
     outside the flying area (the geofence). Heights go linearly from start to goal. None if
     no route exists."""
     a, b = (start[0], start[1]), (goal[0], goal[1])
+    # a start or goal nearer a rack than the clearance (a scan point in front of a face) may
+    # be left or reached: that rack's clearance shrinks to what they leave
+    grown = [
+        (r, max(0.0, min(clearance, r.distance(a) - 0.02, r.distance(b) - 0.02))) for r in racks
+    ]
 
     def free(p: tuple[float, float], q: tuple[float, float]) -> bool:
-        return not any(r.crosses(p, q, clearance) for r in racks)
+        return not any(r.crosses(p, q, g) for r, g in grown)
 
     if free(a, b):
         return [tuple(goal)]  # type: ignore[list-item]

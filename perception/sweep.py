@@ -54,9 +54,20 @@ class SweepParams:
     #: a slot counts as looked at in a frame when it projects this close to the image's
     #: vertical centre line and inside the image, px
     look_px: float = 70.0
+    #: a block sighted from camera positions at least this far apart ...
+    parallax_baseline_m: float = 0.08
+    #: ... whose face-plane position moves by at most this fraction of the camera's motion
+    #: stands on the face plane (a block 0.4 m deeper at a 0.45 m stand-off moves by 0.47)
+    parallax_max_slope: float = 0.3
+    #: only boxes centred this close to the image's vertical centre line are matched to a
+    #: slot: a block seen square on. Off to the side, the blocks of a neighbour's short face
+    #: (0.4 and 0.8 m deeper) would project onto the face plane where an empty place's slots
+    #: are. Boxes anywhere in the image that land on no slot are strays, kept for the
+    #: parallax test (a pallet far off its place is not empty), px
+    central_px: float = 45.0
     #: frames are wanted while a slot without a good crop projects this close to the image
     #: centre line, px
-    want_px: float = 24.0
+    want_px: float = 40.0
     #: a crop is taken only from a box at least this far from the image's left and right
     #: borders (a cut box is a partial block), px
     border_px: float = 3.0
@@ -66,6 +77,12 @@ class SweepParams:
     finish_after_m: float = 0.25
     #: emulated processing time per frame of the host (lock-step only; 0: none dropped), s
     host_frame_s: float = 0.0
+    #: crops kept per block slot (their embeddings are averaged: several views of a block
+    #: from a moving camera are steadier than the best one alone)
+    views: int = 3
+    #: a slot keeps wanting frames until it was sighted this many times (the parallax test
+    #: needs two sightings a baseline apart)
+    want_views: int = 3
 
 
 @dataclass
@@ -88,22 +105,86 @@ class PlaceWatch:
     along_m: float  # the place's centre along the pass line
     slots: np.ndarray  # (3, 3) world points of the block centres, left to right along the pass
     normal: np.ndarray  # (3,) out of the face, towards the aisle
-    crops: list[SlotCrop | None] = field(default_factory=lambda: [None, None, None])
+    #: per slot, its best crops, best first (at most ``SweepParams.views`` each)
+    crops: list[list[SlotCrop]] = field(default_factory=lambda: [[], [], []])
     looked: list[int] = field(default_factory=lambda: [0, 0, 0])
+    #: per slot, every matched sighting: (camera along the pass, the box centre's ray on the
+    #: face plane, along the pass), m. A block on the face plane stays put as the camera
+    #: moves; something deeper (seen through an empty place) slides with it (parallax)
+    hits: list[list[tuple[float, float]]] = field(default_factory=lambda: [[], [], []])
     stray: int = 0  # plausible blocks on the place's face that matched no slot
+    #: their sightings (camera along, face-plane along), for the parallax test
+    stray_hits: list[tuple[float, float]] = field(default_factory=list)
     outcome: str = ""
     reason: str = ""
+    states: list[str] = field(default_factory=list)
 
     @property
     def blocks_seen(self) -> int:
         """Slots with a crop."""
-        return sum(c is not None for c in self.crops)
+        return sum(bool(c) for c in self.crops)
+
+    def slot_state(self, k: int, max_slope: float, min_baseline_m: float) -> str:
+        """``block`` (sightings that stay put on the face plane as the camera moves),
+        ``deep`` (they slide with the camera: something behind the face plane), ``single``
+        (too short a baseline to tell) or ``none`` (also when the sightings never spanned the
+        baseline in four or more looks: a flicker; a block on the face is seen from every
+        camera position it is in view of)."""
+        state = hits_state(self.hits[k], max_slope, min_baseline_m)
+        if state == "single" and self.looked[k] >= 4:
+            return "none"
+        return state
+
+    def stray_blocks(self, max_slope: float, min_baseline_m: float) -> int:
+        """Blocks off every slot that stand on the face plane (a pallet far off its place):
+        sightings within 4 cm of each other on the face plane, from camera positions at
+        least ``min_baseline_m`` apart but never more than 15 cm of travel from the next
+        (the same thing seen in nearby frames, not two things that happen to project to the
+        same spot from far apart). Things behind the face slide with the camera."""
+        hits = sorted(self.stray_hits, key=lambda h: h[1])
+        groups: list[list[tuple[float, float]]] = []
+        for h in hits:
+            if groups and h[1] - groups[-1][0][1] <= 0.04:
+                groups[-1].append(h)
+            else:
+                groups.append([h])
+
+        def runs(g: list[tuple[float, float]]) -> list[list[tuple[float, float]]]:
+            out: list[list[tuple[float, float]]] = []  # sightings from nearby camera positions
+            for h in sorted(g):
+                if out and h[0] - out[-1][-1][0] <= 0.15:
+                    out[-1].append(h)
+                else:
+                    out.append([h])
+            return out
+
+        return sum(
+            any(
+                len(r) >= 2 and hits_state(r, max_slope, min_baseline_m) == "block" for r in runs(g)
+            )
+            for g in groups
+        )
 
     def ordered_crops(self) -> list[np.ndarray]:
         """The crops in the order a scan commits them and the gallery enrols them: right to
         left in the image (a scan moves the camera to its left, so the blocks cross the
         image centre from the right-most one on)."""
-        return [c.crop for c in reversed(self.crops) if c is not None]
+        return [c[0].crop for c in reversed(self.crops) if c]
+
+    def ordered_views(self) -> list[list[np.ndarray]]:
+        """Every kept crop per block, blocks in :meth:`ordered_crops`' order."""
+        return [[v.crop for v in c] for c in reversed(self.crops)]
+
+
+def hits_state(hits: list[tuple[float, float]], max_slope: float, min_baseline_m: float) -> str:
+    """See :meth:`PlaceWatch.slot_state`."""
+    if not hits:
+        return "none"
+    cams = [h[0] for h in hits]
+    if max(cams) - min(cams) < min_baseline_m:
+        return "single"
+    slope = float(np.polyfit(cams, [h[1] for h in hits], 1)[0])
+    return "block" if abs(slope) <= max_slope else "deep"
 
 
 @dataclass(frozen=True)
@@ -165,9 +246,13 @@ class SweepCollector:
         return [w for w in self.watches if not w.outcome]
 
     # -- which frames ------------------------------------------------------------------------
-    def _near(self, pose: CameraPose, reach_m: float = 2.0) -> list[PlaceWatch]:
+    def _near(
+        self, pose: CameraPose, reach_m: float = 2.0, finished: bool = False
+    ) -> list[PlaceWatch]:
         s = self.along(pose.position)
-        return [w for w in self.watches if not w.outcome and abs(w.along_m - s) <= reach_m]
+        return [
+            w for w in self.watches if (finished or not w.outcome) and abs(w.along_m - s) <= reach_m
+        ]
 
     def _columns(self, pose: CameraPose, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         R, t = world_to_optical(self.camera, pose)
@@ -187,7 +272,7 @@ class SweepCollector:
         for w in self._near(pose):
             u, depth = self._columns(pose, w.slots)
             for k in range(3):
-                if depth[k] <= 0.05 or w.crops[k] is not None:
+                if depth[k] <= 0.05 or self._sighted(w.hits[k]):
                     continue
                 if abs(u[k] - self.camera.cx) <= self.params.want_px:
                     want = True
@@ -202,6 +287,13 @@ class SweepCollector:
             self._last_want = pose
             self._busy_until = t_s + self.params.host_frame_s
         return want
+
+    def _sighted(self, hits: list[tuple[float, float]]) -> bool:
+        """Enough sightings of a slot: ``want_views`` of them, a parallax baseline apart."""
+        if len(hits) < self.params.want_views:
+            return False
+        cams = [h[0] for h in hits]
+        return max(cams) - min(cams) >= self.params.parallax_baseline_m
 
     # -- what a frame shows ------------------------------------------------------------------
     def add(
@@ -218,16 +310,20 @@ class SweepCollector:
         h, w_px = bgr.shape[:2]
         R, t = world_to_optical(cam, pose)
         centre = pose.position
-        near = self._near(pose)
+        near = self._near(pose, finished=True)  # a finished place still owns its blocks
         for w in near:
+            if w.outcome:
+                continue
             u, depth = self._columns(pose, w.slots)
             for k in range(3):
                 if depth[k] > 0.05 and abs(u[k] - cam.cx) <= self.params.look_px:
                     w.looked[k] += 1
         for det in dets:
+            central = abs(det.cx - cam.cx) <= self.params.central_px
             cy = 0.5 * (det.y1 + det.y2)
             ray = R.T @ np.array([(det.cx - cam.cx) / cam.fx, (cy - cam.cy) / cam.fx, 1.0])
             best: tuple[float, PlaceWatch, int, float] | None = None
+            stray: tuple[float, PlaceWatch, float] | None = None
             for w in near:
                 denom = float(w.normal @ ray)
                 if denom >= -1e-6:  # the ray does not meet the face from the front
@@ -247,13 +343,21 @@ class SweepCollector:
                 errs = [abs(along - self.along(s)) for s in w.slots]
                 k = int(np.argmin(errs))
                 if errs[k] <= self.params.match_along_m:
-                    if best is None or errs[k] < best[3]:
+                    if best is None or errs[k] < best[0]:
                         best = (errs[k], w, k, along - self.along(w.slots[k]))
-                elif min(errs) <= 0.45:  # on this place's face, but on no slot
-                    w.stray += 1
+                elif min(errs) <= 0.45 and (stray is None or min(errs) < stray[0]):
+                    stray = (min(errs), w, along)  # on this place's face, but on no slot
             if best is None:
+                if stray is not None and not stray[1].outcome:  # on no place's slot
+                    stray[1].stray += 1
+                    stray[1].stray_hits.append((self.along(centre), stray[2]))
+                continue
+            if not central:  # off to the side: only a stray's evidence, never a slot's
                 continue
             _, w, k, err = best
+            if w.outcome:
+                continue
+            w.hits[k].append((self.along(centre), self.along(w.slots[k]) + err))
             if det.x1 <= self.params.border_px or det.x2 >= w_px - 1 - self.params.border_px:
                 continue
             crop = _crop(bgr, det)
@@ -261,10 +365,11 @@ class SweepCollector:
                 continue
             centred = 1.0 / (1.0 + abs(det.cx - cam.cx) / 40.0)
             q = max(det.score, 0.0) * (1.0 + sharpness(crop)) * centred
-            cur = w.crops[k]
-            if cur is None or q > cur.quality:
-                box = (det.x1, det.y1, det.x2, det.y2, det.score)
-                w.crops[k] = SlotCrop(crop, q, frame_index, t_s, box, err)
+            box = (det.x1, det.y1, det.x2, det.y2, det.score)
+            kept = w.crops[k]
+            kept.append(SlotCrop(crop, q, frame_index, t_s, box, err))
+            kept.sort(key=lambda c: -c.quality)
+            del kept[self.params.views :]
         del h
 
     # -- finishing places --------------------------------------------------------------------
@@ -291,11 +396,22 @@ class SweepCollector:
         return out
 
     def _decide(self, w: PlaceWatch, why: str = "") -> None:
+        p = self.params
+        states = [w.slot_state(k, p.parallax_max_slope, p.parallax_baseline_m) for k in range(3)]
+        w.states = states
         n = w.blocks_seen
-        if n == 3:
+        if n == 3 and "deep" not in states:
             w.outcome, w.reason = IDENTIFY, ""
-        elif n == 0 and w.stray == 0 and all(k > 0 for k in w.looked):
-            w.outcome, w.reason = EMPTY, "no support block on the place's face in the pass"
+        elif (
+            all(st in ("none", "deep") for st in states)
+            and w.stray_blocks(p.parallax_max_slope, p.parallax_baseline_m) == 0
+            and all(k > 0 for k in w.looked)
+        ):
+            w.outcome = EMPTY
+            deep = states.count("deep")
+            w.reason = "no support block on the place's face in the pass" + (
+                f" ({deep} seen behind it)" if deep else ""
+            )
         else:
             w.outcome = RESCAN
             if why and not all(k > 0 for k in w.looked):
@@ -305,7 +421,33 @@ class SweepCollector:
             elif n == 0:
                 w.reason = f"{w.stray} block sightings off the expected slots"
             else:
-                w.reason = f"{n} of 3 blocks seen in the pass"
+                w.reason = f"{n} of 3 blocks seen in the pass ({', '.join(states)})"
+
+
+def fuse_views(
+    vectors: np.ndarray, visibility: np.ndarray, counts: list[int], parts: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """One descriptor per block from several views: ``vectors`` (sum(counts), dim) are the
+    embedder's rows (per-stripe unit vectors, concatenated and scaled by 1/sqrt(parts)),
+    ``counts`` how many consecutive rows belong to each block. Each stripe is the
+    visibility-weighted mean of its views, normalised again; the visibility the mean of
+    the views'. Returns (blocks, dim) and (blocks, parts)."""
+    vecs, vis = np.asarray(vectors, np.float32), np.asarray(visibility, np.float32)
+    dim = vecs.shape[1]
+    out_v = np.zeros((len(counts), dim), np.float32)
+    out_s = np.zeros((len(counts), parts), np.float32)
+    start = 0
+    for b, n in enumerate(counts):
+        v = vecs[start : start + n].reshape(n, parts, dim // parts)
+        s = vis[start : start + n]
+        w = s[:, :, None] + 1e-3
+        m = (v * w).sum(axis=0)
+        norm = np.linalg.norm(m, axis=1, keepdims=True)
+        m = m / np.where(norm < 1e-9, 1.0, norm)
+        out_v[b] = (m / np.sqrt(parts)).reshape(dim)
+        out_s[b] = s.mean(axis=0)
+        start += n
+    return out_v, out_s
 
 
 def _crop(image: np.ndarray, det: Detection) -> np.ndarray:
