@@ -72,13 +72,14 @@ CANONICAL_LINE = {"x_m": 8.90, "y_from_m": -0.75, "y_to_m": 0.65, "yaw_deg": 0.0
 
 
 def canonical_world_data(data: dict, identity: str) -> dict:
-    """The world of an enrolment scan: ``identity`` alone in the canonical slot (the
-    world's pallets, geometry, lighting and floor; no other pallet, no obstacle, no placement
-    error), as it looked when enrolled (no ageing)."""
-    import copy
-
+    """The world of an enrolment scan: ``identity`` alone in the canonical slot (its
+    pallet, the world's geometry, lighting, floor and racks; no other pallet, no obstacle,
+    no placement error), as it looked when enrolled (no ageing)."""
     g = data["pallet_geometry"]
-    out = copy.deepcopy(data)
+    out = dict(data)  # what changes is replaced below, the rest is shared (a pool of
+    # thousands of pallets: a deep copy per side took a second)
+    pallet_id = identity[:-1]
+    out["pallets"] = [p for p in data["pallets"] if str(p["id"]) == pallet_id]
     base_z = CANONICAL_ROW_Z_M - g["board_m"] - g["block_height_m"] / 2.0
     out["scan_slot"] = dict(CANONICAL_SLOT, z_m=base_z)
     out["scan_pallet"] = identity
@@ -92,15 +93,18 @@ def canonical_world_data(data: dict, identity: str) -> dict:
 
 def unaged(data: dict) -> dict:
     """The world's pallets as they were enrolled: every ``age`` (since enrolment) at 0."""
-    import copy
-
-    out = copy.deepcopy(data)
+    out = dict(data)  # new pallet and side dicts where the age changes; ``data`` untouched
     out["pallet_look"] = dict(out.get("pallet_look") or {}, age=0.0)
-    for p in out.get("pallets") or []:
-        for s in (p.get("sides") or {}).values():
-            if isinstance(s, dict):
-                s["age"] = 0.0
+    out["pallets"] = [_unaged_pallet(p) for p in out.get("pallets") or []]
     return out
+
+
+def _unaged_pallet(pallet: dict) -> dict:
+    sides = pallet.get("sides")
+    if not isinstance(sides, dict):
+        return pallet
+    unaged_sides = {k: dict(v, age=0.0) if isinstance(v, dict) else v for k, v in sides.items()}
+    return dict(pallet, sides=unaged_sides)
 
 
 def appearance_key(data: dict) -> bytes:
