@@ -386,6 +386,12 @@ def evaluate_condition(
                 pipe.matches.append((name, known, m))
             if pipe.records is not None:
                 pipe.records.append(scan_record(cond, name, known, m))
+        elif pipe.records is not None:  # a block not found: unknown under any thresholds
+            pipe.records.append(
+                {"group": cond.group, "row": cond.name, "name": name, "enrolled": known}
+                | dict.fromkeys(("texture_id", "texture_z", "texture_margin"))
+                | {"embedding": "unknown", "agreement": None, "texture_rank": None}
+            )
         if known:
             key = "right" if answer == name else ("unknown" if answer == "unknown" else "wrong")
             res[key] += 1
