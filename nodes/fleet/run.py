@@ -29,7 +29,7 @@ from drivers.settings import ConfigError
 from nodes.fleet.plan import split_places
 from nodes.fleet.spec import FleetSpec, load_fleet
 from nodes.inventory import resolve_places
-from nodes.inventory_log import InventoryError, InventoryLog, discrepancy_lines
+from nodes.inventory_log import InventoryError, InventoryLog, discrepancy_lines, pace, pace_line
 
 DRONE_CONTACT_M = 0.12  # two Crazyflie collision spheres (2 x 0.06 m) touch
 
@@ -341,6 +341,9 @@ def _summary(
         }
     statuses = [d["status"] for d in drones.values()]
     mission_time = max((d["mission_time_s"] for d in drones.values()), default=0.0)
+    inventory = merged.run_summary() if merged.planned else None
+    if inventory is not None:  # the fleet's pace: over the fleet's mission time
+        inventory.update(pace(inventory["places_answered"], mission_time, len(drones)))
     sep = guard.summary()
     sep["airspace_waits"] = airspace.waits
     closest = sep.get("closest_m")
@@ -355,7 +358,7 @@ def _summary(
         "mission_time_s": mission_time,
         "wall_time_s": round(wall_s, 3),
         "drones": drones,
-        "inventory": merged.run_summary() if merged.planned else None,
+        "inventory": inventory,
         "separation": sep,
         "collisions": {
             "world": world_hits,
@@ -387,6 +390,8 @@ def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
         if inv.get("carried_over"):
             line += f" ({inv['carried_over']} carried over from the resumed run)"
         print(line)
+        if inv.get("places_per_hour") is not None:
+            print(pace_line(inv))
         if "right" in inv:
             print(
                 f"inventory against the simulator: {inv['right']} of {inv['places']} right, "

@@ -98,7 +98,7 @@ def inventory_section(run_dir: str, summary: dict) -> str:
     if not inv or not inv.get("places"):
         return ""
     esc = html.escape
-    out = ["<h2>Inventory</h2>"] + discrepancy_part(inv)
+    out = ["<h2>Inventory</h2>"] + discrepancy_part(inv) + pace_part(inv)
     png = plot_racks(run_dir, inv)
     if png:
         out.append(f'<img src="{esc(png, quote=True)}" alt="the racks, place by place">')
@@ -129,6 +129,24 @@ def inventory_section(run_dir: str, summary: dict) -> str:
         "(written as each place was done).</p>"
     )
     return "\n".join(out)
+
+
+def pace_part(inv: dict) -> list[str]:
+    """The pace beside the commercial anchor's: places answered per hour of mission time
+    (battery changes included), per drone in a fleet."""
+    per_hour = inv.get("places_per_hour")
+    if per_hour is None:
+        return []
+    anchor = inv.get("anchor_places_per_hour") or 1300
+    rows = [("places answered in this run", f"{inv.get('places_answered', 0)}")]
+    rows.append(("places per hour of mission time", f"{per_hour:,.0f}"))
+    if inv.get("places_per_hour_per_drone") is not None:
+        rows.append(("places per hour per drone", f"{inv['places_per_hour_per_drone']:,.0f}"))
+    rows.append(("the commercial anchor (one drone reading labels)", f"{anchor:,}"))
+    cells = "".join(
+        f"<tr><td class=l>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in rows
+    )
+    return [f"<h3>Pace</h3><table>{cells}</table>"]
 
 
 CATEGORY_COLOURS = {

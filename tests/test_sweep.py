@@ -1,0 +1,149 @@
+"""The sweep inventory (missions/inventory.xml) flown in lock-step on the aisle
+(rigs/aisle.yaml): places answered as the pass goes, a battery change in the middle of a
+level, a resumed run, a place the pass leaves for the per-place rescan, and bad input refused
+before anything flies (the site's too)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+
+import pytest
+from helpers import REPO
+
+from bt_engine.cli import main
+from nodes.inventory_log import read_inventory
+
+RIG = os.path.join(REPO, "rigs", "aisle.yaml")
+SITE = os.path.join(REPO, "rigs", "site.yaml")
+MISSION = os.path.join(REPO, "missions", "inventory.xml")
+
+pytestmark = pytest.mark.slow
+
+
+def _fly(out, *sets, seed=0, extra=()):
+    args = [MISSION, "--rig", RIG, "--out", str(out), "-q", "--no-report", "--no-mcap"]
+    args += ["--seed", str(seed), *extra]
+    for s in sets:
+        args += ["--set", s]
+    return main(args)
+
+
+def _messages(run_dir) -> list[tuple[float, str]]:
+    out = []
+    with open(os.path.join(run_dir, "ticks.jsonl")) as f:
+        for line in f:
+            rec = json.loads(line)
+            for m in rec.get("messages", []):
+                out.append((rec["t"], m))
+    return out
+
+
+def _truth(seed=0):
+    from drivers.sim.world import load_world
+
+    w = load_world(os.path.join(REPO, "worlds", "aisle.yaml"), seed=seed)
+    return w.places_truth(), set(w.not_enrolled())
+
+
+def test_a_pass_answers_each_place_as_it_flies_by(tmp_path):
+    out = tmp_path / "run"
+    assert _fly(out, "places=A-0[1-5]-1") == 0
+    msgs = _messages(out)
+    answered = [(t, m) for t, m in msgs if re.match(r"inventory A-0\d-1: .*sweep", m)]
+    done = [t for t, m in msgs if m.startswith("sweep A/1:") and "answered" in m]
+    assert len(done) == 1
+    # every place answered by the pass, each at its own time, before the pass ended
+    assert len(answered) == 5, answered
+    times = [t for t, _ in answered]
+    assert times == sorted(times) and len(set(times)) == 5
+    assert times[0] < done[0] - 4.0
+    rows = {r["place"]: r for r in read_inventory(str(out))}
+    truth, not_enrolled = _truth()
+    for place, row in rows.items():
+        want = truth[place]
+        if want is None:
+            assert row["answer"] == "empty"
+        elif want in not_enrolled:
+            assert row["answer"] == "unknown"
+        else:
+            assert row["answer"] == want, (place, row)
+    summary = json.loads((out / "summary.json").read_text())
+    inv = summary["inventory"]
+    assert inv["places_per_hour"] > 0
+    # the crops and candidates of every identified place are in the run folder
+    for place, row in rows.items():
+        if row["status"] == "identified":
+            assert (out / "places" / place / "block_3.png").exists()
+
+
+def test_a_battery_change_in_the_middle_of_a_level_resumes_at_the_next_place(tmp_path):
+    out = tmp_path / "run"
+    code = _fly(out, "places=A-0*-1", "battery.initial_soc=0.3", "rescan_places=false")
+    assert code == 0
+    msgs = _messages(out)
+    swaps = [t for t, m in msgs if "battery swapped" in m]
+    assert len(swaps) == 1
+    starts = [(t, m) for t, m in msgs if re.match(r"sweep A/1: \d+ places", m)]
+    assert len(starts) == 2, starts  # the pass, then the rest of it after the change
+    first_places = int(re.match(r"sweep A/1: (\d+) places", starts[0][1]).group(1))
+    second = re.match(r"sweep A/1: (\d+) places, (\S+)", starts[1][1])
+    answered_before = [
+        m.split(":")[0].split()[-1]
+        for t, m in msgs
+        if t < swaps[0] and re.match(r"inventory A-0\d-1: .*sweep", m)
+    ]
+    assert answered_before, "the battery ran low before the first place"
+    assert int(second.group(1)) == first_places - len(answered_before)
+    # the second attempt starts at the first place not answered, never at the level's start
+    order = [f"A-0{i}-1" for i in range(1, 9)]
+    assert second.group(2) == next(p for p in order if p not in answered_before)
+    rows = read_inventory(str(out))
+    assert sorted(r["place"] for r in rows) == order
+    assert all(r["status"] != "not_scanned" for r in rows) or any(
+        "rescan" in (r["reason"] or "") for r in rows
+    )
+    # no place was answered twice
+    all_answers = [m.split(":")[0].split()[-1] for _, m in msgs if re.match(r"inventory A-", m)]
+    assert len(all_answers) == len(set(all_answers))
+
+
+def test_an_interrupted_sweep_resumes_where_it_stopped(tmp_path):
+    first, second = tmp_path / "a", tmp_path / "b"
+    assert _fly(first, "places=A-0*-1", extra=["--max-time", "14"]) == 1
+    done = {r["place"] for r in read_inventory(str(first)) if r["status"] != "not_scanned"}
+    assert 0 < len(done) < 8
+    code = main([MISSION, "--resume", str(first), "--out", str(second), "-q", "--no-report"])
+    assert code == 0
+    rows = {r["place"]: r for r in read_inventory(str(second))}
+    assert len(rows) == 8
+    for place in done:  # carried over, not flown again
+        assert rows[place]["run"] == "a"
+    msgs = _messages(second)
+    flown = {m.split(":")[0].split()[-1] for _, m in msgs if re.match(r"inventory A-", m)}
+    assert not (flown & done)
+
+
+def test_a_place_the_pass_cannot_answer_gets_the_per_place_scan(tmp_path):
+    out = tmp_path / "run"
+    # a host that needs 0.7 s per frame drops the frames the pass needed
+    assert _fly(out, "places=A-03-1", "host_frame_time=0.7") == 0
+    msgs = _messages(out)
+    left = [m for _, m in msgs if m.startswith("inventory A-03-1: - (not_scanned; sweep")]
+    assert left, "the pass should have left A-03-1 for the rescan"
+    rows = read_inventory(str(out))
+    assert len(rows) == 1 and rows[0]["status"] in ("identified", "unknown", "empty")
+    assert "sweep" not in (rows[0]["reason"] or "")
+    truth, _ = _truth()
+    assert rows[0]["answer"] == (truth["A-03-1"] or "empty")
+    assert any("LocatePallet" in m or "locate" in m.lower() for _, m in msgs)
+
+
+def test_bad_sweep_inputs_are_refused_before_anything_flies(tmp_path, capsys):
+    out = tmp_path / "run"
+    code = _fly(out, "places=A-01-1", "sweep_speed=-1", "sweep_standoff=9")
+    err = capsys.readouterr().err
+    assert code == 2 and not (out / "ticks.jsonl").exists()
+    assert "--set sweep_speed: speed -1.0: expected a speed along the pass" in err
+    assert "--set sweep_standoff: standoff 9.0" in err
