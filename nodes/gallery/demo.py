@@ -408,6 +408,12 @@ def _enrol_side(job: tuple[int, str]) -> tuple:
     w = _WORKER
     frames = enrolment_frames(w["data"], w["world_path"], identity, w["camera"], 1000 + i)
     crops = scan_blocks(frames, w["detector"], w["factors"])
+    if len(crops) < 3:  # the few views missed a block: the whole scan flight, as before
+        renderer, poses = _canonical_scan(
+            w["data"], w["world_path"], identity, w["camera"], 1000 + i
+        )
+        whole = ((renderer(pose, pose.t_s), pose.t_s) for pose in poses)
+        crops = scan_blocks(whole, w["detector"], w["factors"])
     out: tuple = (identity, len(crops), None, None, [])
     if len(crops) >= 3:
         emb = w["embedder"]
