@@ -30,7 +30,7 @@ import threading
 from typing import Any
 
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode
-from bt_engine.ports import ANY, DURATION, FLOAT, INT, STRING, input_port, output_port
+from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from nodes.common import is_realtime, vehicle_of
 from nodes.identify import expected_for, identify_described
@@ -78,6 +78,13 @@ class SweepPass(StatefulActionNode):
             0.0,
             "lock-step: emulate a host that needs this long per frame (frames arriving "
             "meanwhile are dropped, as in real time), s",
+        ),
+        input_port(
+            "rescan_places",
+            BOOL,
+            True,
+            "hand the places the pass could not answer to the per-place scan (rescan); "
+            "false: they stay not_scanned (a resumed run flies them again)",
         ),
         input_port("timeout", DURATION, 180.0, "FAILURE if the pass is not done within this, s"),
         output_port(
@@ -291,7 +298,11 @@ class SweepPass(StatefulActionNode):
 
     def _rescan_output(self) -> None:
         """``rescan``: the places this pass left that have no answer yet (a pass flown again
-        after a battery change keeps those of its first attempt)."""
+        after a battery change keeps those of its first attempt); none without
+        ``rescan_places``."""
+        if not self.get_input("rescan_places"):
+            self.set_output("rescan", [])
+            return
         done = self.log.finished()
         left = self.plan.rescan.get(self.spec.name, [])
         self.set_output("rescan", [p for p in left if p not in done])

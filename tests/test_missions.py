@@ -27,11 +27,15 @@ SLOW_MISSIONS = (
     "enroll_pallet.xml",
     "inventory.xml",
     "inventory.yaml",
+    "inventory_per_place.xml",
+    "inventory_per_place.yaml",
 )
 #: missions made for another rig than the default one, and the inputs that keep them short
 RIGS = {
     "inventory.xml": ("rigs/aisle.yaml", {"places": "A-02-1;A-02-2"}),
     "inventory.yaml": ("rigs/aisle.yaml", {"places": "A-02-1;A-02-2"}),
+    "inventory_per_place.xml": ("rigs/aisle.yaml", {"places": "A-02-1;A-02-2"}),
+    "inventory_per_place.yaml": ("rigs/aisle.yaml", {"places": "A-02-1;A-02-2"}),
 }
 
 

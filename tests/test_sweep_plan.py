@@ -34,7 +34,11 @@ def test_the_site_has_144_places_on_four_faces_of_two_aisles(site):
 
 def _clear(path, start, racks, clearance):
     pts = [start[:2]] + [p[:2] for p in path]
-    return all(not r.crosses(a, b, clearance - 1e-6) for a, b in zip(pts, pts[1:]) for r in racks)
+    return all(
+        not r.crosses(a, b, clearance - 1e-6)
+        for a, b in zip(pts, pts[1:], strict=False)
+        for r in racks
+    )
 
 
 def test_a_route_between_the_aisles_goes_around_the_racks(site):
@@ -60,7 +64,7 @@ def test_passes_are_a_serpentine_over_each_face_nearest_first(site):
     assert sorted(p for s in plan.passes.values() for p in s.places) == sorted(site.places)
     first = plan.passes[plan.order[0]]
     assert first.rack == "A" and first.places[0] == "A-01-1"  # the face at pad-1's end
-    for a, b in zip(plan.order, plan.order[1:]):
+    for a, b in zip(plan.order, plan.order[1:], strict=False):
         pa, pb = plan.passes[a], plan.passes[b]
         end = site.places[pa.places[-1]].row_m
         begin = site.places[pb.places[0]].row_m
