@@ -1,4 +1,5 @@
-"""The inventory mission's rows, grades and files; battery changes; resuming after a kill."""
+"""The per-place inventory's rows, grades and files; battery changes; resuming after a kill (the
+sweep's own: tests/test_sweep.py)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from nodes.energy import needed_percent
 from nodes.inventory_log import InventoryError, InventoryLog, grade, read_inventory
 
 RIG = os.path.join(REPO, "rigs", "aisle.yaml")
-MISSION = os.path.join(REPO, "missions", "inventory.xml")
+MISSION = os.path.join(REPO, "missions", "inventory_per_place.xml")  # place by place
 
 
 def test_grades_against_the_ground_truth():
