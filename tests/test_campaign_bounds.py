@@ -86,7 +86,9 @@ def test_the_dry_run_of_a_huge_campaign_answers_at_once(tmp_path, capsys) -> Non
     assert len(refusal(path)) == 1  # first, without the command: nothing expanded
     t0 = time.perf_counter()
     assert main(["campaign", path, "--dry-run"]) == 2
-    assert time.perf_counter() - t0 < 1.0
+    # expanding 2,000,000 rows would take minutes; counting them takes milliseconds (10 s of
+    # slack: the machine may be busy with other work)
+    assert time.perf_counter() - t0 < 10.0
     err = capsys.readouterr().err.splitlines()
     assert err[0].startswith(f"{path}:") and "2,000,000 rows (faults 1,000 x grid.a 1,000" in err[0]
     assert err[1:] == ["1 problem found; nothing was run."]
