@@ -177,3 +177,32 @@ def test_params_are_plain_numbers(bad):
     # the collector takes what the leaf checked; a zero host time drops nothing
     c = _collector(_places(1), host_frame_s=max(bad, 0.0))
     assert c.params.host_frame_s == 0.0
+
+
+def test_the_sweep_takes_a_margin_only_unknown_when_texture_and_embedding_agree():
+    from nodes.sweep import sweep_accepts
+    from perception.gallery import Match
+
+    def m(**kw):
+        base = dict(
+            pallet_id="unknown",
+            best_id="1080B",
+            distance=0.58,
+            runner_up_id="1130A",
+            runner_up_distance=0.73,
+            margin=0.15,
+            known=False,
+            reason="margin",
+            texture_id="1080B",
+            texture_z=2.9,
+        )
+        base.update(kw)
+        return Match(**base)
+
+    assert sweep_accepts(m(), 0.653)
+    assert not sweep_accepts(m(texture_id="1130A"), 0.653)  # the texture says another side
+    assert not sweep_accepts(m(texture_z=0.4), 0.653)  # the texture barely matches
+    assert not sweep_accepts(m(distance=0.76), 0.653)  # too far: a pallet it does not know
+    assert not sweep_accepts(m(margin=0.05), 0.653)  # a close impostor
+    assert not sweep_accepts(m(texture_id=None, texture_z=None), 0.653)
+    assert not sweep_accepts(m(known=True, pallet_id="1080B"), 0.653)  # nothing to take
