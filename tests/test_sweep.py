@@ -147,3 +147,18 @@ def test_bad_sweep_inputs_are_refused_before_anything_flies(tmp_path, capsys):
     assert code == 2 and not (out / "ticks.jsonl").exists()
     assert "--set sweep_speed: speed -1.0: expected a speed along the pass" in err
     assert "--set sweep_standoff: standoff 9.0" in err
+
+
+def test_in_real_time_the_pass_takes_the_worker_frames_and_identifies_off_the_tick(tmp_path):
+    out = tmp_path / "run"
+    code = main(
+        [MISSION, "--rig", RIG, "--out", str(out), "-q", "--no-report", "--no-mcap",
+         "--realtime", "--set", "places=A-02-1;A-03-1"]
+    )  # fmt: skip
+    assert code == 0
+    rows = {r["place"]: r for r in read_inventory(str(out))}
+    truth, _ = _truth()
+    for place in ("A-02-1", "A-03-1"):
+        assert rows[place]["answer"] == (truth[place] or "empty")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["inventory"]["places_per_hour"] > 0
