@@ -235,6 +235,13 @@ class LookUpPlace(SyncActionNode):
         output_port("row", ANY, "centre of the place's block row, x;y;z in m"),
         output_port("facing_deg", FLOAT, "drone yaw that faces the pallet, degrees"),
         output_port("level", INT, "rack level (1 = lowest)"),
+        input_port("look_distance", FLOAT, 0.75, "distance in front of the face for look_point, m"),
+        output_port(
+            "look_point",
+            ANY,
+            "the point look_distance in front of the block row, x;y;z (FlyRoute there first "
+            "where racks may stand in the way)",
+        ),
     )
 
     def preflight(self) -> list[Any]:
@@ -274,6 +281,12 @@ class LookUpPlace(SyncActionNode):
         self.set_output("row", tuple(round(v, 4) for v in place.row_m))
         self.set_output("facing_deg", place.look_deg)
         self.set_output("level", place.level)
+        f = math.radians(place.look_deg)
+        d = self.get_input("look_distance")
+        x, y, z = place.row_m
+        self.set_output(
+            "look_point", (round(x - math.cos(f) * d, 4), round(y - math.sin(f) * d, 4), z)
+        )
         return SUCCESS
 
 
