@@ -104,8 +104,9 @@ def setup(p: argparse.ArgumentParser) -> None:
             action="append",
             default=[],
             metavar="KEY=VALUE",
-            help="a rig or world.KEY setting, as in a mission run (world.pallet_pool.count=2000: "
-            "the demo gallery of a pool of 4,000 sides)",
+            help="a rig or world.KEY setting, as in a mission run (a demo gallery of 4,000 "
+            "sides: world.pallet_pool.count set to 2000 on a world with a pool, such as "
+            "rigs/aisle.yaml's)",
         )
         sp.add_argument(
             "--store",
