@@ -332,6 +332,23 @@ class InventoryStore:
             q += f" LIMIT {int(limit)}"
         return list(rows_as_dicts(self.conn.execute(q, (place,)), keys))[::-1]
 
+    def counts(self) -> dict[str, tuple[int, int]]:
+        """Run -> (rows, answered rows: every status but ``not_scanned``), in one query.
+
+        >>> s = InventoryStore.open("sqlite:///:memory:")
+        >>> s.begin_run("inv-1")
+        >>> s.record_rows("inv-1", [{"place": "A", "status": "identified"},
+        ...                         {"place": "B", "status": "not_scanned"}])
+        2
+        >>> s.counts()
+        {'inv-1': (2, 1)}
+        """
+        cur = self.conn.execute(
+            "SELECT run, COUNT(*), SUM(CASE WHEN status = 'not_scanned' THEN 0 ELSE 1 END) "
+            "FROM inventory_rows GROUP BY run"
+        )
+        return {r[0]: (int(r[1]), int(r[2] or 0)) for r in cur}
+
     def places(self) -> list[str]:
         """Every place with a row in the store."""
         cur = self.conn.execute("SELECT DISTINCT place FROM inventory_rows ORDER BY place")

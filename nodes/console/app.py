@@ -34,7 +34,9 @@ from nodes.console import export
 from nodes.console.live import RunFollower
 from nodes.console.paths import PathRefused, RunsRoot
 from nodes.console.review import GalleryDesk, ReviewError, decide, gallery_path
-from nodes.console.runs import list_runs, run_info
+from nodes.console.runs import MAX_RUNS, list_runs, run_info
+from nodes.console.site_store import SiteStore, check_place
+from store import StoreError
 
 STATIC_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
 #: the largest request body (a review decision is a few hundred bytes)
@@ -61,7 +63,7 @@ class ConsoleConfig:
     runs: str
     token: str
     gallery: str | None = None
-    store: str | None = None
+    store: str | None = None  # the site store's URL (None: the runs folder only)
     hosts: list[str] = field(default_factory=lambda: ["127.0.0.1", "localhost", "[::1]"])
 
 
@@ -154,6 +156,7 @@ def make_app(config: ConsoleConfig) -> Starlette:
     """The console application over ``config.runs``."""
     root = RunsRoot(config.runs)
     desk = GalleryDesk()
+    site = SiteStore(config.store) if config.store else None
     streams = {"open": 0}
 
     async def index(request: Request) -> Response:
@@ -177,7 +180,36 @@ def make_app(config: ConsoleConfig) -> Starlette:
 
     async def api_runs(request: Request) -> Response:
         runs = await run_in_threadpool(list_runs, root)
-        return JSONResponse({"runs": runs, "store": config.store})
+        for r in runs:
+            r["source"] = "folder"
+        note = None
+        if site is not None:
+            try:
+                runs += await run_in_threadpool(site.other_runs, root, MAX_RUNS)
+            except StoreError as exc:
+                note = f"the site store cannot be read: {exc}; showing the runs folder only"
+        shown = site.shown if site is not None else None
+        return JSONResponse({"runs": runs, "store": shown, "store_note": note})
+
+    async def place_page(request: Request) -> Response:
+        place = request.path_params["place"]
+        try:
+            check_place(place)
+        except PathRefused as exc:
+            return _refused(exc)
+        return _shell("place", f"place {place}", place)
+
+    async def api_place(request: Request) -> Response:
+        place = request.path_params["place"]
+        if site is None:
+            return JSONResponse({"error": "no site store: start btrun console --store URL"}, 404)
+        try:
+            found = await run_in_threadpool(site.history, root, place)
+        except PathRefused as exc:
+            return JSONResponse({"error": str(exc)}, status_code=exc.status)
+        except StoreError as exc:
+            return JSONResponse({"error": f"the site store cannot be read: {exc}"}, 503)
+        return JSONResponse({"place": place, "store": site.shown, "history": found})
 
     async def api_run(request: Request) -> Response:
         name = request.path_params["name"]
@@ -187,6 +219,7 @@ def make_app(config: ConsoleConfig) -> Starlette:
             return _refused(exc)
         gpath = gallery_path(root, root.run_dir(name), config.gallery)
         info["gallery"] = {"path": os.path.abspath(gpath), "identities": _identities(gpath)}
+        info["store"] = site.shown if site is not None else None
         return JSONResponse(info)
 
     async def events(request: Request) -> Response:
@@ -265,6 +298,8 @@ def make_app(config: ConsoleConfig) -> Starlette:
         Route("/favicon.ico", lambda request: Response(status_code=204)),
         Route("/runs/{name}", run_page),
         Route("/runs/{name}/review", review_page),
+        Route("/places/{place}", place_page),
+        Route("/api/places/{place}", api_place),
         Route("/api/runs", api_runs),
         Route("/api/runs/{name}", api_run),
         Route("/api/runs/{name}/events", events),
@@ -274,7 +309,9 @@ def make_app(config: ConsoleConfig) -> Starlette:
         Mount("/static", StaticFiles(directory=STATIC_DIR, follow_symlink=False), name="static"),
     ]
     middleware = [Middleware(Guard), Middleware(TrustedHostMiddleware, allowed_hosts=config.hosts)]
-    return Starlette(routes=routes, middleware=middleware)
+    app = Starlette(routes=routes, middleware=middleware)
+    app.state.site = site
+    return app
 
 
 def _identities(path: str) -> list[str]:

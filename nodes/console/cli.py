@@ -5,8 +5,10 @@
     btrun console                          # runs/ on http://127.0.0.1:8080, token printed
     btrun console --runs /data/runs --port 9000 --token "$CONSOLE_TOKEN"
     btrun console --host 0.0.0.0           # other machines too: a network you trust
+    btrun console --store postgresql://btrun@db.site/btrun   # + the site store's runs
 
-Bad input (a runs folder that does not exist, a port in use) is one line, exit code 2.
+Bad input (a runs folder that does not exist, a port in use, a store that cannot be
+reached) is one line, exit code 2.
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ from typing import Any
 from nodes.console.app import ConsoleConfig, make_app
 from nodes.console.paths import RunsRoot
 from nodes.console.review import gallery_path
+from nodes.console.site_store import check_store, resolve_url
+from store import StoreError
 
 
 class ConsoleError(Exception):
@@ -51,7 +55,13 @@ def setup(p: argparse.ArgumentParser) -> None:
         "RUNS/site-gallery.sqlite, started from the demo gallery); fly the next inventory "
         "with --set gallery=THIS_FILE",
     )
-    p.add_argument("--store", default=None, metavar="URL", help="the site store (shown)")
+    p.add_argument(
+        "--store",
+        default=None,
+        metavar="URL",
+        help="the site store read for the runs recorded elsewhere and a place's history "
+        "(default: $BTRUN_STORE, else RUNS/site.sqlite if it exists; none: no store)",
+    )
 
 
 def _bind(host: str, port: int) -> socket.socket:
@@ -89,7 +99,13 @@ def make_config(args: Any) -> ConsoleConfig:
     hosts = ["127.0.0.1", "localhost", "[::1]"]
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         hosts = ["*"]  # reached by whatever name the network gives this machine
-    return ConsoleConfig(runs, token, args.gallery, args.store, hosts)
+    store = resolve_url(args.store, runs)
+    if store is not None:
+        try:
+            check_store(store)
+        except StoreError as exc:
+            raise ConsoleError(f"--store: {exc}") from None
+    return ConsoleConfig(runs, token, args.gallery, store, hosts)
 
 
 class ConsoleServer:
@@ -101,9 +117,10 @@ class ConsoleServer:
         self.sock = _bind(host, port)
         self.host, self.port = host, self.sock.getsockname()[1]
         self.config = config
+        self.app = make_app(config)
         self.server = uvicorn.Server(
             uvicorn.Config(
-                make_app(config),
+                self.app,
                 log_level="warning",
                 timeout_graceful_shutdown=2,
                 limit_concurrency=64,
@@ -151,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"btrun console: {server.url}/?token={config.token}", flush=True)
     print(f"  runs: {root.root}", flush=True)
     print(f"  review decisions update: {gallery}", flush=True)
+    if server.app.state.site is not None:
+        print(f"  site store: {server.app.state.site.shown}", flush=True)
     if args.token is None:
         print(f"  token for review decisions: {config.token}", flush=True)
     try:

@@ -14,9 +14,12 @@ async function indexPage() {
   const data = await getJSON("/api/runs");
   const rows = data.runs.map((r) => {
     const disc = Object.entries(r.discrepancies || {}).map(([k, n]) => `${k} ${n}`).join(", ");
-    return el("tr", { "data-run": r.name },
-      el("td", {}, el("a", { href: `/runs/${encodeURIComponent(r.name)}` }, r.name)),
-      el("td", {}, r.kind + (r.drones.length > 1 ? ` (${r.drones.length} drones)` : "")),
+    const fromStore = r.source === "store";
+    // a run known only from the store: its folder (crops, track) is on another machine
+    return el("tr", { "data-run": r.name, "data-source": r.source, class: fromStore ? "from-store" : "" },
+      el("td", {}, fromStore ? r.name : el("a", { href: `/runs/${encodeURIComponent(r.name)}` }, r.name)),
+      el("td", {}, r.kind + (r.drones.length > 1 ? ` (${r.drones.length} drones)` : ""),
+        fromStore ? el("span", { class: "note" }, ` from the store${r.host ? " (" + r.host + ")" : ""}`) : null),
       el("td", {}, r.mission),
       el("td", { class: `status status-${r.status}` }, r.status),
       el("td", { class: "num" }, `${r.answered}/${r.places}`),
@@ -28,6 +31,7 @@ async function indexPage() {
   mount(
     el("h1", {}, "Runs and fleets"),
     data.store ? el("p", { class: "note" }, `site store: ${data.store}`) : null,
+    data.store_note ? el("p", { class: "error", id: "store-note" }, data.store_note) : null,
     rows.length === 0 ? el("p", {}, "No runs yet: fly one (btrun fleet fleets/aisle_2.yaml).") :
       el("table", { id: "runs", class: "grid" },
         el("thead", {}, el("tr", {}, ["run", "kind", "mission", "status", "places", "accuracy (sim)",
@@ -220,7 +224,8 @@ function placeDetail() {
     ev && ev.candidates.length ? el("table", { class: "grid candidates" },
       el("thead", {}, el("tr", {}, el("th", {}, "candidate"), el("th", {}, "distance"))),
       el("tbody", {}, ev.candidates.map(([id, dist]) => el("tr", {}, el("td", {}, id), el("td", { class: "num" }, fmtNumber(dist, 3)))))) : null,
-    state.info.queue.includes(place) ? el("p", {}, el("a", { href: `/runs/${encodeURIComponent(RUN)}/review#${encodeURIComponent(place)}` }, "review this place")) : null);
+    state.info.queue.includes(place) ? el("p", {}, el("a", { href: `/runs/${encodeURIComponent(RUN)}/review#${encodeURIComponent(place)}` }, "review this place")) : null,
+    state.info.store ? el("p", {}, el("a", { href: `/places/${encodeURIComponent(place)}`, id: "place-history-link" }, "history across runs (site store)")) : null);
 }
 
 function select(place) {
@@ -299,5 +304,24 @@ async function runPage() {
   follow();
 }
 
+// ---- a place's history across runs (the site store) -------------------------------------
+async function placePage() {
+  const place = RUN;
+  const data = await getJSON(`/api/places/${encodeURIComponent(place)}`);
+  const rows = data.history.map((h) => el("tr", { "data-run": h.run },
+    el("td", {}, h.here ? el("a", { href: `/runs/${encodeURIComponent(h.run)}` }, h.run) : h.run),
+    el("td", {}, fmtTime(h.started)), el("td", {}, h.answer ?? ""), el("td", {}, h.status ?? ""),
+    el("td", {}, h.drone ?? ""), el("td", { class: "num" }, fmtNumber(h.distance, 3)),
+    el("td", { class: "num" }, fmtNumber(h.margin, 3)), el("td", {}, h.run_status ?? "")));
+  mount(
+    el("h1", {}, `Place ${place}`),
+    el("p", { class: "note" }, `${data.history.length} runs, oldest first, from the site store ${data.store}`),
+    el("table", { id: "history", class: "grid" },
+      el("thead", {}, el("tr", {}, ["run", "started", "answer", "status", "drone", "distance", "margin",
+        "run status"].map((h) => el("th", {}, h)))),
+      el("tbody", {}, rows)));
+}
+
+if (PAGE === "place") placePage().catch((e) => mount(el("p", { class: "error" }, String(e))));
 if (PAGE === "index") indexPage().catch((e) => mount(el("p", { class: "error" }, String(e))));
 if (PAGE === "run") runPage().catch((e) => mount(el("p", { class: "error" }, String(e))));
