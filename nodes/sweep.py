@@ -95,7 +95,7 @@ class SweepPass(StatefulActionNode):
     ports = (
         input_port("pass", STRING, description="pass name (PlanSweep's passes, e.g. A/2)"),
         input_port("gallery", STRING, DEMO, "gallery file (.sqlite) or demo"),
-        input_port("speed", FLOAT, 1.0, "speed along the pass, m/s"),
+        input_port("speed", FLOAT, 0.8, "speed along the pass, m/s"),
         input_port("standoff", FLOAT, 0.45, "distance from the pallet faces, m"),
         input_port("transit_speed", FLOAT, 1.0, "speed to the pass start, m/s"),
         input_port("lead", FLOAT, 0.5, "start this far before the first block, m"),
