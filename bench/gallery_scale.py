@@ -249,8 +249,10 @@ def score_row(g: Gallery, scans: list[tuple], texture: bool, prior) -> dict:
     r = dict.fromkeys(("right", "wrong", "unknown", "rank1", "enrolled", "accepted",
                        "never", "incomplete", "prior_right", "prior_accepted", "emb_right",
                        "emb_wrong", "emb_accepted"), 0)  # fmt: skip
-    enrolled_names = [s[0] for s in scans if s[1]]
-    for k, (name, known, vec, vis, crops) in enumerate(scans):
+    in_gallery = set(g.identities())
+    enrolled_names = [s[0] for s in scans if s[0] in in_gallery]
+    for k, (name, _, vec, vis, crops) in enumerate(scans):
+        known = name in in_gallery  # a queried side beyond a small gallery is never-enrolled
         r["enrolled" if known else "never"] += 1
         if vec is None:
             r["incomplete"] += 1
