@@ -594,7 +594,8 @@ class _Dumper:
                 items = [
                     f"{k}: {_fmt(v)}"
                     for k, v in zip(PORT_KEYS, fields, strict=True)
-                    if v not in ("", None)
+                    # an empty default is a default (the input is optional), not none
+                    if v is not None and (v != "" or k == "default")
                 ]
                 flow = f"      {_fmt(p.name)}: {{" + ", ".join(items) + "}"
                 block = [f"      {_fmt(p.name)}:"] + ["        " + i for i in items]

@@ -465,3 +465,20 @@ def test_convert_file_refuses_and_reports(tmp_path):
     assert spec.load_problems == [] and spec.trees["T"].root.comments == ["a - - b"]
     assert convert_file(str(tmp_path / "missing.xml"), str(tmp_path / "x.yaml"), REG)
     assert not os.path.exists(tmp_path / "x.yaml")
+
+
+def test_an_empty_default_survives_the_round_trip(tmp_path):
+    """A mission input declared with default="" is optional; its YAML must say so (the
+    inventory's ``expected`` stock: empty means none)."""
+    path = tmp_path / "m.xml"
+    path.write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="M"><BehaviorTree ID="M">'
+        '<AlwaysSuccess/></BehaviorTree><TreeNodesModel><SubTree ID="M">'
+        '<input_port name="stock" default="">none</input_port>'
+        "</SubTree></TreeNodesModel></root>"
+    )
+    out = tmp_path / "m.yaml"
+    convert_file(str(path), str(out))
+    assert 'default: ""' in out.read_text()
+    again = load_yaml(str(out))
+    assert again.models["M"].ports["stock"].default == ""
