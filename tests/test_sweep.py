@@ -158,7 +158,11 @@ def test_in_real_time_the_pass_takes_the_worker_frames_and_identifies_off_the_ti
     assert code == 0
     rows = {r["place"]: r for r in read_inventory(str(out))}
     truth, _ = _truth()
-    for place in ("A-02-1", "A-03-1"):
-        assert rows[place]["answer"] == (truth[place] or "empty")
+    assert truth["A-02-1"] and truth["A-03-1"] is None
+    assert rows["A-02-1"]["answer"] == truth["A-02-1"]
+    # the empty place: real time is not lock-step (which frames the worker gets varies with
+    # the host's load); a pass that could not tell hands it to the per-place scan, which may
+    # answer unknown, never an identity
+    assert rows["A-03-1"]["answer"] in ("empty", "unknown")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["inventory"]["places_per_hour"] > 0
