@@ -83,6 +83,23 @@ class BenchError(RuntimeError):
     """A fleet run that could not fly (bad settings: the fleet's own message)."""
 
 
+def _graded(s: dict, inv: dict, seed: int, code: int) -> dict:
+    """A run's status and its places by grade (fleet or solo summary)."""
+    out = {"seed": seed, "code": code, "status": s["status"], "places": inv.get("places", 0)}
+    out.update({k: inv.get(k, 0) for k in ("right", "wrong", "unknown", "missed", "not_scanned")})
+    return out
+
+
+def _timing(s: dict, inv: dict, wall_s: float) -> dict:
+    """A run's mission and wall time, its speed, and the places not right."""
+    return {
+        "mission_time_s": s["mission_time_s"],
+        "wall_s": round(wall_s, 2),
+        "realtime_x": round(s["mission_time_s"] / wall_s, 2) if wall_s > 0 else 0.0,
+        "wrong_places": [p for p, g in (inv.get("grades") or {}).items() if g != "right"],
+    }
+
+
 def figures(out: str, seed: int, code: int, wall_s: float) -> dict:
     """The figures of one fleet run folder."""
     s = json.load(open(os.path.join(out, "summary.json")))
@@ -102,15 +119,7 @@ def figures(out: str, seed: int, code: int, wall_s: float) -> dict:
         per_hour = [inv["places_per_hour_per_drone"]]
     sep = s["separation"]
     return {
-        "seed": seed,
-        "code": code,
-        "status": s["status"],
-        "places": inv.get("places", 0),
-        "right": inv.get("right", 0),
-        "wrong": inv.get("wrong", 0),
-        "unknown": inv.get("unknown", 0),
-        "missed": inv.get("missed", 0),
-        "not_scanned": inv.get("not_scanned", 0),
+        **_graded(s, inv, seed, code),
         "world_collisions": len(s["collisions"]["world"]),
         "drone_collisions": s["collisions"]["drones"],
         "violations": sep["violations"],
@@ -120,10 +129,7 @@ def figures(out: str, seed: int, code: int, wall_s: float) -> dict:
         "swaps": swaps,
         "in_order": in_order,
         "places_per_hour_per_drone": round(statistics.mean(per_hour), 1) if per_hour else 0.0,
-        "mission_time_s": s["mission_time_s"],
-        "wall_s": round(wall_s, 2),
-        "realtime_x": round(s["mission_time_s"] / wall_s, 2) if wall_s > 0 else 0.0,
-        "wrong_places": [p for p, g in (inv.get("grades") or {}).items() if g != "right"],
+        **_timing(s, inv, wall_s),
     }
 
 
@@ -134,15 +140,7 @@ def solo_figures(out: str, seed: int, code: int, wall_s: float) -> dict:
     sim = s.get("sim") or {}
     doc = json.load(open(os.path.join(out, "inventory.json")))
     return {
-        "seed": seed,
-        "code": code,
-        "status": s["status"],
-        "places": inv.get("places", 0),
-        "right": inv.get("right", 0),
-        "wrong": inv.get("wrong", 0),
-        "unknown": inv.get("unknown", 0),
-        "missed": inv.get("missed", 0),
-        "not_scanned": inv.get("not_scanned", 0),
+        **_graded(s, inv, seed, code),
         "world_collisions": len(sim.get("collisions") or []),
         "drone_collisions": 0,
         "violations": 0,
@@ -153,10 +151,7 @@ def solo_figures(out: str, seed: int, code: int, wall_s: float) -> dict:
         "in_order": True,
         "rescanned": sum(1 for r in doc["rows"] if "sweep" not in (r.get("reason") or "x")),
         "places_per_hour_per_drone": inv.get("places_per_hour") or 0.0,
-        "mission_time_s": s["mission_time_s"],
-        "wall_s": round(wall_s, 2),
-        "realtime_x": round(s["mission_time_s"] / wall_s, 2) if wall_s > 0 else 0.0,
-        "wrong_places": [p for p, g in (inv.get("grades") or {}).items() if g != "right"],
+        **_timing(s, inv, wall_s),
     }
 
 

@@ -13,7 +13,6 @@ message in the run log; they never raise, so the tree (or the safety supervisor)
 
 from __future__ import annotations
 
-import math
 import os
 import threading
 from typing import Any
@@ -37,6 +36,7 @@ from nodes.perception_session import (
     BlockScan,
     PerceptionError,
     PerceptionSession,
+    identification_record,
 )
 from perception.errors import ModelError
 from perception.gallery import GalleryError
@@ -426,36 +426,11 @@ class IdentifyPallet(StatefulActionNode):
         session, th, crops = i["session"], i["thresholds"], i["crops"]
         key = self.output_key("pallet_id") or ""
         ranking = [[ident, round(d, 4)] for ident, d, _ in match.ranking]
-        session.identifications.append(
-            {
-                "t_s": self.now(),
-                "key": key,
-                "node": self.describe(),
-                "pallet_id": match.pallet_id,
-                "best_id": match.best_id,
-                "distance": match.distance,
-                "margin": match.margin,
-                "known": match.known,
-                "reason": match.reason,
-                "thresholds": [th.max_distance, th.min_margin],
-                "ranking": [[i, d, list(b)] for i, d, b in match.ranking],
-                "gallery_update": update,
-                "texture": (
-                    None
-                    if match.texture_z is None
-                    else [
-                        match.texture_id,
-                        match.texture_z,
-                        match.texture_margin if math.isfinite(match.texture_margin or 0) else None,
-                        [z if math.isfinite(z) else None for z in match.texture_blocks or ()],
-                    ]
-                ),
-                "decided_by": match.decided_by if match.known else "",
-                "expected": match.expected,
-                "verified_expected": match.verified_expected,
-                "crops": crops,
-            }
+        record = identification_record(
+            match, th, crops, t_s=self.now(), key=key, node=self.describe()
         )
+        record["gallery_update"] = update
+        session.identifications.append(record)
         self.set_output("gallery_updated", bool(update and update.startswith("added")))
         self.set_output("pallet_id", match.pallet_id)
         self.set_output("best_id", match.best_id)

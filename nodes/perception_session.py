@@ -14,6 +14,7 @@ that message, so the tree lands the drone instead of guessing.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections import deque
@@ -58,6 +59,40 @@ def _cached(key: tuple[str, str], load: Callable[[], Any]) -> Any:
     model = load()
     _MODELS[key] = (stamp, model)
     return model
+
+
+def identification_record(
+    match: Any, thresholds: Any, crops: list, *, t_s: float, key: str, node: str
+) -> dict:
+    """What :attr:`PerceptionSession.identifications` keeps of one answer (the report, the
+    summary and a place's evidence read it): the answer, its ranking and texture figures,
+    the thresholds used and the crops."""
+    texture = None
+    if match.texture_z is not None:
+        texture = [
+            match.texture_id,
+            match.texture_z,
+            match.texture_margin if math.isfinite(match.texture_margin or 0) else None,
+            [z if math.isfinite(z) else None for z in match.texture_blocks or ()],
+        ]
+    return {
+        "t_s": t_s,
+        "key": key,
+        "node": node,
+        "pallet_id": match.pallet_id,
+        "best_id": match.best_id,
+        "distance": match.distance,
+        "margin": match.margin,
+        "known": match.known,
+        "reason": match.reason,
+        "thresholds": [thresholds.max_distance, thresholds.min_margin],
+        "ranking": [[i, d, list(b)] for i, d, b in match.ranking],
+        "texture": texture,
+        "decided_by": match.decided_by if match.known else "",
+        "expected": match.expected,
+        "verified_expected": match.verified_expected,
+        "crops": crops,
+    }
 
 
 class PerceptionError(Exception):

@@ -38,7 +38,13 @@ from nodes.identify import expected_for, identify_described
 from nodes.inventory import CATEGORY_INVENTORY, world_of
 from nodes.inventory_log import EMPTY, IDENTIFIED, NOT_SCANNED, UNKNOWN, InventoryLog
 from nodes.perception_feed import FrameFeed
-from nodes.perception_session import DEMO, MIN_SCORE_DOC, PerceptionError, PerceptionSession
+from nodes.perception_session import (
+    DEMO,
+    MIN_SCORE_DOC,
+    PerceptionError,
+    PerceptionSession,
+    identification_record,
+)
 from nodes.place_evidence import write_place_evidence
 from nodes.sweep_plan import footprints, geofence_inside, route, sweep_plan_of
 
@@ -493,24 +499,9 @@ def identify_views(leaf: SweepPass, place_views: list[list], place: str) -> Any:
         )
     except (GalleryError, ModelError) as exc:
         raise PerceptionError(f"identification at {place}: {exc}") from None
-    session.identifications.append(
-        {
-            "t_s": leaf.now(),
-            "key": f"sweep:{place}",
-            "node": leaf.describe(),
-            "pallet_id": match.pallet_id,
-            "best_id": match.best_id,
-            "distance": match.distance,
-            "margin": match.margin,
-            "known": match.known,
-            "reason": match.reason,
-            "thresholds": [g.thresholds.max_distance, g.thresholds.min_margin],
-            "ranking": [[i, d, list(b)] for i, d, b in match.ranking],
-            "decided_by": match.decided_by if match.known else "",
-            "expected": match.expected,
-            "verified_expected": match.verified_expected,
-            "place": place,
-            "crops": crops,
-        }
+    record = identification_record(
+        match, g.thresholds, crops, t_s=leaf.now(), key=f"sweep:{place}", node=leaf.describe()
     )
+    record["place"] = place
+    session.identifications.append(record)
     return match

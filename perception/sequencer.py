@@ -143,7 +143,7 @@ class BlockSequencer:
             dx = det.cx - centre
             if dx <= 0:
                 if -dx <= p.max_distance_left_px and not track.committed:
-                    crop = _crop(image, det)
+                    crop = crop_box(image, det)
                     q = self.quality(det, crop, w)
                     if q > track.best_quality:
                         track.best_crop, track.best_quality = crop, q
@@ -194,7 +194,8 @@ class BlockSequencer:
         return out
 
 
-def _crop(image: np.ndarray, det: Detection) -> np.ndarray:
+def crop_box(image: np.ndarray, det: Detection) -> np.ndarray:
+    """The pixels of a detection's box (clipped to the image), a copy."""
     h, w = image.shape[:2]
     x1, y1 = max(int(round(det.x1)), 0), max(int(round(det.y1)), 0)
     x2, y2 = min(int(round(det.x2)), w), min(int(round(det.y2)), h)

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from perception.sequencer import Detection, sharpness
+from perception.sequencer import Detection, crop_box, sharpness
 from perception.synth.camera_model import CameraModel, CameraPose, world_to_optical
 
 #: outcomes of a finished place
@@ -360,7 +360,7 @@ class SweepCollector:
             w.hits[k].append((self.along(centre), self.along(w.slots[k]) + err))
             if det.x1 <= self.params.border_px or det.x2 >= w_px - 1 - self.params.border_px:
                 continue
-            crop = _crop(bgr, det)
+            crop = crop_box(bgr, det)
             if crop.size == 0:
                 continue
             centred = 1.0 / (1.0 + abs(det.cx - cam.cx) / 40.0)
@@ -448,10 +448,3 @@ def fuse_views(
         out_s[b] = s.mean(axis=0)
         start += n
     return out_v, out_s
-
-
-def _crop(image: np.ndarray, det: Detection) -> np.ndarray:
-    h, w = image.shape[:2]
-    x1, y1 = max(int(round(det.x1)), 0), max(int(round(det.y1)), 0)
-    x2, y2 = min(int(round(det.x2)), w), min(int(round(det.y2)), h)
-    return image[y1:y2, x1:x2].copy()
