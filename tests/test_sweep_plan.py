@@ -110,3 +110,10 @@ def test_fewer_faces_than_drones_split_by_levels(site):
     levels = {d: {site.places[p].level for p in ps} for d, ps in split.items()}
     assert sorted(len(ps) for ps in split.values()) == [12, 24]
     assert not (levels["cf1"] & levels["cf2"])
+
+
+def test_fewer_face_levels_than_drones_split_by_bays(site):
+    places = ["A-02-1", "A-07-1"]
+    starts = {"cf1": (1.0, -10.0, 0.0), "cf2": (2.0, -10.0, 0.0)}
+    split = split_places(places, site, starts, "faces")
+    assert sorted(len(ps) for ps in split.values()) == [1, 1]

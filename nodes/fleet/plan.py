@@ -7,7 +7,8 @@ at most 4! = 24); every block is flown in the list's direction, so the drones sw
 aisle side by side, a block apart. ``faces`` gives each drone whole rack faces (a sweep flies
 a face's levels one after the other; two drones never share a face): faces are dealt out so
 that the drones get about the same number of places (largest first to the drone with the
-fewest), or, with fewer faces than drones, the faces' levels are. ``round_robin`` deals
+fewest), or, with fewer faces than drones, the faces' levels are (with fewer levels too:
+blocks of bays). ``round_robin`` deals
 the places out in turn (drones then meet often: the airspace keeps them apart, at a cost in
 time).
 """
@@ -49,13 +50,16 @@ def bay_blocks(places: list[str], world: Any, n: int) -> list[list[str]]:
 
 def face_blocks(places: list[str], world: Any, n: int) -> list[list[str]]:
     """``places`` cut into ``n`` groups of whole rack faces (of whole face levels when there
-    are fewer faces than drones), about equal in places, each in the list's order."""
+    are fewer faces than drones; of bays when there are fewer face levels too), about equal
+    in places, each in the list's order."""
     groups: dict[tuple, list[str]] = {}
     racks = {world.places[p].rack for p in places}
     by_level = len(racks) < n
     for name in places:
         p = world.places[name]
         groups.setdefault((p.rack, p.level) if by_level else (p.rack,), []).append(name)
+    if len(groups) < n:  # fewer face levels than drones: blocks of bays, as split: bays
+        return bay_blocks(places, world, n)
     blocks: list[list[str]] = [[] for _ in range(n)]
     for key in sorted(groups, key=lambda k: (-len(groups[k]), k)):
         k = min(range(n), key=lambda i: (len(blocks[i]), i))
