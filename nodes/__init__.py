@@ -14,5 +14,6 @@ from nodes import (  # noqa: F401  (registration)
     reactive_scan,
     safety,
     sweep,
+    sweep_energy,
     sweep_plan,
 )

@@ -12,7 +12,6 @@ charges it on the pad; then the inventory resumes at the first place not answere
 
 from __future__ import annotations
 
-import math
 import statistics
 from typing import Any
 
@@ -26,6 +25,25 @@ CATEGORY_ENERGY = "energy"
 NEW_BATTERY_JUMP = 20.0
 #: airborne seconds on one battery before its measured consumption is trusted
 MEASURE_AFTER_S = 20.0
+#: ``ctx.resources`` key of the last measured consumption: (mission time, %/s)
+RATE_KEY = "energy_rate"
+
+
+def travel_m(ctx: Any, a: Any, b: Any) -> float:
+    """How far the drone flies from ``a`` to ``b``: around the racks of the world's map
+    (the way ``FlyRoute`` goes), else in a straight line."""
+    from nodes.sweep_plan import route_length
+
+    return route_length(ctx, tuple(a), tuple(b))
+
+
+def measured_rate(ctx: Any, now: float, max_age_s: float = 30.0) -> float | None:
+    """The consumption (%/s) an ``EnoughEnergy`` measured on the current battery in the
+    last ``max_age_s`` seconds, or None."""
+    got = ctx.resources.get(RATE_KEY)
+    if got is None or now - got[0] > max_age_s:
+        return None
+    return float(got[1])
 
 
 def needed_percent(
@@ -89,8 +107,11 @@ class EnoughEnergy(ConditionNode):
     def _evaluate(self, v: Any, now: float) -> bool:
         pct = v.battery.percent
         hist = getattr(self, "_hist", None)
-        if hist is None or pct > hist[-1][1] + NEW_BATTERY_JUMP or not v.is_flying:
+        renewed = hist is not None and pct > hist[-1][1] + NEW_BATTERY_JUMP
+        if hist is None or renewed or not v.is_flying:
             hist = self._hist = []  # a new battery (or on the ground): measure afresh
+            if renewed or not v.is_flying:
+                self.ctx.resources.pop(RATE_KEY, None)
         if v.is_flying:
             hist.append((now, pct))
         (t0, p0) = hist[0] if hist else (now, pct)
@@ -100,13 +121,15 @@ class EnoughEnergy(ConditionNode):
         else:
             rate = 100.0 / max(self.get_input("endurance"), 1.0)
             how = "assumed"
+        if how == "measured":
+            self.ctx.resources[RATE_KEY] = (now, rate)
         intervals = [b[0] - a[0] for a, b in zip(hist, hist[1:], strict=False)]
         task = statistics.median(intervals) if len(intervals) >= 2 else self.get_input("task_time")
         target, home = self.get_input("target"), self.get_input("home")
         need, seconds = needed_percent(
             rate,
-            math.dist(v.position, target),
-            math.dist(target, home),
+            travel_m(self.ctx, v.position, target),
+            travel_m(self.ctx, target, home),
             self.get_input("speed"),
             task,
             self.get_input("landing_time"),

@@ -46,7 +46,7 @@ from nodes.perception_session import (
     identification_record,
 )
 from nodes.place_evidence import write_place_evidence
-from nodes.sweep_plan import footprints, geofence_inside, route, sweep_plan_of
+from nodes.sweep_plan import footprints, geofence_inside, pass_line, route, sweep_plan_of
 
 FIXED_YAW = 2
 #: The sweep's own acceptance of an answer the gallery's thresholds left unknown only on the
@@ -186,21 +186,12 @@ class SweepPass(StatefulActionNode):
             return self._fail(str(exc))
         standoff, lead = self.get_input("standoff"), self.get_input("lead")
         model = PalletModel()
-        half = max(abs(o) for o in model.offsets()) + 0.08
-        d = spec.direction
+        self.start_point, self.end_point = pass_line(spec, standoff, lead, todo)
         n = (-math.cos(spec.look_rad), -math.sin(spec.look_rad))  # out of the face
-
-        def at(row: tuple[float, float, float], along: float) -> tuple[float, float, float]:
-            return (
-                row[0] + n[0] * standoff + d[0] * along,
-                row[1] + n[1] * standoff + d[1] * along,
-                row[2],
-            )
-
-        first, last = spec.rows[todo[0]], spec.rows[todo[-1]]
-        self.start_point = at(first, -(half + lead))
-        self.end_point = at(last, half + lead)
-        self.points = {p: at(spec.rows[p], 0.0) for p in todo}
+        self.points = {
+            p: (r[0] + n[0] * standoff, r[1] + n[1] * standoff, r[2])
+            for p, r in ((p, spec.rows[p]) for p in todo)
+        }
         places = [PassPlace(p, spec.rows[p], spec.look_rad) for p in todo]
         params = SweepParams(host_frame_s=self.get_input("host_frame_time"))
         self.collector = SweepCollector(

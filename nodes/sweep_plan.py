@@ -258,6 +258,43 @@ def plan_passes(places: list[str], world: Any, start: tuple[float, float, float]
     return SweepPlan(passes, order)
 
 
+def pass_line(
+    spec: PassSpec, standoff: float, lead: float, places: list[str] | None = None
+) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """Where a pass over ``places`` (default: all of the pass's, in flying order) starts and
+    ends: ``standoff`` out from the faces, ``lead`` before the first block and after the
+    last."""
+    from perception.face import PalletModel
+
+    names = places or spec.places
+    half = max(abs(o) for o in PalletModel().offsets()) + 0.08
+    d = spec.direction
+    n = (-math.cos(spec.look_rad), -math.sin(spec.look_rad))  # out of the face
+
+    def at(row: tuple[float, float, float], along: float) -> tuple[float, float, float]:
+        return (
+            row[0] + n[0] * standoff + d[0] * along,
+            row[1] + n[1] * standoff + d[1] * along,
+            row[2],
+        )
+
+    return at(spec.rows[names[0]], -(half + lead)), at(spec.rows[names[-1]], half + lead)
+
+
+def route_length(ctx: Any, a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    """Length of the way from ``a`` to ``b`` around the racks of the run's world map
+    (:func:`route`); a straight line without racks or without a way round."""
+    world = world_of(ctx)
+    racks = footprints(world) if world is not None else []
+    if not racks:
+        return math.dist(a, b)
+    path = route(a, b, racks, geofence_inside(ctx))  # type: ignore[arg-type]
+    if path is None:
+        return math.dist(a, b)
+    pts = [tuple(a), *path]
+    return sum(math.dist(p, q) for p, q in zip(pts, pts[1:], strict=False))
+
+
 def sweep_plan_of(ctx: Any) -> SweepPlan | None:
     """The plan ``PlanSweep`` made in this run (None before it ran)."""
     return ctx.resources.get("sweep_plan")

@@ -79,8 +79,15 @@ def test_a_pass_answers_each_place_as_it_flies_by(tmp_path):
 
 
 def test_a_battery_change_in_the_middle_of_a_level_resumes_at_the_next_place(tmp_path):
+    # without the change between passes, the charge runs short during the pass
     out = tmp_path / "run"
-    code = _fly(out, "places=A-0*-1", "battery.initial_soc=0.3", "rescan_places=false")
+    code = _fly(
+        out,
+        "places=A-0*-1",
+        "battery.initial_soc=0.3",
+        "rescan_places=false",
+        "battery_between_passes=false",
+    )
     assert code == 0
     msgs = _messages(out)
     swaps = [t for t, m in msgs if "battery swapped" in m]
@@ -107,6 +114,21 @@ def test_a_battery_change_in_the_middle_of_a_level_resumes_at_the_next_place(tmp
     # no place was answered twice
     all_answers = [m.split(":")[0].split()[-1] for _, m in msgs if re.match(r"inventory A-", m)]
     assert len(all_answers) == len(set(all_answers))
+
+
+def test_a_battery_that_would_not_last_the_pass_is_changed_before_it(tmp_path):
+    out = tmp_path / "run"
+    code = _fly(out, "places=A-0*-1", "battery.initial_soc=0.3", "rescan_places=false")
+    assert code == 0
+    msgs = _messages(out)
+    swaps = [t for t, m in msgs if "battery swapped" in m]
+    planned = [t for t, m in msgs if "change the battery before pass A/1" in m]
+    starts = [t for t, m in msgs if re.match(r"sweep A/1: 8 places", m)]
+    assert len(swaps) == 1 and len(planned) == 1
+    # changed before the pass, which then flew whole, once
+    assert planned[0] < swaps[0] < starts[0] and len(starts) == 1
+    rows = read_inventory(str(out))
+    assert len(rows) == 8 and all(r["status"] != "not_scanned" for r in rows)
 
 
 def test_an_interrupted_sweep_resumes_where_it_stopped(tmp_path):
