@@ -25,8 +25,6 @@ start. In real time, identifications run on a thread of their own so the tick ne
 from __future__ import annotations
 
 import math
-import queue
-import threading
 from dataclasses import replace
 from typing import Any
 
@@ -34,7 +32,6 @@ from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulAction
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from nodes.common import is_realtime, vehicle_of
-from nodes.identify import expected_for, identify_described
 from nodes.inventory import CATEGORY_INVENTORY, world_of
 from nodes.inventory_log import EMPTY, IDENTIFIED, NOT_SCANNED, UNKNOWN, InventoryLog
 from nodes.perception_feed import FrameFeed
@@ -43,9 +40,9 @@ from nodes.perception_session import (
     MIN_SCORE_DOC,
     PerceptionError,
     PerceptionSession,
-    identification_record,
 )
 from nodes.place_evidence import write_place_evidence
+from nodes.sweep_identify import Identifications
 from nodes.sweep_plan import footprints, geofence_inside, pass_line, route, sweep_plan_of
 
 FIXED_YAW = 2
@@ -121,6 +118,14 @@ class SweepPass(StatefulActionNode):
             "hand the places the pass could not answer to the per-place scan (rescan); "
             "false: they stay not_scanned (a resumed run flies them again)",
         ),
+        input_port(
+            "second_look_speed",
+            FLOAT,
+            0.3,
+            "a place the pass could not answer is flown past again at this speed right away "
+            "(a few seconds) before it is left for the per-place scan; 0: never, m/s",
+        ),
+        input_port("second_looks", INT, 4, "at most this many second looks per pass"),
         input_port("timeout", DURATION, 180.0, "FAILURE if the pass is not done within this, s"),
         output_port(
             "next_point", ANY, "where the next place is scanned from, x;y;z (EnoughEnergy)"
@@ -136,6 +141,7 @@ class SweepPass(StatefulActionNode):
         ("transit_speed", 0.05, 3.0, "a transit speed in m/s"),
         ("lead", 0.0, 3.0, "a run-up in m"),
         ("host_frame_time", 0.0, 5.0, "a time per frame in s"),
+        ("second_look_speed", 0.0, 2.0, "a speed in m/s (0: no second look)"),
     )
 
     def preflight(self) -> list[Any]:
@@ -162,7 +168,7 @@ class SweepPass(StatefulActionNode):
         self.vehicle = vehicle_of(self)
         self.started_s = self.now()
         self.session = PerceptionSession.of(self.ctx)
-        self.jobs: _Identifications | None = None
+        self.jobs: Identifications | None = None
         self.progress: Any = None
         plan = sweep_plan_of(self.ctx)
         name = self.get_input("pass")
@@ -194,17 +200,30 @@ class SweepPass(StatefulActionNode):
         }
         places = [PassPlace(p, spec.rows[p], spec.look_rad) for p in todo]
         params = SweepParams(host_frame_s=self.get_input("host_frame_time"))
-        self.collector = SweepCollector(
-            CameraModel.from_dict(self.session.camera),
-            places,
-            self.start_point,
-            self.end_point,
-            model.offsets(),
-            model.block_height_m,
-            params,
+
+        def collector(places: list[Any], start: Any, end: Any, params: SweepParams = params) -> Any:
+            return SweepCollector(
+                CameraModel.from_dict(self.session.camera),
+                places,
+                start,
+                end,
+                model.offsets(),
+                model.block_height_m,
+                params,
+            )
+
+        self.collector = self.main = collector(places, self.start_point, self.end_point)
+        # a second look: one place, more views of each block (the drone is slow)
+        self.second = lambda place, a, b: collector(
+            [PassPlace(place, spec.rows[place], spec.look_rad)],
+            a,
+            b,
+            replace(params, views=5, want_views=5),
         )
+        self.relook: list[str] = []  # places waiting for a second look
+        self.relooked: set[str] = set()
         self.realtime = is_realtime(self)
-        self.jobs = _Identifications(self, self.realtime)
+        self.jobs = Identifications(self, self.realtime)
         self.answered = 0
         self.set_output("next_point", self.points[todo[0]])
         world = world_of(self.ctx)
@@ -246,46 +265,86 @@ class SweepPass(StatefulActionNode):
         if self.phase == "transit":
             if not p.reached:
                 return RUNNING
-            self.phase = "pass"
-            self.feed = (
-                self.session.feed(self.vehicle, True)
-                if self.realtime
-                else FrameFeed(None, 0, self.collector)
-            )
-            self.progress = self.vehicle.go_to(
-                *self.end_point,
-                FIXED_YAW,
-                self.spec.look_rad,
-                self.get_input("speed"),
-                position_tolerance_m=0.1,
-                yaw_tolerance_rad=math.radians(10.0),
-            )
-            if self.progress.failed:
-                return self._fail(self.progress.reason or "motion refused")
-            return RUNNING
-        if self.phase == "pass":
+            return self._fly_line("pass", self.end_point, self.get_input("speed"))
+        if self.phase in ("pass", "second"):
             try:
                 self._look()
             except PerceptionError as exc:
                 return self._fail(str(exc))
-            for w in self.collector.finish_passed(self.vehicle.position):
-                self._answer(w)
-            self._next_point()
-            if p.reached:
-                for w in self.collector.finish_all("the pass ended before the place was in view"):
+            if self.phase == "pass":
+                for w in self.collector.finish_passed(self.vehicle.position):
                     self._answer(w)
+                self._next_point()
+                if p.reached:
+                    for w in self.collector.finish_all(
+                        "the pass ended before the place was in view"
+                    ):
+                        self._answer(w)
+                    self.phase = "finishing"
+            elif p.reached:  # the second look is over: its answer, then on along the pass
+                for w in self.collector.finish_all("not seen whole on the second look"):
+                    self._answer(w)
+                self.collector = self.main
+                if self.main.open():
+                    return self._fly_line("pass", self.end_point, self.get_input("speed"))
                 self.phase = "finishing"
+        elif self.phase == "back" and p.reached:
+            name = self.relook.pop(0)
+            a, b = pass_line(self.spec, self.get_input("standoff"), 0.3, [name])
+            self.collector = self.second(name, a, b)
+            return self._fly_line("second", b, self.get_input("second_look_speed"))
         status = self._collect()
         if status is not None:
             return status
+        if self.relook and self.phase in ("pass", "finishing"):
+            return self._second_look()
         if self.phase == "finishing" and self.jobs.idle():
             self.ctx.log(
                 f"sweep {self.spec.name}: {self.answered} answered, "
+                f"{len(self.relooked)} looked at again, "
                 f"{len(self.plan.rescan.get(self.spec.name, []))} left for the rescan, "
-                f"{self.collector.frames} frames looked at"
-                + (f", {self.collector.dropped} dropped" if self.collector.dropped else "")
+                f"{self.main.frames} frames looked at"
+                + (f", {self.main.dropped} dropped" if self.main.dropped else "")
             )
             return SUCCESS
+        return RUNNING
+
+    def _fly_line(self, phase: str, goal: Any, speed: float) -> NodeStatus:
+        """Fly along the face to ``goal`` at ``speed``, looking (``phase``: pass, second)."""
+        self.phase = phase
+        self.feed = (
+            self.session.feed(self.vehicle, True)
+            if self.realtime
+            else FrameFeed(None, 0, self.collector)
+        )
+        self.progress = self.vehicle.go_to(
+            *goal,
+            FIXED_YAW,
+            self.spec.look_rad,
+            speed,
+            position_tolerance_m=0.1,
+            yaw_tolerance_rad=math.radians(10.0),
+        )
+        if self.progress.failed:
+            return self._fail(self.progress.reason or "motion refused")
+        return RUNNING
+
+    def _second_look(self) -> NodeStatus:
+        """Back along the face to just before the next place to look at again."""
+        name = self.relook[0]
+        a, _ = pass_line(self.spec, self.get_input("standoff"), 0.3, [name])
+        self.ctx.log(f"sweep {self.spec.name}: a second look at {name}")
+        self.phase = "back"
+        self.progress = self.vehicle.go_to(
+            *a,
+            FIXED_YAW,
+            self.spec.look_rad,
+            self.get_input("transit_speed"),
+            position_tolerance_m=0.05,
+            yaw_tolerance_rad=math.radians(10.0),
+        )
+        if self.progress.failed:
+            return self._fail(self.progress.reason or "motion refused")
         return RUNNING
 
     def _look(self) -> None:
@@ -318,6 +377,15 @@ class SweepPass(StatefulActionNode):
             self._to_rescan(w, w.reason)
 
     def _to_rescan(self, w: Any, reason: str) -> None:
+        if (
+            self.get_input("second_look_speed") > 0
+            and w.name not in self.relooked
+            and len(self.relooked) < self.get_input("second_looks")
+        ):
+            self.relooked.add(w.name)
+            self.relook.append(w.name)
+            self.ctx.log(f"inventory {w.name}: not answered by the pass ({reason})")
+            return
         self.plan.rescan.setdefault(self.spec.name, []).append(w.name)
         self._record(w, "", NOT_SCANNED, None, f"sweep: {reason}; rescan")
         self._rescan_output()
@@ -397,102 +465,3 @@ class SweepPass(StatefulActionNode):
         v = getattr(self, "vehicle", None)
         if v is not None and v.is_flying and v.motion is getattr(self, "progress", None):
             v.hover()
-
-
-class _Identifications:
-    """Identify finished places: at once (lock-step) or on one worker thread (real time)."""
-
-    #: real time: a place identification waiting longer than this fails the pass, s
-    MAX_WAIT_S = 60.0
-
-    def __init__(self, leaf: SweepPass, threaded: bool) -> None:
-        self.leaf, self.threaded = leaf, threaded
-        self.results: list[tuple[Any, Any, BaseException | None]] = []
-        self.pending = 0
-        self._lock = threading.Lock()
-        self._queue: queue.Queue | None = None
-        if threaded:
-            self._queue = queue.Queue()
-            threading.Thread(target=self._work, name="sweep-identify", daemon=True).start()
-
-    def submit(self, w: Any) -> None:
-        """Identify the place ``w`` (its three crops)."""
-        if self._queue is None:
-            self.results.append(self._identify(w))
-            return
-        with self._lock:
-            self.pending += 1
-        self._queue.put(w)
-
-    def _work(self) -> None:
-        assert self._queue is not None
-        while True:
-            w = self._queue.get()
-            if w is None:
-                return
-            out = self._identify(w)
-            with self._lock:
-                self.results.append(out)
-                self.pending -= 1
-
-    def _identify(self, w: Any) -> tuple[Any, Any, BaseException | None]:
-        try:
-            return w, identify_views(self.leaf, w.ordered_views(), w.name), None
-        except BaseException as exc:  # handed to the tick thread
-            return w, None, exc
-
-    def done(self) -> list[tuple[Any, Any, BaseException | None]]:
-        """The identifications finished since the last call."""
-        with self._lock:
-            out, self.results = self.results, []
-        return out
-
-    def idle(self) -> bool:
-        """True when nothing is waiting to be identified."""
-        with self._lock:
-            return self.pending == 0 and not self.results
-
-    def drain(self) -> list[tuple[Any, Any, BaseException | None]]:
-        """Stop the worker; what finished meanwhile."""
-        if self._queue is not None:
-            self._queue.put(None)
-        return self.done()
-
-
-def identify_views(leaf: SweepPass, place_views: list[list], place: str) -> Any:
-    """Embed the views of a place's three blocks (``place_views``: per block its crops,
-    best first), average each block's views (:func:`perception.sweep.fuse_views`) and match
-    them against the pass's gallery with the gallery's
-    thresholds and texture verification, verifying 1:1 first against the pallet the expected
-    stock names for ``place`` (:func:`nodes.identify.identify_scan`, as IdentifyPallet
-    does); the match. The session
-    keeps the identification for the report."""
-    from perception.errors import ModelError
-    from perception.gallery import GalleryError
-    from perception.sweep import fuse_views
-
-    session, embedder, g = leaf.session, leaf.embedder, leaf.gallery
-    views = [v for v in place_views if v]
-    crops = [v[0] for v in views]
-    try:
-        desc = embedder.describe([c for v in views for c in v])
-        vectors, vis = fuse_views(
-            desc.vectors, desc.visibility, [len(v) for v in views], embedder.config.parts
-        )
-        match = identify_described(
-            g,
-            vectors,
-            vis if embedder.occlusion_aware else None,
-            crops,
-            g.thresholds,
-            expected=expected_for(leaf.ctx, place),
-            top_k=5,
-        )
-    except (GalleryError, ModelError) as exc:
-        raise PerceptionError(f"identification at {place}: {exc}") from None
-    record = identification_record(
-        match, g.thresholds, crops, t_s=leaf.now(), key=f"sweep:{place}", node=leaf.describe()
-    )
-    record["place"] = place
-    session.identifications.append(record)
-    return match

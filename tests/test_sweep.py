@@ -147,10 +147,28 @@ def test_an_interrupted_sweep_resumes_where_it_stopped(tmp_path):
     assert not (flown & done)
 
 
+@pytest.mark.parametrize("place", ["A-02-1", "A-03-1"])  # a pallet, an empty place
+def test_a_place_the_pass_cannot_answer_gets_a_second_look_at_once(tmp_path, place):
+    out = tmp_path / "run"
+    # a host that needs 0.7 s per frame drops the frames the pass needed; flown past again
+    # slowly, the place gets frames enough
+    assert _fly(out, f"places={place}", "host_frame_time=0.7") == 0
+    msgs = _messages(out)
+    left = [t for t, m in msgs if m.startswith(f"inventory {place}: not answered by the pass")]
+    look = [t for t, m in msgs if m == f"sweep A/1: a second look at {place}"]
+    answered = [t for t, m in msgs if re.match(rf"inventory {place}: \S+ \((identified|empty)", m)]
+    assert len(left) == len(look) == len(answered) == 1, msgs
+    assert left[0] <= look[0] < answered[0] < left[0] + 15.0  # seconds, not a rescan
+    assert not any("LocatePallet" in m for _, m in msgs)
+    rows = read_inventory(str(out))
+    truth, _ = _truth()
+    assert len(rows) == 1 and rows[0]["answer"] == (truth[place] or "empty")
+
+
 def test_a_place_the_pass_cannot_answer_gets_the_per_place_scan(tmp_path):
     out = tmp_path / "run"
-    # a host that needs 0.7 s per frame drops the frames the pass needed
-    assert _fly(out, "places=A-03-1", "host_frame_time=0.7") == 0
+    # a host that needs 0.7 s per frame drops the frames the pass needed (no second look)
+    assert _fly(out, "places=A-03-1", "host_frame_time=0.7", "second_look_speed=0") == 0
     msgs = _messages(out)
     left = [m for _, m in msgs if m.startswith("inventory A-03-1: - (not_scanned; sweep")]
     assert left, "the pass should have left A-03-1 for the rescan"
