@@ -38,7 +38,7 @@ SPEEDS = (0.1, 0.2, 0.3, 0.5, 0.7, 0.8, 0.9, 1.0)
 
 def fly(job: tuple[float, float, int, str, str]) -> dict:
     """One sweep at one speed and host time; the grade of every place."""
-    speed, host, seed, places, out = job
+    speed, host, seed, places, out, second = job
     import torch
 
     torch.set_num_threads(1)
@@ -62,6 +62,7 @@ def fly(job: tuple[float, float, int, str, str]) -> dict:
         f"sweep_speed={speed}",
         f"host_frame_time={host}",
         "rescan_places=false",
+        f"second_look_speed={second}",
     ):
         args += ["--set", s]
     t0 = time.perf_counter()
@@ -86,13 +87,16 @@ def fly(job: tuple[float, float, int, str, str]) -> dict:
             counts["right"] += 1
         else:
             counts["unknown" if r["answer"] == "unknown" else "wrong"] += 1
-    frames, pass_s = 0, 0.0
+    frames, pass_s, looks = 0, 0.0, 0
     with open(os.path.join(out, "ticks.jsonl")) as f:
         for line in f:
             for m in json.loads(line).get("messages", ()):
                 hit = re.match(r"sweep \S+: (\d+) answered, .* (\d+) frames looked at", m)
                 if hit:
                     frames += int(hit.group(2))
+                again = re.match(r"sweep \S+: \d+ answered, (\d+) looked at again", m)
+                if again:
+                    looks += int(again.group(1))
     starts: dict[str, float] = {}
     with open(os.path.join(out, "ticks.jsonl")) as f:
         for line in f:
@@ -110,6 +114,7 @@ def fly(job: tuple[float, float, int, str, str]) -> dict:
         "code": code,
         "places": len(doc["rows"]),
         **counts,
+        "second_looks": looks,
         "frames_per_place": round(frames / n, 1),
         "pass_s_per_place": round(pass_s / n, 2),
         "wall_s": round(wall, 1),
@@ -124,18 +129,24 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[100])
     ap.add_argument("--places", default="A-*-1;C-*-2")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument(
+        "--second-look",
+        type=float,
+        default=0.3,
+        help="second_look_speed, m/s (0: none, as before the second look)",
+    )
     ap.add_argument("--json", help="write every row here")
     args = ap.parse_args()
     root = tempfile.mkdtemp(prefix="sweep-curve-")
     jobs = [
-        (v, h, s, args.places, os.path.join(root, f"v{v}_h{h}_s{s}"))
+        (v, h, s, args.places, os.path.join(root, f"v{v}_h{h}_s{s}"), args.second_look)
         for h in args.host
         for v in args.speeds
         for s in args.seeds
     ]
     print(
         f"{'speed':>5} {'host s':>6} {'seed':>4} {'right':>7} {'unk':>4} {'wrong':>5} "
-        f"{'miss':>4} {'rescan':>6} {'frames/pl':>9} {'s/place':>7}"
+        f"{'miss':>4} {'rescan':>6} {'2nd look':>8} {'frames/pl':>9} {'s/place':>7}"
     )
     rows = []
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
@@ -144,7 +155,7 @@ def main() -> int:
             print(
                 f"{r['speed']:>5.2f} {r['host_frame_s']:>6.2f} {r['seed']:>4} "
                 f"{r['right']:>3}/{r['places']:<3} {r['unknown']:>4} {r['wrong']:>5} "
-                f"{r['missed']:>4} {r['rescan']:>6} {r['frames_per_place']:>9} "
+                f"{r['missed']:>4} {r['rescan']:>6} {r['second_looks']:>8} {r['frames_per_place']:>9} "
                 f"{r['pass_s_per_place']:>7}",
                 flush=True,
             )
