@@ -65,6 +65,8 @@ EDGE_MM, EDGE_WIDTH_MM = 1.5, 4.0
 SPECULAR, SHININESS = 0.06, 16.0
 #: lamp directions are computed on a grid this coarse (px) and interpolated
 GRID_PX = 24
+#: rows of the face shaded at a time (the same numbers as all at once, faster)
+_ROWS = 16
 
 
 def _mm_px(v_m: float) -> int:
@@ -111,7 +113,8 @@ def face_height(
         )
         period = rng.uniform(2.5, 6.0) * px_mm  # saw marks across the part
         angle = rng.normal(0.0, 0.15)
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        yy = np.arange(h, dtype=np.float32)[:, None]  # a column and a row, broadcast
+        xx = np.arange(w, dtype=np.float32)[None, :]
         saw = np.sin(2 * np.pi * (xx * np.cos(angle) + yy * np.sin(angle)) / period)
         saw *= 1.0 + 0.5 * smooth_noise(rng, h, w, 2, max(2, w // 80))
         und = smooth_noise(rng, h, w, 2, max(2, w // 60))
@@ -143,9 +146,33 @@ def _normals(pallet_id: str, side: str, style: SideStyle, geometry: PalletGeomet
     gx = cv2.Sobel(height, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / (8.0 * per_px))
     gy = cv2.Sobel(height, cv2.CV_32F, 0, 1, ksize=3, scale=1.0 / (8.0 * per_px))
     inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
-    out = np.stack([-gx * inv, -gy * inv, inv], axis=-1).astype(np.float16)
-    out.setflags(write=False)
-    return out
+    # Kept as three planes (x, y, z) seen through an (H, W, 3) view: shade_map reads a
+    # component at a time, and np.stack(...).astype(float16) was slow.
+    planes = np.empty((3, *height.shape), np.float16)
+    planes[0] = _half(-gx * inv)
+    planes[1] = _half(-gy * inv)
+    planes[2] = _half(inv)
+    planes.setflags(write=False)
+    return np.moveaxis(planes, 0, -1)
+
+
+def _half(x: np.ndarray) -> np.ndarray:
+    """``x.astype(np.float16)`` (float32 in), by OpenCV: the same rounding to nearest even
+    (compared on every float32 from -2 to 2), a few times faster than numpy's."""
+    try:
+        return cv2.multiply(x, 1.0, dtype=cv2.CV_16F)
+    except (cv2.error, TypeError):  # an OpenCV without half-float arithmetic
+        return x.astype(np.float16)
+
+
+def _single(x: np.ndarray) -> np.ndarray:
+    """``x.astype(np.float32)`` (float16 in; exact either way), by OpenCV when it can."""
+    if x.flags.c_contiguous:
+        try:
+            return cv2.multiply(x, 1.0, dtype=cv2.CV_32F)
+        except (cv2.error, TypeError):
+            pass
+    return x.astype(np.float32)
 
 
 def shade_map(normals: np.ndarray, corners: np.ndarray, light: SceneLight) -> np.ndarray:
@@ -166,7 +193,7 @@ def shade_map(normals: np.ndarray, corners: np.ndarray, light: SceneLight) -> np
     sv = (np.linspace(0.0, H - 1.0, gh) + 0.5) / H
     P = c[0] + su[None, :, None] * U + sv[:, None, None] * V  # (gh, gw, 3)
     basis = np.stack([U / lu, V / lv, n_face])  # face x, y, z in the world
-    nx, ny, nz = (normals[..., i].astype(np.float32) for i in range(3))
+    nx, ny, nz = (_single(normals[..., i]) for i in range(3))
     direct = np.zeros((H, W), np.float32)
     for pos, intensity in light.lamps:
         d = np.asarray(pos, float) - P
@@ -176,14 +203,18 @@ def shade_map(normals: np.ndarray, corners: np.ndarray, light: SceneLight) -> np
         h_face = l_face + np.array([0.0, 0.0, 1.0])
         h_face /= np.maximum(np.linalg.norm(h_face, axis=-1, keepdims=True), 1e-6)
         fields = np.concatenate([l_face * fall, h_face], axis=-1).astype(np.float32)
+        # one 6-channel resize (a channel alone is interpolated with other roundings)
         full = cv2.resize(fields, (W, H), interpolation=cv2.INTER_LINEAR)
-        lam = nx * full[..., 0] + ny * full[..., 1] + nz * full[..., 2]
-        np.maximum(lam, 0.0, out=lam)
-        spec = nx * full[..., 3] + ny * full[..., 4] + nz * full[..., 5]
-        np.maximum(spec, 0.0, out=spec)
         lit = (l_face[..., 2] > 0.0).astype(np.float32)  # the lamp is in front of the face
         fall_full = cv2.resize((fall[..., 0] * lit).astype(np.float32), (W, H))
-        direct += lam + SPECULAR * fall_full * spec**SHININESS
+        for r0 in range(0, H, _ROWS):  # a band of rows at a time: its fields stay in cache
+            r = slice(r0, r0 + _ROWS)
+            f, x, y, z = full[r], nx[r], ny[r], nz[r]
+            lam = x * f[..., 0] + y * f[..., 1] + z * f[..., 2]
+            np.maximum(lam, 0.0, out=lam)
+            spec = x * f[..., 3] + y * f[..., 4] + z * f[..., 5]
+            np.maximum(spec, 0.0, out=spec)
+            direct[r] += lam + SPECULAR * fall_full[r] * spec**SHININESS
     return np.clip(light.ambient + 0.6 * direct, 0.15, 1.4).astype(np.float32)
 
 
