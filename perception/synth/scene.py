@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from functools import partial
+from functools import lru_cache, partial
 
 import cv2
 import numpy as np
@@ -204,8 +204,28 @@ def box_quads(
     material: str = "stand",
 ) -> list[Quad]:
     """The four vertical faces of a yawed box (stand, obstacle, rack steel), drawn with
-    ``material``'s texture (:data:`perception.synth.materials.MATERIALS`)."""
+    ``material``'s texture (:data:`perception.synth.materials.MATERIALS`).
 
+    The same box under the same light gives the same quads, made once and shared by the
+    scenes that have it (a quad is static: its shaded texture, made on first sight, is a
+    pure function of these arguments): a demo gallery build makes a scene per pallet side,
+    each with the same racks."""
+    args = (tuple(centre), tuple(half), yaw_rad, light, material)
+    try:
+        hash(args)
+    except TypeError:  # e.g. lamps given as lists: nothing to share it by
+        return list(_box_quads.__wrapped__(*args))
+    return list(_box_quads(*args))
+
+
+@lru_cache(maxsize=4096)
+def _box_quads(
+    centre: tuple[float, float, float],
+    half: tuple[float, float, float],
+    yaw_rad: float,
+    light: SceneLight,
+    material: str,
+) -> tuple[Quad, ...]:
     cx, cy, cz = centre
     hx, hy, hz = half
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
@@ -221,7 +241,7 @@ def box_quads(
         fc = np.array([cx, cy, 0.0]) + normal * half_depth
         corners = _rect(fc, normal, width, cz + hz, cz - hz)
         quads.append(Quad(corners, _shaded(tex, light.shade(corners.mean(0), normal)), normal))
-    return quads
+    return tuple(quads)
 
 
 def floor_and_walls(
