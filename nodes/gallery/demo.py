@@ -30,6 +30,7 @@ import hashlib
 import math
 import os
 import tempfile
+from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -195,12 +196,7 @@ def enrolment_frames(
 
     renderer, poses = _canonical_scan(data, world_path, identity, camera, seed)
     window = SequencerParams().max_distance_left_px
-    centre = renderer.camera.width / 2.0
-    offsets: dict[int, list[tuple[int, float]]] = {}
-    for k, pose in enumerate(poses):
-        for box in renderer.ground_truth(pose):
-            if box.visible >= 0.99:  # a whole block face, as the detector boxes it
-                offsets.setdefault(box.block, []).append((k, 0.5 * (box.x1 + box.x2) - centre))
+    offsets = _block_offsets(renderer, poses)
     chosen: set[int] = set()
     for track in offsets.values():
         inside = [k for k, dx in track if -window <= dx <= 0.0]
@@ -222,6 +218,42 @@ def enrolment_frames(
         previous = (poses[k - 1].t_s, poses[k - 1]) if k else None
         raw = renderer(poses[k], poses[k].t_s, previous)
         yield (raw if k in chosen else None), poses[k].t_s
+
+
+#: the blocks' image offsets along the canonical scan, by the scene's block geometry, the
+#: camera and the poses (every side of a world has the same: only its texture differs)
+_OFFSETS: OrderedDict[str, dict[int, list[tuple[int, float]]]] = OrderedDict()
+_MAX_OFFSETS = 8
+#: off: the offsets are worked out for every side, as before they were kept (benches)
+CACHE_OFFSETS = True
+
+
+def _block_offsets(renderer: Any, poses: list[Any]) -> dict[int, list[tuple[int, float]]]:
+    """Per block, ``(frame, box centre's offset from the image centre, px)`` of every frame
+    of ``poses`` that sees the whole block face (the scene's ground truth: no detection).
+    The ground truth reads only the camera, the poses and the corners and normals of the
+    block faces (:func:`perception.synth.render.block_boxes`), so it is worked out once per
+    such geometry (a 4,000-side build: once per worker, not 211 frames per side)."""
+    geometry = [
+        (q.normal.tobytes(), q.centre.tobytes(), [(k, c.tobytes()) for k, _, c in q.blocks])
+        for q in renderer.scene.quads
+        if q.blocks
+    ]
+    key = hashlib.sha1(repr((renderer.camera, poses, geometry)).encode()).hexdigest()
+    offsets = _OFFSETS.get(key) if CACHE_OFFSETS else None
+    if offsets is None:
+        centre = renderer.camera.width / 2.0
+        offsets = {}
+        for k, pose in enumerate(poses):
+            for box in renderer.ground_truth(pose):
+                if box.visible >= 0.99:  # a whole block face, as the detector boxes it
+                    offsets.setdefault(box.block, []).append((k, 0.5 * (box.x1 + box.x2) - centre))
+        _OFFSETS[key] = offsets
+        while len(_OFFSETS) > _MAX_OFFSETS:
+            _OFFSETS.popitem(last=False)
+    else:
+        _OFFSETS.move_to_end(key)
+    return offsets
 
 
 def scan_blocks(
