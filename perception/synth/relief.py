@@ -227,6 +227,8 @@ def lit_face(
     light: SceneLight,
 ) -> np.ndarray:
     """The long face's texture (BGR uint8) shaded per pixel by ``light`` at ``corners``."""
+    # None draws as SideStyle() and is the relief's bare style: one texture for both
+    style = style or SideStyle()
     tex = ap.face_texture(pallet_id, side, style, geometry)
     shade = shade_map(face_normals(pallet_id, side, style, geometry), corners, light)
     return cv2.multiply(tex, cv2.merge([shade, shade, shade]), dtype=cv2.CV_8U)
