@@ -360,7 +360,9 @@ def _grey_views(rows) -> dict[str, list[np.ndarray]]:
     for key, _, png in rows:
         img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_GRAYSCALE)
         if img is not None and min(img.shape[:2]) >= 2:
-            out.setdefault(key, []).append(img.astype(np.float32))
+            grey = img.astype(np.float32)
+            grey.flags.writeable = False  # kept and shared: the verifier remembers its key
+            out.setdefault(key, []).append(grey)
     return {k: v for k, v in out.items() if len(v) == BLOCKS}
 
 

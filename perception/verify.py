@@ -33,7 +33,11 @@ Pure numpy and OpenCV; :class:`perception.gallery.Gallery` calls :func:`verify`.
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
+import threading
+import weakref
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -197,17 +201,164 @@ def block_score(
     """Largest normalised cross-correlation of a query block's template (band-passed at
     ``work_hw``, without its border; ``mask`` 0 where it is not counted) over the enrolled
     grey crop resized to ``work_hw`` times each of :data:`SCALES`."""
+    return float(block_scores(template, work_hw, [enrolled], mask)[0])
+
+
+#: band-passed enrolled crops per size kept at most (bytes): the cohort and the gallery's
+#: sides are compared with every query, and query blocks come in few sizes
+BAND_CACHE_BYTES = 192 << 20
+_band_cache: OrderedDict[tuple, np.ndarray] = OrderedDict()
+_band_cache_bytes = 0
+_band_lock = threading.Lock()
+
+
+_key_memo: dict[int, tuple[weakref.ref, tuple]] = {}
+
+
+def _crop_key(g: np.ndarray) -> tuple:
+    """A key of a grey crop's content (its shape and a 128-bit digest of its pixels);
+    remembered for a read-only array (the shipped cohort's, the gallery's) while it lives."""
+    memo = None if g.flags.writeable else _key_memo.get(id(g))
+    if memo is not None and memo[0]() is g:
+        return memo[1]
+    c = np.ascontiguousarray(g)
+    key = (c.shape, c.dtype.str, hashlib.blake2b(c, digest_size=16).digest())
+    if not g.flags.writeable:
+        gid = id(g)
+        with _band_lock:
+            _key_memo[gid] = (weakref.ref(g, lambda _, gid=gid: _key_memo.pop(gid, None)), key)
+    return key
+
+
+def _cached_band(g: np.ndarray, key: tuple, hw: tuple[int, int]) -> np.ndarray:
+    """:func:`_band` of the grey crop ``g`` (content ``key``) at ``hw``, computed once while
+    it stays among the recently used (a pure function of the pixels and the size)."""
+    global _band_cache_bytes
+    k = (key, hw)
+    with _band_lock:
+        hit = _band_cache.get(k)
+        if hit is not None:
+            _band_cache.move_to_end(k)
+            return hit
+    band = _band(g, hw)
+    band.flags.writeable = False
+    with _band_lock:
+        if k not in _band_cache:
+            _band_cache[k] = band
+            _band_cache_bytes += band.nbytes
+            while _band_cache_bytes > BAND_CACHE_BYTES and len(_band_cache) > 1:
+                _, old = _band_cache.popitem(last=False)
+                _band_cache_bytes -= old.nbytes
+    return band
+
+
+def clear_band_cache() -> None:
+    """Forget every band-passed crop kept by :func:`block_scores` (tests, benches)."""
+    global _band_cache_bytes
+    with _band_lock:
+        _band_cache.clear()
+        _band_cache_bytes = 0
+
+
+#: multiply-adds per complex matrix product kept below OpenBLAS's threading threshold
+_GEMM_ONE_THREAD = 48_000
+
+
+@functools.lru_cache(maxsize=256)
+def _fft_len(n: int) -> int:
+    """The smallest length >= ``n`` with no prime factor above 5 (a fast FFT length)."""
+    while True:
+        m = n
+        for p in (2, 3, 5):
+            while m % p == 0:
+                m //= p
+        if m == 1:
+            return n
+        n += 1
+
+
+def _masked_best(bands: Sequence[np.ndarray], template: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Per tile of ``bands`` (n images of one size eh x ew), the largest finite
+    ``TM_CCOEFF_NORMED`` of ``template`` (th, tw) with the 0/1 ``mask`` over every shift
+    inside the tile: OpenCV's masked formula,
+    ``corr(I, T') / (|T'| sqrt(corr(I^2, M) - corr(I, M)^2 / sum(M)))`` with
+    ``T' = M (T - mean_M(T))``, for all tiles at once in float64 (OpenCV's own figures
+    differ from these by its float32 rounding, about 1e-7).
+
+    Along x each correlation is a product of row spectra (a valid shift never wraps round
+    the tile); along y, a sum over the template's rows: one small matrix product per
+    frequency. -inf for a tile without a finite figure."""
+    n = len(bands)
+    eh, ew = bands[0].shape
+    th, tw = template.shape
+    rh, rw = eh - th + 1, ew - tw + 1
+    m = mask.astype(np.float64)
+    t = template.astype(np.float64)
+    msum = float(m.sum())
+    tp = (t - float((t * m).sum()) / msum) * m
+    tnorm = float(np.sqrt((tp * tp).sum()))
+    nfft = _fft_len(ew)
+    # the tiles and their squares, columns first: (2, ew, eh, n); their row spectra come
+    # out frequency first, (2, wf, eh, n), as the products below take them
+    img = np.empty((2, ew, eh, n))
+    np.stack(bands, axis=2, out=img[0].transpose(1, 0, 2), casting="same_kind")
+    np.multiply(img[0], img[0], out=img[1])
+    spec = np.fft.rfft(img, n=nfft, axis=1)
+    k = np.conj(np.fft.rfft(np.stack([tp, m]), n=nfft, axis=2)).transpose(2, 0, 1)  # wf, 2, th
+    wf = k.shape[0]
+    rows = np.zeros((wf, 2, rh, eh), np.complex128)  # per frequency: sum over template rows
+    for y in range(rh):
+        rows[:, :, y, y : y + th] = k
+    # corr(I, T') and corr(I, M) from the tiles, corr(I^2, M) from their squares; in
+    # slices of tiles small enough for OpenBLAS to stay on one thread (above about 64k
+    # multiply-adds a product it threads, and on a busy host its threads spin for far
+    # longer than the product takes)
+    both, mrows = rows.reshape(wf, 2 * rh, eh), rows[:, 1]
+    c = np.empty((wf, 3 * rh, n), np.complex128)
+    step = max(1, _GEMM_ONE_THREAD // (2 * rh * eh))
+    for i in range(0, n, step):
+        np.matmul(both, spec[0, :, :, i : i + step], out=c[:, : 2 * rh, i : i + step])
+        np.matmul(mrows, spec[1, :, :, i : i + step], out=c[:, 2 * rh :, i : i + step])
+    r = np.fft.irfft(c, n=nfft, axis=0)[:rw]  # rw, 3 rh, n
+    c1, c2, c3 = r[:, :rh], r[:, rh : 2 * rh], r[:, 2 * rh :]
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        r = c1 / (np.sqrt(c3 - c2 * c2 / msum) * tnorm)
+    return np.where(np.isfinite(r), r, -np.inf).reshape(rw * rh, n).max(axis=0)
+
+
+def block_scores(
+    template: np.ndarray,
+    work_hw: tuple[int, int],
+    enrolled: Sequence[np.ndarray],
+    mask: np.ndarray | None = None,
+    keys: Sequence[tuple] | None = None,
+) -> np.ndarray:
+    """:func:`block_score` of one query template against several enrolled grey crops.
+
+    With a mask, every crop's band-passed image of one scale is correlated at once
+    (:func:`_masked_best`: the figures of one ``cv2.matchTemplate`` per crop to about
+    1e-7); without one, one ``cv2.matchTemplate`` per crop. Band-passed crops are kept per
+    size (:data:`BAND_CACHE_BYTES`). ``keys``: the crops' :func:`_crop_key`, if known."""
     h, w = work_hw
-    best = -1.0
+    n = len(enrolled)
+    best = np.full(n, -1.0)
+    if not n:
+        return best
+    if keys is None:
+        keys = [_crop_key(e) for e in enrolled]
+    th, tw = template.shape[:2]
     for s in SCALES:
         eh, ew = int(round(h * s)), int(round(w * s))
-        if eh < template.shape[0] or ew < template.shape[1]:
+        if eh < th or ew < tw:
             continue
-        r = cv2.matchTemplate(_band(enrolled, (eh, ew)), template, cv2.TM_CCOEFF_NORMED, mask=mask)
-        if mask is not None:
-            r = r[np.isfinite(r)]
-        if r.size:
-            best = max(best, float(r.max()))
+        bands = [_cached_band(e, k, (eh, ew)) for e, k in zip(enrolled, keys, strict=True)]
+        if mask is None:  # OpenCV's unmasked figures, crop by crop
+            for i, b in enumerate(bands):
+                r = cv2.matchTemplate(b, template, cv2.TM_CCOEFF_NORMED)
+                if r.size:
+                    best[i] = max(best[i], float(r.max()))
+            continue
+        best = np.maximum(best, _masked_best(bands, template, mask))
     return best
 
 
@@ -219,18 +370,31 @@ def _scores(
     """Raw scores (len(sides), 3) of the three grey query blocks (``colours``: their BGR
     crops, for the mask) against every side's blocks."""
     out = np.full((len(sides), len(queries)), np.nan)
+    keys: dict[int, tuple] = {}  # id -> content key of the crops (alive during the call)
+    greys: dict[int, np.ndarray] = {}
     for b, q in enumerate(queries):
         if min(q.shape[:2]) < 6:
             continue
-        templates: dict[tuple[int, int], tuple[np.ndarray, np.ndarray | None]] = {}
+        groups: dict[tuple[int, int], list[int]] = {}
+        crops: dict[int, np.ndarray] = {}
         for j, side in enumerate(sides):
             if b < len(side) and side[b] is not None:
-                e = grey(side[b])
-                hw = work_size(q.shape[:2], e.shape[:2])
-                if hw not in templates:
-                    templates[hw] = _template(q, hw, colours[b] if colours else None)
-                t, mask = templates[hw]
-                out[j, b] = block_score(t, hw, e, mask)
+                src = side[b]
+                e = greys.get(id(src))
+                if e is None:
+                    e = greys[id(src)] = grey(src)
+                    keys[id(src)] = _crop_key(e)
+                crops[j] = e
+                groups.setdefault(work_size(q.shape[:2], e.shape[:2]), []).append(j)
+        for hw, js in groups.items():
+            t, mask = _template(q, hw, colours[b] if colours else None)
+            out[js, b] = block_scores(
+                t,
+                hw,
+                [crops[j] for j in js],
+                mask,
+                [keys[id(sides[j][b])] for j in js],
+            )
     return out
 
 
@@ -250,7 +414,11 @@ def load_cohort(path: str = COHORT_PATH) -> list[list[np.ndarray]]:
 
 @functools.lru_cache(maxsize=1)
 def _shipped() -> tuple[tuple[np.ndarray, ...], ...]:
-    return tuple(tuple(side) for side in load_cohort())
+    sides = load_cohort()
+    for side in sides:
+        for crop in side:
+            crop.flags.writeable = False  # shared by every verification (keys remembered)
+    return tuple(tuple(side) for side in sides)
 
 
 def shipped_cohort() -> list[tuple[str, list[np.ndarray]]]:
@@ -292,11 +460,6 @@ def verify(
     queries = [grey(c) for c in query_crops]
     colours = [np.asarray(c) if np.asarray(c).ndim == 3 else None for c in query_crops]
     names = [n for n, _ in cohort]
-    ref = (
-        cohort_scores
-        if cohort_scores is not None
-        else _scores(queries, [side for _, side in cohort], colours)
-    )
     # The candidates' other blocks are impostors of the query's look (same wood, paint,
     # face generator, stamp style): always in the cohort, whatever the gallery holds.
     cross = [
@@ -305,22 +468,26 @@ def verify(
         if len(views)
         for k in range(1, len(queries))
     ]
+    # Every side's scores in one pass (each query block's template made once per size);
+    # the same figures as scoring the cohort, the cross blocks and each candidate apart.
+    own = [] if cohort_scores is not None else [side for _, side in cohort]
+    views_of = [list(views) for _, views in candidates]
+    every = _scores(queries, own + cross + [v for views in views_of for v in views], colours)
+    ref = cohort_scores if cohort_scores is not None else every[: len(own)]
     if cross:
-        ref = np.concatenate([ref, _scores(queries, cross, colours)])
+        ref = np.concatenate([ref, every[len(own) : len(own) + len(cross)]])
         names = names + [""] * len(cross)
+    at = len(own) + len(cross)
     w = np.ones(len(queries)) if block_weights is None else np.asarray(block_weights, float)
     ranking = []
-    for ident, views in candidates:
+    for (ident, _), views in zip(candidates, views_of, strict=True):
         keep = ref[[i for i, n in enumerate(names) if n != ident]]
         top = np.sort(np.where(np.isfinite(keep), keep, -np.inf), axis=0)[::-1][:COHORT_TOP]
         top = np.where(np.isfinite(top), top, np.nan)
         mean = np.nanmean(top, axis=0)
         spread = np.maximum(np.nanstd(top, axis=0), MIN_SPREAD)
-        raw = (
-            np.nanmax(_scores(queries, views, colours), axis=0)
-            if len(views)
-            else np.full(3, np.nan)
-        )
+        raw = np.nanmax(every[at : at + len(views)], axis=0) if views else np.full(3, np.nan)
+        at += len(views)
         z = (raw - mean) / spread
         ok = np.isfinite(z)
         side = float((z[ok] * w[ok]).sum() / w[ok].sum()) if ok.any() else float("-inf")
