@@ -191,6 +191,80 @@ def _draw_quad(
     return sum(zs) / 4.0
 
 
+def _draw_objects(
+    canvas: np.ndarray,
+    objects: list[Quad],
+    order: np.ndarray,
+    pcs: np.ndarray,
+    K: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    cam: np.ndarray,
+) -> float:
+    """Draw ``objects[order]`` (corners ``pcs`` in the optical frame, front-facing, far to
+    near) as :func:`_draw_quad` would one by one, the same pixels to the bit; returns the
+    nearest drawn quad's mean depth (inf if none).
+
+    The per-quad arithmetic of the quads wholly in front of the camera (their bounding
+    boxes, projected areas and homographies) is done for all of them at once with the
+    same operations in the same order; a quad crossing the camera plane goes through
+    :func:`_draw_quad`. Textures are still made only for quads that reach the image."""
+    nearest = math.inf
+    if not len(order):
+        return nearest
+    hgt, wid = canvas.shape[:2]
+    z = pcs[..., 2]
+    whole = z.min(axis=1) >= NEAR_M
+    uv = np.matmul(pcs, K.T)[..., :2] / pcs[..., 2:3]
+    us, vs = uv[..., 0], uv[..., 1]
+    x0 = np.maximum(np.floor(us.min(axis=1)), 0).astype(np.int64)
+    y0 = np.maximum(np.floor(vs.min(axis=1)), 0).astype(np.int64)
+    x1 = np.minimum(np.ceil(us.max(axis=1)).astype(np.int64) + 1, wid)
+    y1 = np.minimum(np.ceil(vs.max(axis=1)).astype(np.int64) + 1, hgt)
+    # shoelace terms summed in _draw_quad's order: k = 0, 1, 2, 3 (u_k v_{k-1} - u_{k-1} v_k)
+    cross = us * np.roll(vs, 1, axis=1) - np.roll(us, 1, axis=1) * vs
+    area = 0.5 * np.abs(((cross[:, 0] + cross[:, 1]) + cross[:, 2]) + cross[:, 3])
+    depth = (((z[:, 0] + z[:, 1]) + z[:, 2]) + z[:, 3]) / 4.0
+    drawn = whole & (x1 > x0) & (y1 > y0)
+    sel = np.flatnonzero(drawn)
+    homog = None
+    if len(sel):
+        maps = np.stack([objects[order[i]].texture_map() for i in sel])  # makes textures
+        A = np.matmul(R, maps)
+        A[:, :, 2] += t
+        homog = np.matmul(K, A)
+    at = {int(i): k for k, i in enumerate(sel)}
+    xs0, ys0, xs1, ys1 = x0.tolist(), y0.tolist(), x1.tolist(), y1.tolist()
+    areas, depths = area.tolist(), depth.tolist()
+    for i, (q, w) in enumerate(zip(order.tolist(), whole.tolist(), strict=True)):
+        quad = objects[q]
+        if not w:
+            d = _draw_quad(canvas, quad, K, R, t, cam, pc=pcs[i])
+            if d is not None:
+                nearest = min(nearest, d)
+            continue
+        k = at.get(i)
+        if k is None:
+            continue
+        levels = quad.levels
+        th, tw = levels[0].shape[:2]
+        level = _mip_level(quad, math.sqrt(areas[i] / (tw * th)))
+        Hroi = homog[k] @ _mip_matrix(level)
+        a, b = xs0[i], ys0[i]
+        Hroi[0] -= a * Hroi[2]
+        Hroi[1] -= b * Hroi[2]
+        cv2.warpPerspective(
+            levels[level],
+            Hroi,
+            (xs1[i] - a, ys1[i] - b),
+            dst=canvas[b : ys1[i], a : xs1[i]],
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_TRANSPARENT,
+        )
+        nearest = min(nearest, depths[i])
+    return nearest
+
+
 def render_scene(
     camera: CameraModel,
     pose: CameraPose,
@@ -238,10 +312,8 @@ def render_scene(
         keep = front & ahead.any(axis=1) & ~outside
         idx = np.flatnonzero(keep)
         d2 = np.sum(rel[idx] ** 2, axis=1)
-        for i in idx[np.argsort(-d2, kind="stable")]:
-            depth = _draw_quad(canvas, objects[i], K, R, t, cam, pc=pc[i])
-            if depth is not None:
-                nearest = min(nearest, depth)
+        order = idx[np.argsort(-d2, kind="stable")]
+        nearest = _draw_objects(canvas, objects, order, pc[order], K, R, t, cam)
     return canvas, nearest
 
 
