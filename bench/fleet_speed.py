@@ -1,0 +1,135 @@
+"""Lock-step speed of the site fleet (issue 27): x real time and CPU of ``btrun fleet``.
+
+Flies ``btrun fleet fleets/site_4.yaml --seed S --quiet --no-report`` (4 drones, 144 places,
+one lock-step clock) in a fresh process per run, for this tree and, with ``--baseline REF``,
+for the tree of git commit REF (``git archive``; meaningful when this tree holds no other
+uncommitted change), alternating the two (A B, then B A, ...) so a busy machine slows them
+alike. Per variant and seed it prints the mission time, the wall time of the lock-step run
+(``summary.json``'s ``wall_time_s``, what ``btrun fleet`` prints as "x real time"), the
+whole process's CPU time (user + sys, start-up and models included), and, against the
+baseline, whether the answers (``inventory.csv`` without its ``run`` column) and the tick
+logs (every line after the header) are the same. The machine has 2 cores shared with other
+work: CPU time is the steadier figure, wall time the target's. It prints figures; it is not
+a test::
+
+    .venv/bin/python bench/fleet_speed.py --seeds 100 --baseline 81e31af
+    .venv/bin/python bench/fleet_speed.py --seeds 100 200 --rounds 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+FLEET = "fleets/site_4.yaml"
+
+
+def baseline_tree(ref: str, tmp: str) -> str:
+    """A copy of the repository at commit ``ref`` (``git archive``)."""
+    dest = os.path.join(tmp, "baseline")
+    os.makedirs(dest)
+    archive = subprocess.run(["git", "-C", REPO, "archive", ref], check=True, capture_output=True)
+    subprocess.run(["tar", "-x", "-C", dest], input=archive.stdout, check=True)
+    return dest
+
+
+def fly(tree: str, seed: int, out: str) -> dict:
+    """One ``btrun fleet`` run of ``tree`` (its own packages first on the path)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    cmd = [sys.executable, "-m", "bt_engine.cli", "fleet", FLEET, "--seed", str(seed)]
+    proc = subprocess.run(
+        cmd + ["--out", out, "--quiet", "--no-report"], cwd=tree, capture_output=True, text=True
+    )
+    elapsed = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    try:
+        with open(os.path.join(out, "summary.json"), encoding="utf-8") as f:
+            s = json.load(f)
+    except OSError:
+        sys.exit(f"{tree}: btrun fleet failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+    return {
+        "mission_s": s["mission_time_s"],
+        "wall_s": s["wall_time_s"],
+        "cpu_s": cpu,
+        "process_s": elapsed,
+        "status": s["status"],
+        "out": out,
+    }
+
+
+def answers(out: str) -> list[dict]:
+    """``inventory.csv``'s rows without the ``run`` column (the run folder's name)."""
+    with open(os.path.join(out, "inventory.csv"), encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        r.pop("run", None)
+    return rows
+
+
+def ticks(out: str) -> dict[str, list[str]]:
+    """Each drone's tick log without its header line (which names the tree's files)."""
+    found = {}
+    drones = os.path.join(out, "drones")
+    for d in sorted(os.listdir(drones)):
+        with open(os.path.join(drones, d, "ticks.jsonl"), encoding="utf-8") as f:
+            found[d] = f.read().split("\n")[1:]
+    return found
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[100])
+    ap.add_argument("--baseline", default="", help="git commit to compare with (git archive)")
+    ap.add_argument("--rounds", type=int, default=1, help="runs per variant and seed")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory(prefix="fleet_speed_") as tmp:
+        variants = [("new", REPO)]
+        if args.baseline:
+            variants.insert(0, ("baseline", baseline_tree(args.baseline, tmp)))
+        results: dict[tuple[str, int], list[dict]] = {}
+        for r in range(args.rounds):
+            order = variants if r % 2 == 0 else variants[::-1]
+            for seed in args.seeds:
+                for name, tree in order:
+                    out = os.path.join(tmp, f"{name}-{seed}-{r}")
+                    res = fly(tree, seed, out)
+                    results.setdefault((name, seed), []).append(res)
+                    print(
+                        f"{name:8} seed {seed}: {res['status']}, {res['mission_s']:.1f} s mission "
+                        f"in {res['wall_s']:.1f} s wall ({res['mission_s'] / res['wall_s']:.2f}x "
+                        f"real time), {res['cpu_s']:.1f} s CPU (process {res['process_s']:.1f} s)",
+                        flush=True,
+                    )
+        print("\nvariant   seed  mission (s)  wall (s)  x real time  CPU (s)  x per CPU second")
+        for (name, seed), runs in results.items():
+            wall = statistics.median(x["wall_s"] for x in runs)
+            cpu = statistics.median(x["cpu_s"] for x in runs)
+            mission = runs[0]["mission_s"]
+            print(
+                f"{name:8} {seed:5} {mission:12.1f} {wall:9.1f} {mission / wall:12.2f} "
+                f"{cpu:8.1f} {mission / cpu:17.2f}"
+            )
+        if args.baseline:
+            for seed in args.seeds:
+                base, new = results[("baseline", seed)][0], results[("new", seed)][0]
+                same_rows = answers(base["out"]) == answers(new["out"])
+                same_ticks = ticks(base["out"]) == ticks(new["out"])
+                print(
+                    f"seed {seed}: answers {'the same' if same_rows else 'DIFFER'}, "
+                    f"tick logs {'the same' if same_ticks else 'DIFFER'}"
+                )
+
+
+if __name__ == "__main__":
+    main()
