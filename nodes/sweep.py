@@ -79,6 +79,12 @@ def sweep_accepts(match: Any, max_distance: float) -> bool:
 #: close impostor) is rescanned rather than answered; farther, it is a pallet the gallery
 #: does not know (validation seeds: docs/performance.md, Sweep)
 RESCAN_DISTANCE_FACTOR = 1.0
+#: a block slot sighted once (perception.sweep.PlaceWatch.slot_state): no parallax check
+SINGLE = "single"
+#: a second look flies slowly enough for this many sightings of each block while it is near
+#: the image centre (about 0.2 m of flight at the stand-off), on a host that drops frames
+SECOND_LOOK_SIGHTINGS = 3
+CENTRAL_TRAVEL_M = 0.2
 
 
 def _round(v: Any, nd: int = 4) -> Any:
@@ -101,7 +107,7 @@ class SweepPass(StatefulActionNode):
         input_port("speed", FLOAT, 0.8, "speed along the pass, m/s"),
         input_port("standoff", FLOAT, 0.45, "distance from the pallet faces, m"),
         input_port("transit_speed", FLOAT, 1.0, "speed to the pass start, m/s"),
-        input_port("lead", FLOAT, 0.5, "start this far before the first block, m"),
+        input_port("lead", FLOAT, 0.5, "start this far before the first block (a run-up), m"),
         input_port("detector", STRING, "", "detector weights file (empty: the shipped model)"),
         input_port("min_score", FLOAT, None, MIN_SCORE_DOC),
         input_port(
@@ -214,19 +220,33 @@ class SweepPass(StatefulActionNode):
 
         self.collector = self.main = collector(places, self.start_point, self.end_point)
         # a second look: one place, more views of each block (the drone is slow)
-        self.second = lambda place, a, b: collector(
-            [PassPlace(place, spec.rows[place], spec.look_rad)],
-            a,
-            b,
-            replace(params, views=5, want_views=5),
-        )
+
+        world = world_of(self.ctx)
+
+        def second(place: str, a: Any, b: Any) -> Any:
+            # the place and its neighbours on the level (planned or not): their blocks are
+            # theirs, not strays that would keep an empty place from being answered empty
+            me = world.places[place]
+            near = [
+                PassPlace(q.name, tuple(q.row_m), spec.look_rad)
+                for q in world.places.values()
+                if q.rack == me.rack and q.level == me.level and abs(q.bay - me.bay) == 1
+            ]
+            return collector(
+                [PassPlace(place, spec.rows[place], spec.look_rad), *near],
+                a,
+                b,
+                replace(params, views=5, want_views=5, off_centre_strays=False),
+            )
+
+        self.second = second
         self.relook: list[str] = []  # places waiting for a second look
+        self.frame_times: list[float] = []  # of the frames looked at (the host's pace)
         self.relooked: set[str] = set()
         self.realtime = is_realtime(self)
         self.jobs = Identifications(self, self.realtime)
         self.answered = 0
         self.set_output("next_point", self.points[todo[0]])
-        world = world_of(self.ctx)
         path = route(
             self.vehicle.position,
             self.start_point,
@@ -283,16 +303,17 @@ class SweepPass(StatefulActionNode):
                     self.phase = "finishing"
             elif p.reached:  # the second look is over: its answer, then on along the pass
                 for w in self.collector.finish_all("not seen whole on the second look"):
-                    self._answer(w)
+                    if w.name == self.looking:
+                        self._answer(w)
                 self.collector = self.main
                 if self.main.open():
                     return self._fly_line("pass", self.end_point, self.get_input("speed"))
                 self.phase = "finishing"
         elif self.phase == "back" and p.reached:
-            name = self.relook.pop(0)
+            name = self.looking = self.relook.pop(0)
             a, b = pass_line(self.spec, self.get_input("standoff"), 0.3, [name])
             self.collector = self.second(name, a, b)
-            return self._fly_line("second", b, self.get_input("second_look_speed"))
+            return self._fly_line("second", b, self._second_look_speed())
         status = self._collect()
         if status is not None:
             return status
@@ -329,6 +350,16 @@ class SweepPass(StatefulActionNode):
             return self._fail(self.progress.reason or "motion refused")
         return RUNNING
 
+    def _second_look_speed(self) -> float:
+        """``second_look_speed``, or slower on a host that takes long per frame (emulated
+        in lock-step, measured in real time): each block must be sighted a few times."""
+        per_frame = max(self.get_input("host_frame_time"), 1.0 / 15.0)
+        if self.realtime and len(self.frame_times) >= 2:
+            t = sorted(self.frame_times[-30:])
+            per_frame = max(per_frame, (t[-1] - t[0]) / (len(t) - 1))
+        slowest = CENTRAL_TRAVEL_M / (SECOND_LOOK_SIGHTINGS * per_frame)
+        return max(0.03, min(self.get_input("second_look_speed"), slowest))
+
     def _second_look(self) -> NodeStatus:
         """Back along the face to just before the next place to look at again."""
         name = self.relook[0]
@@ -353,6 +384,7 @@ class SweepPass(StatefulActionNode):
         for obs in self.session.observations(
             self.feed, self.vehicle, self.detector, self.get_input("min_score"), self.now()
         ):
+            self.frame_times.append(obs.frame.t_s)
             pose = obs.frame.pose
             cam = CameraPose.from_quaternion(pose.x_m, pose.y_m, pose.z_m, pose.quaternion)
             self.collector.add(cam, obs.bgr, obs.dets, obs.frame.index, obs.frame.t_s)
@@ -419,6 +451,11 @@ class SweepPass(StatefulActionNode):
             near = match.distance <= th.max_distance * RESCAN_DISTANCE_FACTOR
             if not match.known and near and not match.verified_expected:
                 self._to_rescan(w, f"unsure: {match.reason} (closest {match.best_id})")
+                continue
+            if not match.known and SINGLE in (getattr(w, "states", None) or ()):
+                # a block sighted once was never checked for parallax: what shows through an
+                # empty place is not a pallet the gallery does not know
+                self._to_rescan(w, "not identified, and a block was seen only once")
                 continue
             status = IDENTIFIED if match.known else UNKNOWN
             self._record(w, match.pallet_id, status, match, "" if match.known else match.reason)

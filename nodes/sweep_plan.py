@@ -258,12 +258,17 @@ def plan_passes(places: list[str], world: Any, start: tuple[float, float, float]
     return SweepPlan(passes, order)
 
 
+#: a pass line ends this far past its last place's outer block, m (a place is finished
+#: 0.25 m past its last block: perception.sweep.SweepParams.finish_after_m)
+PASS_TAIL_M = 0.3
+
+
 def pass_line(
     spec: PassSpec, standoff: float, lead: float, places: list[str] | None = None
 ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
     """Where a pass over ``places`` (default: all of the pass's, in flying order) starts and
-    ends: ``standoff`` out from the faces, ``lead`` before the first block and after the
-    last."""
+    ends: ``standoff`` out from the faces, ``lead`` before the first block, and
+    :data:`PASS_TAIL_M` after the last."""
     from perception.face import PalletModel
 
     names = places or spec.places
@@ -278,7 +283,7 @@ def pass_line(
             row[2],
         )
 
-    return at(spec.rows[names[0]], -(half + lead)), at(spec.rows[names[-1]], half + lead)
+    return at(spec.rows[names[0]], -(half + lead)), at(spec.rows[names[-1]], half + PASS_TAIL_M)
 
 
 def route_length(ctx: Any, a: tuple[float, ...], b: tuple[float, ...]) -> float:

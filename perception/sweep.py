@@ -77,6 +77,10 @@ class SweepParams:
     finish_after_m: float = 0.25
     #: emulated processing time per frame of the host (lock-step only; 0: none dropped), s
     host_frame_s: float = 0.0
+    #: boxes off to the side that land on no slot count as stray evidence too (a second,
+    #: slow look sees a deeper thing from so many oblique angles that a few of its
+    #: sightings line up on the face plane: it counts central boxes only)
+    off_centre_strays: bool = True
     #: crops kept per block slot (their embeddings are averaged: several views of a block
     #: from a moving camera are steadier than the best one alone)
     views: int = 3
@@ -348,7 +352,11 @@ class SweepCollector:
                 elif min(errs) <= 0.45 and (stray is None or min(errs) < stray[0]):
                     stray = (min(errs), w, along)  # on this place's face, but on no slot
             if best is None:
-                if stray is not None and not stray[1].outcome:  # on no place's slot
+                if (
+                    stray is not None
+                    and not stray[1].outcome
+                    and (central or self.params.off_centre_strays)
+                ):  # on no place's slot
                     stray[1].stray += 1
                     stray[1].stray_hits.append((self.along(centre), stray[2]))
                 continue
