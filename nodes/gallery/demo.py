@@ -31,7 +31,8 @@ import math
 import os
 import tempfile
 from collections import OrderedDict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -150,27 +151,32 @@ def scan_frames(
 
 def _canonical_scan(
     data: dict, world_path: str, identity: str, camera: dict | None, seed: int
-) -> tuple[Any, list[Any]]:
+) -> tuple[Any, tuple[Any, ...]]:
     """A renderer of ``identity`` alone in the canonical slot and the poses of the
     canonical scan line, one per frame at :data:`ENROL_RATE_HZ` (``pose.t_s``: its time)."""
     from drivers.sim.renderers.pallet import PalletRenderer
     from drivers.sim.world import World
-    from drivers.vehicle.types import Pose
 
     data = canonical_world_data(data, identity)
     world = World(data, world_path)
     line = data["scan_line"]
     renderer = PalletRenderer(world, camera, np.random.default_rng(seed))
-    yaw = math.radians(line["yaw_deg"])
+    key = tuple(line[k] for k in ("x_m", "y_from_m", "y_to_m", "z_m", "yaw_deg"))
+    return renderer, _scan_poses(*key)
+
+
+@lru_cache(maxsize=8)
+def _scan_poses(x_m: float, y0: float, y1: float, z_m: float, yaw_deg: float) -> tuple[Any, ...]:
+    """The poses of a scan line (frozen: every side of a build shares them)."""
+    from drivers.vehicle.types import Pose
+
+    yaw = math.radians(yaw_deg)
     quaternion = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
-    y0, y1 = line["y_from_m"], line["y_to_m"]
     step = math.copysign(ENROL_SPEED_MPS / ENROL_RATE_HZ, y1 - y0)
     n = int(abs(y1 - y0) / abs(step)) + 1
-    poses = [
-        Pose(line["x_m"], y0 + k * step, line["z_m"], yaw, quaternion, k / ENROL_RATE_HZ, "enrol")
-        for k in range(n)
-    ]
-    return renderer, poses
+    return tuple(
+        Pose(x_m, y0 + k * step, z_m, yaw, quaternion, k / ENROL_RATE_HZ, "enrol") for k in range(n)
+    )
 
 
 def enrolment_frames(
@@ -228,7 +234,7 @@ _MAX_OFFSETS = 8
 CACHE_OFFSETS = True
 
 
-def _block_offsets(renderer: Any, poses: list[Any]) -> dict[int, list[tuple[int, float]]]:
+def _block_offsets(renderer: Any, poses: Sequence[Any]) -> dict[int, list[tuple[int, float]]]:
     """Per block, ``(frame, box centre's offset from the image centre, px)`` of every frame
     of ``poses`` that sees the whole block face (the scene's ground truth: no detection).
     The ground truth reads only the camera, the poses and the corners and normals of the
@@ -414,7 +420,13 @@ def _init_worker(
 
     worker = isinstance(models[0], str)
     if worker:
+        import cv2
+
         from perception.detector import BlockDetector
+
+        # one of BUILD_WORKERS processes on as many cores, as torch below: OpenCV's own
+        # thread pool would only oversubscribe them (the same pixels either way)
+        cv2.setNumThreads(1)
         from perception.embedder import BlockEmbedder
 
         models = (
