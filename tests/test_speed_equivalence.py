@@ -8,6 +8,7 @@ rankings."""
 from __future__ import annotations
 
 import math
+import time
 
 import cv2
 import numpy as np
@@ -201,3 +202,29 @@ def test_one_pass_verification_ranks_as_separate_passes():
         assert np.allclose(blocks, apart[ident], rtol=0, atol=1e-9)
     again = tv.verify(query, candidates, cohort, cohort_scores=tv.cohort_scores(query, cohort))
     assert again.ranking == ver.ranking
+
+
+def test_textures_made_ahead_on_a_worker_give_the_same_frames():
+    """A scan along a row of pallets with the texture look-ahead on (the worker makes the
+    faces ahead) renders the frames of a scene whose textures are made as they are drawn."""
+
+    def row() -> Scene:
+        return Scene.build(
+            [PalletSpec(str(k), "AB"[k % 2], 9.3, -2.0 + 1.3 * k, 0.2, math.pi) for k in range(5)],
+            light=LIGHT,
+        )
+
+    ahead, plain = row(), row()
+    poses = [CameraPose.from_yaw(8.85, -2.6 + 0.25 * k, 0.27, 0.0) for k in range(24)]
+    face = next(q for q in ahead.objects if q.blocks and q.blocks[0][1] == "1B" and q.normal[0] < 0)
+    img, _ = render_scene(CAM, poses[0], ahead, lookahead_m=3.0)
+    for _ in range(300):  # the next pallet's face, not in view yet, is made by the worker
+        if not callable(face.texture):
+            break
+        time.sleep(0.1)
+    assert not callable(face.texture)
+    assert np.array_equal(img, render_scene(CAM, poses[0], plain)[0])
+    for pose in poses[1:]:
+        img, nearest = render_scene(CAM, pose, ahead, lookahead_m=3.0)
+        ref, ref_nearest = render_scene(CAM, pose, plain)
+        assert np.array_equal(img, ref) and nearest == ref_nearest

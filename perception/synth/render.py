@@ -12,6 +12,8 @@ rows and odd columns, green elsewhere).
 from __future__ import annotations
 
 import math
+import threading
+from collections import deque
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import NamedTuple
@@ -72,6 +74,80 @@ def illuminant_bgr(kelvin: float) -> tuple[float, float, float]:
     neutral); a mild blackbody approximation (warm light: more red, less blue)."""
     t = math.log(max(kelvin, 1000.0) / 5500.0)
     return (float(np.clip(1.0 + 0.55 * t, 0.4, 1.6)), 1.0, float(np.clip(1.0 - 0.35 * t, 0.6, 1.6)))
+
+
+# ---------------------------------------------------------------------------- textures ahead
+class _Textures:
+    """Quad textures made ahead of need on one worker thread (:func:`render_scene`'s
+    ``lookahead_m``), so the second core makes them while the first draws.
+
+    A quad's texture is a pure function of the quad (made on first use, deterministically:
+    :attr:`perception.synth.scene.Quad.levels`), so who makes it, and when, changes no pixel.
+    Each quad is made once: whoever starts it (the worker or a drawing thread) registers it,
+    and a drawing thread that needs a texture being made waits for it."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Condition(threading.Lock())
+        self._making: dict[int, threading.Event] = {}  # id(quad) -> set when made
+        self._queue: deque[Quad] = deque()
+        self._queued: set[int] = set()
+        self._thread: threading.Thread | None = None
+
+    def ready(self, quad: Quad) -> None:
+        """Make sure ``quad``'s texture is made (here, or by the worker: then wait)."""
+        if not callable(quad.texture):
+            return
+        with self._lock:
+            event = self._making.get(id(quad))
+            mine = event is None and callable(quad.texture)
+            if mine:
+                event = self._making[id(quad)] = threading.Event()
+        if mine:
+            self._make(quad, event)
+        elif event is not None:
+            event.wait()
+        quad.levels  # noqa: B018  (made here if the worker could not)
+
+    def want(self, quads: list[Quad]) -> None:
+        """Queue ``quads`` (nearest first) to be made on the worker thread."""
+        with self._lock:
+            for q in quads:
+                if id(q) not in self._queued and id(q) not in self._making and callable(q.texture):
+                    self._queue.append(q)
+                    self._queued.add(id(q))
+            if self._queue:
+                if self._thread is None:
+                    self._thread = threading.Thread(
+                        target=self._run, name="texture-lookahead", daemon=True
+                    )
+                    self._thread.start()
+                self._lock.notify()
+
+    def _make(self, quad: Quad, event: threading.Event) -> None:
+        try:
+            quad.levels  # noqa: B018
+        finally:
+            with self._lock:
+                self._making.pop(id(quad), None)
+            event.set()
+
+    def _run(self) -> None:
+        while True:
+            with self._lock:
+                while not self._queue:
+                    self._lock.wait()
+                quad = self._queue.popleft()
+                self._queued.discard(id(quad))
+                if id(quad) in self._making or not callable(quad.texture):
+                    continue
+                event = self._making[id(quad)] = threading.Event()
+            try:
+                self._make(quad, event)
+            except Exception:  # noqa: BLE001 - a drawing thread makes it again and raises
+                pass
+
+
+_TEXTURES = _Textures()
 
 
 # ---------------------------------------------------------------------------- scene drawing
@@ -153,6 +229,7 @@ def _draw_quad(
         use_mask = True
     if x1 <= x0 or y1 <= y0:
         return None
+    _TEXTURES.ready(quad)
     levels = quad.levels
     th, tw = levels[0].shape[:2]
     A = R @ quad.texture_map()
@@ -229,7 +306,9 @@ def _draw_objects(
     sel = np.flatnonzero(drawn)
     homog = None
     if len(sel):
-        maps = np.stack([objects[order[i]].texture_map() for i in sel])  # makes textures
+        for i in sel:
+            _TEXTURES.ready(objects[order[i]])  # made on first sight (or by the look-ahead)
+        maps = np.stack([objects[order[i]].texture_map() for i in sel])
         A = np.matmul(R, maps)
         A[:, :, 2] += t
         homog = np.matmul(K, A)
@@ -265,18 +344,36 @@ def _draw_objects(
     return nearest
 
 
+def _look_ahead(objects: list[Quad], near: np.ndarray, rel: np.ndarray, reach_m: float) -> None:
+    """Queue the untextured quads of ``near`` (facing the camera, in front of it, not in
+    this frame) within ``reach_m`` of the camera for the texture worker, nearest first."""
+    idx = np.flatnonzero(near)
+    if not len(idx):
+        return
+    d2 = np.sum(rel[idx] ** 2, axis=1)
+    close = d2 < reach_m * reach_m
+    idx, d2 = idx[close], d2[close]
+    want = [objects[i] for i in idx[np.argsort(d2, kind="stable")].tolist()]
+    want = [q for q in want if callable(q.texture)]
+    if want:
+        _TEXTURES.want(want)
+
+
 def render_scene(
     camera: CameraModel,
     pose: CameraPose,
     scene: Scene,
     background: tuple[int, int, int] = (92, 94, 96),
+    lookahead_m: float = 0.0,
 ) -> tuple[np.ndarray, float]:
     """True-colour BGR image (uint8) of the scene, and the depth of the nearest object drawn
     (m, inf if none) for motion blur.
 
     Floor and walls are drawn at half resolution and upscaled (they are far and smooth);
-    objects (pallets, stands) at full resolution, far to near.
-    """
+    objects (pallets, stands) at full resolution, far to near. ``lookahead_m`` > 0: the
+    textures not made yet of the objects within that distance that face the camera and lie
+    in front of it are made on a worker thread, nearest first, before they come into view
+    (the same pixels: textures are pure functions of their quads)."""
     R, t = world_to_optical(camera, pose)
     K = camera.K()
     cam = pose.position
@@ -310,6 +407,8 @@ def render_scene(
             | (uv[..., 1].min(axis=1) > camera.height)
         )
         keep = front & ahead.any(axis=1) & ~outside
+        if lookahead_m > 0.0:
+            _look_ahead(objects, front & ahead.any(axis=1) & outside, rel, lookahead_m)
         idx = np.flatnonzero(keep)
         d2 = np.sum(rel[idx] ** 2, axis=1)
         order = idx[np.argsort(-d2, kind="stable")]
@@ -496,12 +595,13 @@ def render_frame(
     sensor: SensorModel = SensorModel(),
     colour_temperature_k: float | None = None,
     return_boxes: bool = False,
+    lookahead_m: float = 0.0,
 ) -> np.ndarray | tuple[np.ndarray, list[BlockBox]]:
     """Raw 244 x 324 uint8 BayerBG frame of ``scene`` from ``pose`` (and, if asked, the
     ground-truth :class:`BlockBox` list). ``velocity`` (m/s, world) and ``yaw_rate`` (rad/s)
     add motion blur; ``rng`` drives the sensor noise; ``colour_temperature_k`` overrides
-    the scene light's colour."""
-    bgr, nearest = render_scene(camera, pose, scene)
+    the scene light's colour; ``lookahead_m``: see :func:`render_scene`."""
+    bgr, nearest = render_scene(camera, pose, scene, lookahead_m=lookahead_m)
     blur = (0.0, 0.0)
     if velocity is not None or yaw_rate:
         blur = image_motion(

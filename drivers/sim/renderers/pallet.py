@@ -35,6 +35,10 @@ from perception.synth.scene import PalletSpec, Scene, SceneLight
 
 AE_PERIOD = 15  # frames between auto-exposure updates ([study]: every 15th frame)
 AE_TARGET = 95.0  # mean raw level the auto-exposure aims for
+#: the textures of what lies this close ahead of the camera are made on a worker thread
+#: before it comes into view (:func:`perception.synth.render.render_scene`): the same
+#: frames, the second core making the pallets' faces while the first draws and flies
+TEXTURE_LOOKAHEAD_M = 3.0
 
 
 #: Scenes built in this process, by world (its data and seed): the drones of a fleet share
@@ -159,6 +163,7 @@ class PalletRenderer:
                 velocity=velocity,
                 yaw_rate=yaw_rate,
                 lighting=lighting,
+                lookahead_m=TEXTURE_LOOKAHEAD_M,
             )
         finally:
             cv2.setNumThreads(threads)
