@@ -230,6 +230,7 @@ def prepare(
             "rig": target.path,
         }
         target.tick_budget_s = tick_budget(args, factor)  # type: ignore[attr-defined]
+        target.lock_step = not factor  # type: ignore[attr-defined]
     platform = target.make_platform(clock, args.seed) if target is not None else None
     mission = Mission(
         spec,

@@ -28,6 +28,7 @@ a stuck tick is then ended about a second after it, whatever the budget, at rest
 from __future__ import annotations
 
 import ctypes
+import os
 import sys
 import threading
 import time
@@ -69,6 +70,20 @@ def stuck_in(thread_id: int) -> str:
 
 #: seconds one tick may still take once an operator interrupt arrived (:meth:`TickWatchdog.hurry`)
 HURRY_BUDGET_S = 1.0
+#: lock-step: a host this many times over-committed stretches the budget at most so much
+MAX_BUSY_FACTOR = 10.0
+
+
+def busy_factor() -> float:
+    """How over-committed this host is: the 1-minute load average per CPU, at least 1 and at
+    most :data:`MAX_BUSY_FACTOR`. In lock-step the simulated drone waits for the tree, so
+    only a hang matters: a tick that takes long because other processes share the cores is
+    not one (real time keeps its budget: there a drone is waiting)."""
+    try:
+        load = os.getloadavg()[0] / max(os.cpu_count() or 1, 1)
+    except OSError:  # pragma: no cover - no load average on this platform
+        return 1.0
+    return min(max(load, 1.0), MAX_BUSY_FACTOR)
 
 
 class TickWatchdog:
@@ -180,8 +195,11 @@ class TickWatchdog:
                 continue
             if self._fired_at is None:
                 budget, since, why = self._budget(started, now)
-                if now - since > budget:
-                    self._fire(tick, target, budget, why, now)
+                busy = 1.0
+                if now - since > budget and not self.real_time and self._hurry is None:
+                    busy = busy_factor()  # lock-step on a busy host: not a hang yet
+                if now - since > budget * busy:
+                    self._fire(tick, target, budget, why, now, busy)
                 continue
             every = self._hurry[1] if self._hurry is not None else self.budget_s
             if now - self._raised_at > every / 2:
@@ -206,7 +224,9 @@ class TickWatchdog:
                 if self.on_give_up is not None:
                     self.on_give_up(self.reason)
 
-    def _fire(self, tick: int, target: int, budget: float, why: str, now: float) -> None:
+    def _fire(
+        self, tick: int, target: int, budget: float, why: str, now: float, busy: float = 1.0
+    ) -> None:
         """Step 1: name where the tree is stuck, ask loops to stop, raise in the main thread."""
         where = ""
         if self.running is not None:  # the deepest RUNNING node: stable over a loop
@@ -215,6 +235,8 @@ class TickWatchdog:
             except Exception:  # pragma: no cover - the tree is mid-change
                 where = ""
         where = where or stuck_in(target)
+        if busy > 1.0:
+            where += f" (x{busy:.1f}: a busy host)"
         if why:
             self.reason = (
                 f"{why}; watchdog: tick {tick} did not return within {budget:g} s of it"

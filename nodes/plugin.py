@@ -24,6 +24,7 @@ import nodes  # noqa: F401  (registers the leaves)
 from bt_engine.plugins import Command, Platform
 from bt_engine.runner import REST_TICK_BUDGET_S
 from bt_engine.spec import Loc, MissionError, Problem
+from bt_engine.watchdog import busy_factor
 from drivers.guard.client import GuardClient
 from drivers.rig.factory import make_platform
 from drivers.rig.loader import Rig, load_rig
@@ -79,6 +80,8 @@ class RigTarget:
             land_max_s=g["land_max_s"],
             tick_limit_s=2 * budget + g["tick_grace_s"],
             rest_tick_limit_s=2 * max(budget, REST_TICK_BUDGET_S) + g["tick_grace_s"],
+            # lock-step: the watchdog's budget stretches on a busy host; so does this limit
+            tick_limit_scale=busy_factor if getattr(self, "lock_step", False) else None,
         )
 
     def finished(self, summary_written: bool = True) -> None:

@@ -52,6 +52,8 @@ class GuardClient:
         rest_tick_limit_s: the same while the drone is at rest (a first tick that loads
             models or builds a gallery).
         at_rest: True while the drone is on the ground (read on the ticking thread).
+        tick_limit_scale: a factor on ``tick_limit_s``, read at each heartbeat (lock-step on
+            a busy host: :func:`bt_engine.watchdog.busy_factor`).
     """
 
     def __init__(
@@ -65,8 +67,10 @@ class GuardClient:
         tick_limit_s: float = 30.0,
         rest_tick_limit_s: float = 1200.0,
         at_rest: Callable[[], bool] | None = None,
+        tick_limit_scale: Callable[[], float] | None = None,
     ) -> None:
         self.run_dir = run_dir
+        self.tick_limit_scale = tick_limit_scale
         self.settings = {
             "run_dir": os.path.abspath(run_dir),
             "mission_pid": os.getpid(),
@@ -203,7 +207,11 @@ class GuardClient:
         self._last_beat = now
         started = self._tick_started
         running = None if started is None else now - started
-        return self.send(["hb", self._ticks, running, self._tick_limit, self._mission_t])
+        limit = self._tick_limit
+        if self.tick_limit_scale is not None and limit == self.tick_limit_s:
+            with contextlib.suppress(Exception):
+                limit *= max(1.0, float(self.tick_limit_scale()))
+        return self.send(["hb", self._ticks, running, limit, self._mission_t])
 
     # ------------------------------------------------------------------ runner hook
     def before_tick(self, t_s: float) -> None:
