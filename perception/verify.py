@@ -38,8 +38,11 @@ import os
 import threading
 import weakref
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
+from typing import Any
 
 import cv2
 import numpy as np
@@ -326,6 +329,40 @@ def _masked_best(bands: Sequence[np.ndarray], template: np.ndarray, mask: np.nda
     return np.where(np.isfinite(r), r, -np.inf).reshape(rw * rh, n).max(axis=0)
 
 
+def _scale_scores(
+    template: np.ndarray,
+    work_hw: tuple[int, int],
+    enrolled: Sequence[np.ndarray],
+    mask: np.ndarray | None,
+    keys: Sequence[tuple],
+    scale: float,
+) -> np.ndarray | None:
+    """The best figure of each enrolled crop at one of :data:`SCALES` (-inf where none is
+    finite), None if the template does not fit at that scale."""
+    h, w = work_hw
+    th, tw = template.shape[:2]
+    eh, ew = int(round(h * scale)), int(round(w * scale))
+    if eh < th or ew < tw:
+        return None
+    bands = [_cached_band(e, k, (eh, ew)) for e, k in zip(enrolled, keys, strict=True)]
+    if mask is not None:
+        return _masked_best(bands, template, mask)
+    best = np.full(len(bands), -np.inf)  # OpenCV's unmasked figures, crop by crop
+    for i, b in enumerate(bands):
+        r = cv2.matchTemplate(b, template, cv2.TM_CCOEFF_NORMED)
+        if r.size:
+            m = float(r.max())
+            best[i] = m if m > -np.inf else best[i]  # a NaN maximum counts for nothing
+    return best
+
+
+def _best_of(best: np.ndarray, scale: np.ndarray | None) -> np.ndarray:
+    """``best`` raised to one scale's figures (as ``max(best, figure)`` one by one)."""
+    if scale is None:
+        return best
+    return np.where(scale > best, scale, best)
+
+
 def block_scores(
     template: np.ndarray,
     work_hw: tuple[int, int],
@@ -339,27 +376,48 @@ def block_scores(
     (:func:`_masked_best`: the figures of one ``cv2.matchTemplate`` per crop to about
     1e-7); without one, one ``cv2.matchTemplate`` per crop. Band-passed crops are kept per
     size (:data:`BAND_CACHE_BYTES`). ``keys``: the crops' :func:`_crop_key`, if known."""
-    h, w = work_hw
-    n = len(enrolled)
-    best = np.full(n, -1.0)
-    if not n:
+    best = np.full(len(enrolled), -1.0)
+    if not len(enrolled):
         return best
     if keys is None:
         keys = [_crop_key(e) for e in enrolled]
-    th, tw = template.shape[:2]
     for s in SCALES:
-        eh, ew = int(round(h * s)), int(round(w * s))
-        if eh < th or ew < tw:
-            continue
-        bands = [_cached_band(e, k, (eh, ew)) for e, k in zip(enrolled, keys, strict=True)]
-        if mask is None:  # OpenCV's unmasked figures, crop by crop
-            for i, b in enumerate(bands):
-                r = cv2.matchTemplate(b, template, cv2.TM_CCOEFF_NORMED)
-                if r.size:
-                    best[i] = max(best[i], float(r.max()))
-            continue
-        best = np.maximum(best, _masked_best(bands, template, mask))
+        best = _best_of(best, _scale_scores(template, work_hw, enrolled, mask, keys, s))
     return best
+
+
+#: threads scoring a query (1 or 2): the blocks, work sizes and scales are scored on two
+#: cores; the figures do not depend on which thread computes them
+THREADS = 2
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def _two_threads(jobs: list[Callable[[], Any]]) -> list[Any]:
+    """Run ``jobs`` on this thread and one worker (each job once, results in order)."""
+    global _pool
+    if len(jobs) < 2 or THREADS < 2 or (os.cpu_count() or 1) < 2:
+        return [job() for job in jobs]
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="verify")
+    results: list[Any] = [None] * len(jobs)
+    taken = [False] * len(jobs)
+    take = threading.Lock()
+
+    def work() -> None:
+        while True:
+            with take:
+                i = next((k for k, t in enumerate(taken) if not t), None)
+                if i is None:
+                    return
+                taken[i] = True
+            results[i] = jobs[i]()
+
+    helper = _pool.submit(work)
+    work()
+    helper.result()
+    return results
 
 
 def _scores(
@@ -368,14 +426,16 @@ def _scores(
     colours: Sequence[np.ndarray | None] | None = None,
 ) -> np.ndarray:
     """Raw scores (len(sides), 3) of the three grey query blocks (``colours``: their BGR
-    crops, for the mask) against every side's blocks."""
+    crops, for the mask) against every side's blocks (every block, work size and scale one
+    job, on two threads)."""
     out = np.full((len(sides), len(queries)), np.nan)
     keys: dict[int, tuple] = {}  # id -> content key of the crops (alive during the call)
     greys: dict[int, np.ndarray] = {}
+    groups: list[tuple[int, list[int], tuple[int, int], list[np.ndarray], list[tuple]]] = []
     for b, q in enumerate(queries):
         if min(q.shape[:2]) < 6:
             continue
-        groups: dict[tuple[int, int], list[int]] = {}
+        by_size: dict[tuple[int, int], list[int]] = {}
         crops: dict[int, np.ndarray] = {}
         for j, side in enumerate(sides):
             if b < len(side) and side[b] is not None:
@@ -385,16 +445,26 @@ def _scores(
                     e = greys[id(src)] = grey(src)
                     keys[id(src)] = _crop_key(e)
                 crops[j] = e
-                groups.setdefault(work_size(q.shape[:2], e.shape[:2]), []).append(j)
-        for hw, js in groups.items():
-            t, mask = _template(q, hw, colours[b] if colours else None)
-            out[js, b] = block_scores(
-                t,
-                hw,
-                [crops[j] for j in js],
-                mask,
-                [keys[id(sides[j][b])] for j in js],
-            )
+                by_size.setdefault(work_size(q.shape[:2], e.shape[:2]), []).append(j)
+        for hw, js in by_size.items():
+            ks = [keys[id(sides[j][b])] for j in js]
+            groups.append((b, js, hw, [crops[j] for j in js], ks))
+    templates = _two_threads(
+        [
+            partial(_template, queries[b], hw, colours[b] if colours else None)
+            for b, _, hw, _, _ in groups
+        ]
+    )
+    jobs, owner = [], []
+    for g, ((_, _, hw, es, ks), (t, mask)) in enumerate(zip(groups, templates, strict=True)):
+        for s in SCALES:
+            jobs.append(partial(_scale_scores, t, hw, es, mask, ks, s))
+            owner.append(g)
+    best = [np.full(len(g[1]), -1.0) for g in groups]
+    for g, figures in zip(owner, _two_threads(jobs), strict=True):
+        best[g] = _best_of(best[g], figures)
+    for (b, js, _, _, _), figures in zip(groups, best, strict=True):
+        out[js, b] = figures
     return out
 
 
