@@ -1,9 +1,10 @@
 """Lock-step speed of the site fleet (issue 27): x real time and CPU of ``btrun fleet``.
 
 Flies ``btrun fleet fleets/site_4.yaml --seed S --quiet --no-report`` (4 drones, 144 places,
-one lock-step clock) in a fresh process per run, for this tree and, with ``--baseline REF``,
-for the tree of git commit REF (``git archive``; meaningful when this tree holds no other
-uncommitted change), alternating the two (A B, then B A, ...) so a busy machine slows them
+one lock-step clock) in a fresh process per run, for the tree of git commit ``--new``
+(default HEAD; ``git archive``, so uncommitted edits are left out) and, with
+``--baseline REF``, for that tree with ``--paths`` taken from commit REF (default: the
+whole tree of REF), alternating the two (A B, then B A, ...) so a busy machine slows them
 alike. Per variant and seed it prints the mission time, the wall time of the lock-step run
 (``summary.json``'s ``wall_time_s``, what ``btrun fleet`` prints as "x real time"), the
 whole process's CPU time (user + sys, start-up and models included), and, against the
@@ -12,7 +13,9 @@ logs (every line after the header) are the same. The machine has 2 cores shared 
 work: CPU time is the steadier figure, wall time the target's. It prints figures; it is not
 a test::
 
-    .venv/bin/python bench/fleet_speed.py --seeds 100 --baseline 81e31af
+    .venv/bin/python bench/fleet_speed.py --seeds 100 --baseline 81e31af \
+        --paths perception/verify.py perception/gallery_match.py perception/synth/render.py \
+        drivers/sim/renderers/pallet.py
     .venv/bin/python bench/fleet_speed.py --seeds 100 200 --rounds 2
 """
 
@@ -33,22 +36,31 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FLEET = "fleets/site_4.yaml"
 
 
-def baseline_tree(ref: str, tmp: str) -> str:
-    """A copy of the repository at commit ``ref`` (``git archive``)."""
-    dest = os.path.join(tmp, "baseline")
+def tree(ref: str, dest: str, paths: list[str] | None = None, base: str = "") -> str:
+    """A copy of the repository at commit ``ref`` (``git archive``); with ``paths``, the
+    tree of commit ``base`` with those files taken from ``ref``."""
     os.makedirs(dest)
-    archive = subprocess.run(["git", "-C", REPO, "archive", ref], check=True, capture_output=True)
+    archive = subprocess.run(
+        ["git", "-C", REPO, "archive", base if paths else ref], check=True, capture_output=True
+    )
     subprocess.run(["tar", "-x", "-C", dest], input=archive.stdout, check=True)
+    for path in paths or []:
+        blob = subprocess.run(
+            ["git", "-C", REPO, "show", f"{ref}:{path}"], check=True, capture_output=True
+        )
+        with open(os.path.join(dest, path), "wb") as f:
+            f.write(blob.stdout)
     return dest
 
 
-def fly(tree: str, seed: int, out: str) -> dict:
-    """One ``btrun fleet`` run of ``tree`` (its own packages first on the path)."""
+def fly(where: str, seed: int, out: str) -> dict:
+    """One ``btrun fleet`` run of the tree at ``where`` (its own packages first on the
+    path)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     cmd = [sys.executable, "-m", "bt_engine.cli", "fleet", FLEET, "--seed", str(seed)]
     proc = subprocess.run(
-        cmd + ["--out", out, "--quiet", "--no-report"], cwd=tree, capture_output=True, text=True
+        cmd + ["--out", out, "--quiet", "--no-report"], cwd=where, capture_output=True, text=True
     )
     elapsed = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -57,7 +69,7 @@ def fly(tree: str, seed: int, out: str) -> dict:
         with open(os.path.join(out, "summary.json"), encoding="utf-8") as f:
             s = json.load(f)
     except OSError:
-        sys.exit(f"{tree}: btrun fleet failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+        sys.exit(f"{where}: btrun fleet failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return {
         "mission_s": s["mission_time_s"],
         "wall_s": s["wall_time_s"],
@@ -90,20 +102,25 @@ def ticks(out: str) -> dict[str, list[str]]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[100])
+    ap.add_argument("--new", default="HEAD", help="git commit flown as 'new' (git archive)")
     ap.add_argument("--baseline", default="", help="git commit to compare with (git archive)")
+    ap.add_argument(
+        "--paths", nargs="*", default=None, help="only these files from --baseline (else all)"
+    )
     ap.add_argument("--rounds", type=int, default=1, help="runs per variant and seed")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="fleet_speed_") as tmp:
-        variants = [("new", REPO)]
+        variants = [("new", tree(args.new, os.path.join(tmp, "new")))]
         if args.baseline:
-            variants.insert(0, ("baseline", baseline_tree(args.baseline, tmp)))
+            base = tree(args.baseline, os.path.join(tmp, "baseline"), args.paths, args.new)
+            variants.insert(0, ("baseline", base))
         results: dict[tuple[str, int], list[dict]] = {}
         for r in range(args.rounds):
             order = variants if r % 2 == 0 else variants[::-1]
             for seed in args.seeds:
-                for name, tree in order:
+                for name, where in order:
                     out = os.path.join(tmp, f"{name}-{seed}-{r}")
-                    res = fly(tree, seed, out)
+                    res = fly(where, seed, out)
                     results.setdefault((name, seed), []).append(res)
                     print(
                         f"{name:8} seed {seed}: {res['status']}, {res['mission_s']:.1f} s mission "
