@@ -155,6 +155,24 @@ def figures(out: str, seed: int, code: int, wall_s: float) -> dict:
     }
 
 
+def sweep_counts(out: str, doc: dict) -> dict:
+    """How many places the sweep's passes answered, looked at twice, and left to the
+    per-place scan (from the run's tick log)."""
+    import re
+
+    swept, looks = set(), 0
+    with open(os.path.join(out, "ticks.jsonl")) as f:
+        for line in f:
+            for m in json.loads(line).get("messages", ()):
+                hit = re.match(r"inventory (\S+): \S+ \((identified|unknown|empty); sweep", m)
+                if hit:
+                    swept.add(hit.group(1))
+                elif re.match(r"sweep \S+: a second look at ", m):
+                    looks += 1
+    answered = {r["place"] for r in doc["rows"] if r.get("status") != "not_scanned"}
+    return {"second_looks": looks, "rescanned": len(answered - swept)}
+
+
 def solo_figures(out: str, seed: int, code: int, wall_s: float) -> dict:
     """The figures of one drone's run folder (as :func:`figures`)."""
     s = json.load(open(os.path.join(out, "summary.json")))
@@ -171,7 +189,7 @@ def solo_figures(out: str, seed: int, code: int, wall_s: float) -> dict:
         "waits": 0,
         "swaps": (sim.get("battery") or {}).get("swaps", 0),
         "in_order": True,
-        "rescanned": sum(1 for r in doc["rows"] if "sweep" not in (r.get("reason") or "x")),
+        **sweep_counts(out, doc),
         "places_per_hour_per_drone": inv.get("places_per_hour") or 0.0,
         **_timing(s, inv, wall_s),
     }
