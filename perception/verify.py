@@ -393,6 +393,15 @@ _pool: ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
 
 
+def _after_fork() -> None:
+    """A forked child has neither the worker nor a lock another thread held: new ones."""
+    global _pool, _pool_lock, _band_lock
+    _pool, _pool_lock, _band_lock = None, threading.Lock(), threading.Lock()
+
+
+os.register_at_fork(after_in_child=_after_fork)
+
+
 def _two_threads(jobs: list[Callable[[], Any]]) -> list[Any]:
     """Run ``jobs`` on this thread and one worker (each job once, results in order)."""
     global _pool

@@ -228,3 +228,29 @@ def test_textures_made_ahead_on_a_worker_give_the_same_frames():
         img, nearest = render_scene(CAM, pose, ahead, lookahead_m=3.0)
         ref, ref_nearest = render_scene(CAM, pose, plain)
         assert np.array_equal(img, ref) and nearest == ref_nearest
+
+
+def _verify_and_render_in_child(queue) -> None:
+    rng = np.random.default_rng(11)
+    cohort = [(f"c{i}", _side(rng)) for i in range(6)]
+    query = [_bgr_query(rng, 30, 52, True) for _ in range(3)]
+    ver = tv.verify(query, [("s0", [_side(rng)])], cohort)
+    img, _ = render_scene(CAM, POSES[0], SCENE, lookahead_m=3.0)
+    queue.put((ver.best[0], int(img.sum())))
+
+
+def test_a_forked_child_verifies_and_renders_without_the_parents_workers():
+    """The verifier's and the texture look-ahead's worker threads do not survive a fork:
+    a child made after they started scores and draws on its own (no wait on a thread
+    that is not there)."""
+    import multiprocessing
+
+    _verify_and_render_in_child(queue := multiprocessing.get_context("fork").Queue())
+    here = queue.get(timeout=60)
+    child = multiprocessing.get_context("fork").Process(
+        target=_verify_and_render_in_child, args=(queue,)
+    )
+    child.start()
+    child.join(120)
+    assert child.exitcode == 0
+    assert queue.get(timeout=5) == here

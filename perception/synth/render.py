@@ -12,6 +12,7 @@ rows and odd columns, green elsewhere).
 from __future__ import annotations
 
 import math
+import os
 import threading
 from collections import deque
 from dataclasses import dataclass
@@ -87,6 +88,11 @@ class _Textures:
     and a drawing thread that needs a texture being made waits for it."""
 
     def __init__(self) -> None:
+        self._reset()
+        # a forked child has no worker: it starts afresh (what was being made is made again)
+        os.register_at_fork(after_in_child=self._reset)
+
+    def _reset(self) -> None:
         self._lock = threading.Condition(threading.Lock())
         self._making: dict[int, threading.Event] = {}  # id(quad) -> set when made
         self._queue: deque[Quad] = deque()
