@@ -327,6 +327,8 @@ def _clear_caches() -> None:
     for f in (ap.face_texture, ap.block_texture, ap.short_face_texture, ap.top_texture):
         f.cache_clear()
     relief._normals.cache_clear()
+    relief._edge_profile.cache_clear()
+    relief._LAST_FIELDS = (None, None)
     scene._box_quads.cache_clear()
     face_texture.cache_clear()
     _normals.cache_clear()

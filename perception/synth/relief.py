@@ -66,7 +66,7 @@ SPECULAR, SHININESS = 0.06, 16.0
 #: lamp directions are computed on a grid this coarse (px) and interpolated
 GRID_PX = 24
 #: rows of the face shaded at a time (the same numbers as all at once, faster)
-_ROWS = 16
+_ROWS = 32
 
 
 def _mm_px(v_m: float) -> int:
@@ -84,12 +84,16 @@ def _parts(g: PalletGeometry) -> list[tuple[str, tuple[int, int, int, int]]]:
     return parts
 
 
+@lru_cache(maxsize=16)
 def _edge_profile(h: int, w: int, width_px: float) -> np.ndarray:
-    """0 inside a part, falling to -1 at its edges (a quarter-circle rounding)."""
+    """0 inside a part, falling to -1 at its edges (a quarter-circle rounding); read-only,
+    cached (a part's shape is the same on every face of a geometry)."""
     yy = np.minimum(np.arange(h), np.arange(h)[::-1])[:, None].astype(np.float32)
     xx = np.minimum(np.arange(w), np.arange(w)[::-1])[None, :].astype(np.float32)
     d = np.minimum(np.minimum(yy, xx) + 0.5, width_px) / width_px
-    return -(1.0 - np.sqrt(np.clip(1.0 - (1.0 - d) ** 2, 0.0, 1.0)))
+    out = -(1.0 - np.sqrt(np.clip(1.0 - (1.0 - d) ** 2, 0.0, 1.0)))
+    out.setflags(write=False)
+    return out
 
 
 def face_height(
@@ -180,22 +184,62 @@ def shade_map(normals: np.ndarray, corners: np.ndarray, light: SceneLight) -> np
     TL, TR, BR, BL lie at ``corners`` (4, 3, world m), under ``light``'s lamps: ambient +
     Lambert per lamp (distance fall-off as :meth:`SceneLight.shade`) + a little specular.
     Without lamps the face is lit evenly (the scalar shade: no relief shows)."""
+    global _LAST_FIELDS
     H, W = normals.shape[:2]
     c = np.asarray(corners, float)
+    if not light.lamps:
+        U, V = c[1] - c[0], c[3] - c[0]
+        n_face = np.cross(V, U)
+        n_face /= np.linalg.norm(n_face)
+        return np.full((H, W), light.shade(c.mean(0), n_face), np.float32)
+    key = (c.tobytes(), repr(light.lamps), H, W, GRID_PX)
+    last_key, fields = _LAST_FIELDS
+    if key != last_key:
+        _LAST_FIELDS = (key, None)
+        fields = _lamp_fields(c, H, W, light.lamps, planar=False)
+    elif fields is None:  # the second face in a row with these: keep them
+        fields = _lamp_fields(c, H, W, light.lamps, planar=True)
+        _LAST_FIELDS = (key, fields)
+    nx, ny, nz = (_single(normals[..., i]) for i in range(3))
+    direct = np.zeros((H, W), np.float32)
+    for F, fall_full in fields:
+        for r0 in range(0, H, _ROWS):  # a band of rows at a time: its fields stay in cache
+            r = slice(r0, r0 + _ROWS)
+            x, y, z = nx[r], ny[r], nz[r]
+            lam = x * F[0, r] + y * F[1, r] + z * F[2, r]
+            np.maximum(lam, 0.0, out=lam)
+            spec = x * F[3, r] + y * F[4, r] + z * F[5, r]
+            np.maximum(spec, 0.0, out=spec)
+            direct[r] += lam + SPECULAR * fall_full[r] * spec**SHININESS
+    return np.clip(light.ambient + 0.6 * direct, 0.15, 1.4).astype(np.float32)
+
+
+#: (key, lamp fields) of the last face shaded; the fields are kept (read-only, about 20 MB
+#: a lamp for a europallet's face) only once a second face in a row has the same corners,
+#: lamps and size, as every side of a demo gallery build has (its canonical slot); the
+#: faces of a simulated world each have their own corners, and then nothing is kept
+_LAST_FIELDS: tuple = (None, None)
+
+
+def _lamp_fields(
+    c: np.ndarray, H: int, W: int, lamps: tuple, planar: bool
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per lamp, at every texel of an (H, W) face with corners ``c``: the direction to the
+    lamp times its fall-off (planes 0-2, face coordinates) and the half vector (planes
+    3-5) as a (6, H, W) array (``planar``: contiguous planes, else a view of the resized
+    six-channel field), and the fall-off where the lamp is in front of the face (H, W).
+    Both are made on a grid of :data:`GRID_PX` texels and interpolated."""
     U, V = c[1] - c[0], c[3] - c[0]
     lu, lv = np.linalg.norm(U), np.linalg.norm(V)
     n_face = np.cross(V, U)
     n_face /= np.linalg.norm(n_face)
-    if not light.lamps:
-        return np.full((H, W), light.shade(c.mean(0), n_face), np.float32)
     gh, gw = max(2, H // GRID_PX + 2), max(2, W // GRID_PX + 2)
     su = (np.linspace(0.0, W - 1.0, gw) + 0.5) / W
     sv = (np.linspace(0.0, H - 1.0, gh) + 0.5) / H
     P = c[0] + su[None, :, None] * U + sv[:, None, None] * V  # (gh, gw, 3)
     basis = np.stack([U / lu, V / lv, n_face])  # face x, y, z in the world
-    nx, ny, nz = (_single(normals[..., i]) for i in range(3))
-    direct = np.zeros((H, W), np.float32)
-    for pos, intensity in light.lamps:
+    out = []
+    for pos, intensity in lamps:
         d = np.asarray(pos, float) - P
         dist = np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-6)
         fall = intensity * np.minimum(1.0, (4.0 / dist) ** 2)
@@ -204,18 +248,15 @@ def shade_map(normals: np.ndarray, corners: np.ndarray, light: SceneLight) -> np
         h_face /= np.maximum(np.linalg.norm(h_face, axis=-1, keepdims=True), 1e-6)
         fields = np.concatenate([l_face * fall, h_face], axis=-1).astype(np.float32)
         # one 6-channel resize (a channel alone is interpolated with other roundings)
-        full = cv2.resize(fields, (W, H), interpolation=cv2.INTER_LINEAR)
+        full = np.moveaxis(cv2.resize(fields, (W, H), interpolation=cv2.INTER_LINEAR), -1, 0)
         lit = (l_face[..., 2] > 0.0).astype(np.float32)  # the lamp is in front of the face
         fall_full = cv2.resize((fall[..., 0] * lit).astype(np.float32), (W, H))
-        for r0 in range(0, H, _ROWS):  # a band of rows at a time: its fields stay in cache
-            r = slice(r0, r0 + _ROWS)
-            f, x, y, z = full[r], nx[r], ny[r], nz[r]
-            lam = x * f[..., 0] + y * f[..., 1] + z * f[..., 2]
-            np.maximum(lam, 0.0, out=lam)
-            spec = x * f[..., 3] + y * f[..., 4] + z * f[..., 5]
-            np.maximum(spec, 0.0, out=spec)
-            direct[r] += lam + SPECULAR * fall_full[r] * spec**SHININESS
-    return np.clip(light.ambient + 0.6 * direct, 0.15, 1.4).astype(np.float32)
+        if planar:
+            full = np.ascontiguousarray(full)
+            full.setflags(write=False)
+            fall_full.setflags(write=False)
+        out.append((full, fall_full))
+    return out
 
 
 def lit_face(
