@@ -3,12 +3,12 @@
 ``bench/gallery_build_speed.py`` times a side's enrolment with these (the baseline, in the
 same run) and ``tests/test_relief_speed.py`` checks that the shipped code gives the same
 pixels, bit for bit. The functions below are the pre-optimisation code of
-:mod:`perception.synth.woodgen`, :mod:`perception.synth.appearance` and
-:mod:`perception.synth.relief`, unchanged but for how they name the other modules;
-:func:`reference` puts them in place of the shipped ones (and empties the texture caches
-on the way in and out) and turns off the caches the faster code added (the rack quads
-shared between scenes, the demo gallery's block offsets kept per scan geometry).
-"""
+:mod:`perception.synth.woodgen`, :mod:`perception.synth.appearance`,
+:mod:`perception.synth.scene` (``box_quads``) and :mod:`perception.synth.relief`, unchanged
+but for how they name the other modules. :func:`reference` puts them in place of the
+shipped ones, empties the texture caches both share on the way in and out, and turns off
+the demo gallery's block offsets kept per scan geometry; the caches only the shipped code
+reads (shared box quads, edge profiles, lamp fields) are left as a build worker has them."""
 
 from __future__ import annotations
 
@@ -243,7 +243,8 @@ def face_height(
         part = (
             relief.GRAIN_MM * band[y0:y1, x0:x1] + relief.SAW_MM * saw + relief.UNDULATION_MM * und
         )
-        part += relief.EDGE_MM * relief._edge_profile(h, w, relief.EDGE_WIDTH_MM * px_mm)
+        profile = relief._edge_profile.__wrapped__  # made per part, as it was
+        part += relief.EDGE_MM * profile(h, w, relief.EDGE_WIDTH_MM * px_mm)
         height[y0:y1, x0:x1] = part
     return height
 
@@ -324,12 +325,11 @@ _PATCHES = (
 
 
 def _clear_caches() -> None:
+    """Empty the caches of textures both ways make (the caches only the shipped code
+    reads, of quads, edge profiles and lamp fields, stay: as in a build worker)."""
     for f in (ap.face_texture, ap.block_texture, ap.short_face_texture, ap.top_texture):
         f.cache_clear()
     relief._normals.cache_clear()
-    relief._edge_profile.cache_clear()
-    relief._LAST_FIELDS = (None, None)
-    scene._box_quads.cache_clear()
     face_texture.cache_clear()
     _normals.cache_clear()
 
