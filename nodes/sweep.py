@@ -338,12 +338,16 @@ class SweepPass(StatefulActionNode):
             if self.realtime
             else FrameFeed(None, 0, self.collector)
         )
+        return self._go(goal, speed, 0.1)
+
+    def _go(self, goal: Any, speed: float, tolerance_m: float) -> NodeStatus:
+        """Along the face to ``goal``, facing it."""
         self.progress = self.vehicle.go_to(
             *goal,
             FIXED_YAW,
             self.spec.look_rad,
             speed,
-            position_tolerance_m=0.1,
+            position_tolerance_m=tolerance_m,
             yaw_tolerance_rad=math.radians(10.0),
         )
         if self.progress.failed:
@@ -366,17 +370,7 @@ class SweepPass(StatefulActionNode):
         a, _ = pass_line(self.spec, self.get_input("standoff"), 0.3, [name])
         self.ctx.log(f"sweep {self.spec.name}: a second look at {name}")
         self.phase = "back"
-        self.progress = self.vehicle.go_to(
-            *a,
-            FIXED_YAW,
-            self.spec.look_rad,
-            self.get_input("transit_speed"),
-            position_tolerance_m=0.05,
-            yaw_tolerance_rad=math.radians(10.0),
-        )
-        if self.progress.failed:
-            return self._fail(self.progress.reason or "motion refused")
-        return RUNNING
+        return self._go(a, self.get_input("transit_speed"), 0.05)
 
     def _look(self) -> None:
         from perception.synth.camera_model import CameraPose
