@@ -66,6 +66,15 @@ def _help_examples() -> list[tuple[str, str, str, str | None]]:
     return out
 
 
+def _fleet_rig(fleet: str) -> str:
+    """The rig a fleet file flies (a fleet command's ``--set`` applies to it)."""
+    import yaml
+
+    path = os.path.join(REPO, fleet)
+    rig = yaml.safe_load(open(path))["rig"]
+    return os.path.normpath(os.path.join(os.path.dirname(path), rig))
+
+
 def _doc_examples() -> list[tuple[str, str, str, str | None]]:
     """(file:line, key, value, the line's --rig) of every ``--set`` in README and docs/."""
     out = []
@@ -73,8 +82,10 @@ def _doc_examples() -> list[tuple[str, str, str, str | None]]:
         rel = os.path.relpath(os.path.join(REPO, path), REPO)
         for n, line in enumerate(_read(rel).splitlines(), 1):
             rig = re.search(r"--rig[ =]+(\S+)", line)
+            fleet = re.search(r"(?:--fleet[ =]+|btrun fleet )(fleets/\S+\.yaml)", line)
+            where = rig.group(1) if rig else _fleet_rig(fleet.group(1)) if fleet else None
             for key, value in _SET_EXAMPLE.findall(line):
-                out.append((f"{rel}:{n}", key, value, rig.group(1) if rig else None))
+                out.append((f"{rel}:{n}", key, value, where))
     return out
 
 
