@@ -10,6 +10,7 @@ from nodes import (  # noqa: F401  (registration)
     flight,
     geometry,
     inventory,
+    landing_pads,
     perception,
     reactive_scan,
     safety,

@@ -37,6 +37,16 @@ def _fleet(tmp_path, drones: str, rig: str = AISLE_RIG, extra: str = "") -> str:
         ),
         ("  - {name: a}\n", 5, "drone 'a' needs a pad"),
         (
+            "  - {name: a, pad: pad-1, landing_pads: [pad-7]}\n",
+            5,
+            "pad 'pad-7' is not a pad of the world (pad-1, pad-2)",
+        ),
+        (
+            "  - {name: a, pad: pad-1, landing_pads: [pad-2]}\n  - {name: b, pad: pad-2}\n",
+            5,
+            "pad 'pad-2' is b's already: a drone lands only on its own pads",
+        ),
+        (
             "".join(f"  - {{name: d{i}, start_m: [{i}, 0, 0]}}\n" for i in range(5)),
             5,
             "1 to 4 drones",

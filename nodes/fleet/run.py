@@ -140,6 +140,8 @@ def run(args: Any) -> int:
             sets.append(f"sim.start_m=[{d.start_m[0]}, {d.start_m[1]}, {d.start_m[2]}]")
             if d.uri:
                 sets.append(f"crazyflie.uri={d.uri}")
+            if d.landing_pads:
+                sets.append("landing_pads=" + ";".join(d.landing_pads))
             if split is not None:
                 sets.append("places=" + ";".join(split[d.name]))
             ns = _drone_args(spec, args, sets, seed, os.path.join(out, "drones", d.name))

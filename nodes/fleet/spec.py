@@ -12,9 +12,9 @@ Example (``fleets/aisle_2.yaml``)::
 
 Paths are relative to the fleet file. Everything is checked before anything flies and every
 problem is reported at once, located (``file:line:col: message``): 1 to 4 drones with
-distinct names, a pad of the world or a start position for each, no pad shared, start
-positions at least the minimum separation apart, no URI used twice, the rig, the mission and
-the place list. The fleet's name and the drones' names become folder names (the run folder,
+distinct names, a pad of the world or a start position for each, no pad shared (landing
+pads included), start positions at least the minimum separation apart, no URI used twice,
+the rig, the mission and the place list. The fleet's name and the drones' names become folder names (the run folder,
 ``drones/<name>/``), so they must match :data:`SAFE_NAME` (no ``/``, no ``..``): a fleet
 file cannot write outside ``--out``.
 """
@@ -69,6 +69,13 @@ DRONE = M(
         ),
         "start_m": F(
             "vec", None, "start position x, y, z in m (instead of a pad)", length=3, nullable=True
+        ),
+        "landing_pads": F(
+            "list",
+            [],
+            "other world pads it may land on at the end (the nearest of them and its pad; "
+            "the mission's landing_pads input), e.g. [pad-5]: a pad at the aisle's far end",
+            item=F("str"),
         ),
         "uri": F(
             "str", None, "its Crazyflie's URI (sets crazyflie.uri; real links only)", nullable=True
@@ -137,6 +144,7 @@ class DroneSpec:
     uri: str | None
     sets: dict[str, Any]
     index: int
+    landing_pads: tuple[str, ...] = ()
 
 
 @dataclass
@@ -256,8 +264,20 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
             start = tuple(float(v) for v in d["start_m"])
         if start is None and rig is not None and not (d["pad"] and d["pad"] not in pads):
             at(key, f"drone {d['name']!r} needs a pad (one of the world's pads) or start_m")
+        for j, name in enumerate(d["landing_pads"]):
+            if rig is not None and name not in pads:
+                known = ", ".join(pads) or "none: the world has no pads"
+                at(f"{key}.landing_pads[{j}]", f"pad {name!r} is not a pad of the world ({known})")
         drones.append(
-            DroneSpec(d["name"], start or (0.0, 0.0, 0.0), d["pad"], d["uri"], dict(d["set"]), i)
+            DroneSpec(
+                d["name"],
+                start or (0.0, 0.0, 0.0),
+                d["pad"],
+                d["uri"],
+                dict(d["set"]),
+                i,
+                tuple(d["landing_pads"]),
+            )
         )
     if rig is not None:
         _check_shared(data, drones, at)
@@ -280,6 +300,16 @@ def _check_shared(data: dict, drones: list[DroneSpec], at: Any) -> None:
                 )
                 continue
             by_pad[d.pad] = d.name
+    for d in drones:
+        for j, name in enumerate(d.landing_pads):
+            owner = by_pad.get(name)
+            if owner is not None and owner != d.name:
+                at(
+                    f"drones[{d.index}].landing_pads[{j}]",
+                    f"pad {name!r} is {owner}'s already: a drone lands only on its own pads",
+                )
+                continue
+            by_pad[name] = d.name
     for i, a in enumerate(drones):
         for b in drones[i + 1 :]:
             gap = math.dist(a.start_m, b.start_m)
