@@ -27,6 +27,11 @@ from nodes.sweep_plan import pass_line, sweep_plan_of
 
 #: charge of a fresh battery, %
 FULL_PERCENT = 100.0
+#: ``ctx.resources`` key of the passes' measured overheads: {"last": (mission time at the
+#: check, the pass's line and transit time) or None, "samples": [s, ...]}
+OVERHEAD_KEY = "sweep_pass_overhead"
+#: passes timed on this flight before their measured overhead replaces ``turn_time``
+MIN_TIMED_PASSES = 2
 
 
 def change_plan(
@@ -78,6 +83,26 @@ def change_plan(
     return True, now
 
 
+def close_pass_timing(timing: dict, now: float, change_s: float) -> None:
+    """End the timing of the pass started at ``timing["last"]`` (mission time at its check,
+    seconds of its line and transit): what it took beyond them is a sample, unless it was
+    ``change_s`` or more (a battery change came in between)."""
+    last, timing["last"] = timing["last"], None
+    if last is not None:
+        extra = now - last[0] - last[1]
+        if 0.0 <= extra < change_s:
+            timing["samples"].append(extra)
+
+
+def pass_overhead(timing: dict, default: float) -> tuple[float, int]:
+    """(seconds a pass takes beyond its line and transit: turning, speeding up, second
+    looks, the mean over the passes timed on this flight, else ``default``; passes timed)."""
+    samples = timing["samples"]
+    if len(samples) < MIN_TIMED_PASSES:
+        return default, 0
+    return sum(samples) / len(samples), len(samples)
+
+
 @register
 class EnoughEnergyForPass(ConditionNode):
     """SUCCESS to fly the pass ``pass`` on this battery; FAILURE to change the battery
@@ -97,8 +122,14 @@ class EnoughEnergyForPass(ConditionNode):
         input_port("transit_speed", FLOAT, 1.0, "speed between passes and home, m/s"),
         input_port("standoff", FLOAT, 0.45, "the passes' distance from the faces, m"),
         input_port("lead", FLOAT, 0.5, "the passes' run-up, m"),
-        input_port("turn_time", DURATION, 3.0, "time lost per pass to speeding up, turning, s"),
-        input_port("landing_time", DURATION, 8.0, "time to land, s"),
+        input_port(
+            "turn_time",
+            DURATION,
+            3.0,
+            "time lost per pass to speeding up, turning and second looks, until two passes "
+            "were timed on this flight (then their mean), s",
+        ),
+        input_port("landing_time", DURATION, 4.0, "time to land, s"),
         input_port("swap_time", DURATION, 60.0, "handling time of a change, s"),
         input_port("reserve", FLOAT, 15.0, "charge to keep at touchdown, %"),
         input_port("endurance", DURATION, 360.0, "flight time of a full battery until measured, s"),
@@ -125,21 +156,26 @@ class EnoughEnergyForPass(ConditionNode):
         speed = max(self.get_input("speed"), 1e-3)
         transit = max(self.get_input("transit_speed"), 1e-3)
         home = tuple(self.get_input("home"))
-        landing, turn = self.get_input("landing_time"), self.get_input("turn_time")
+        landing = self.get_input("landing_time")
+        timing = self.ctx.resources.setdefault(OVERHEAD_KEY, {"last": None, "samples": []})
+        close_pass_timing(timing, self.now(), self.get_input("swap_time"))
+        turn, timed = pass_overhead(timing, self.get_input("turn_time"))
         here = tuple(v.position)
         change_s = [
             self.get_input("swap_time") + landing + 2 * travel_m(self.ctx, here, home) / transit
         ]
         steps: list[tuple[float, float]] = []
-        t = 0.0
+        t = core = 0.0
         for p in plan.order[plan.order.index(name) :]:
             todo = [x for x in plan.passes[p].places if x not in done]
             if not todo:
                 continue
             start, end = pass_line(plan.passes[p], standoff, lead, todo)
+            flown = travel_m(self.ctx, here, start) / transit + math.dist(start, end) / speed
             if not steps:
                 self.set_output("start_point", start)
-            t += travel_m(self.ctx, here, start) / transit + math.dist(start, end) / speed + turn
+                core = flown
+            t += flown + turn
             back = travel_m(self.ctx, end, home) / transit
             steps.append((t, back + landing))
             change_s.append(self.get_input("swap_time") + landing + 2 * back)
@@ -152,10 +188,13 @@ class EnoughEnergyForPass(ConditionNode):
             rate, how = 100.0 / max(self.get_input("endurance"), 1.0), "assumed"
         pct = v.battery.percent
         change, cost = change_plan(pct, steps, change_s, rate, self.get_input("reserve"))
+        # this pass is timed from here to the next check, unless a change comes first
+        timing["last"] = None if change else (self.now(), core)
         if change:
             self.failure_reason = (
                 f"change the battery before pass {name}: {pct:.1f} % left at "
-                f"{rate * 60:.2f} %/min ({how}); changing here costs least "
+                f"{rate * 60:.2f} %/min ({how}), {turn:.1f} s per pass beyond its line "
+                f"({f'measured on {timed} passes' if timed else 'assumed'}); changing here costs least "
                 f"({cost:.0f} s of changes to the end of the sweep)"
             )
             self.ctx.log(f"{self.describe()}: {self.failure_reason}")

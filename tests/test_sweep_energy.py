@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from nodes.sweep_energy import change_plan
+from nodes.sweep_energy import change_plan, close_pass_timing, pass_overhead
 
 RATE = 100.0 / 300.0  # a full battery lasts 300 s
 RESERVE = 15.0
@@ -66,3 +66,19 @@ def test_fewer_changes_win_over_cheaper_ones():
     now, cost = change_plan(100.0, steps, change, RATE, RESERVE)
     assert not now
     assert cost == pytest.approx(2 * (60.0 + 2 * 2.0))
+
+
+def test_the_look_ahead_times_passes_on_this_flight_and_skips_a_battery_change():
+    timing = {"last": None, "samples": []}
+    # two passes timed: their line and transit took 20 s and 22 s, they took 22.5 and 25
+    for start, core, end in ((10.0, 20.0, 32.5), (32.5, 22.0, 57.5)):
+        timing["last"] = (start, core)
+        close_pass_timing(timing, end, change_s=60.0)
+    assert timing["samples"] == [2.5, 3.0] and timing["last"] is None
+    assert pass_overhead(timing, 9.0) == (2.75, 2)
+    # a pass with a battery change in it (90 s beyond its line) is not a sample
+    timing["last"] = (57.5, 20.0)
+    close_pass_timing(timing, 167.5, change_s=60.0)
+    assert timing["samples"] == [2.5, 3.0]
+    # nothing timed yet: the default
+    assert pass_overhead({"last": None, "samples": [4.0]}, 3.0) == (3.0, 0)
