@@ -407,8 +407,11 @@ class SweepCollector:
         p = self.params
         states = [w.slot_state(k, p.parallax_max_slope, p.parallax_baseline_m) for k in range(3)]
         w.states = states
-        n = w.blocks_seen
-        if n == 3 and "deep" not in states:
+        # a slot is seen when its sightings stand on the face plane (block) or were too few
+        # to tell (single); a crop of a flicker (one sighting in four or more looks: none)
+        # or of something behind the face (deep) is not a block of this place
+        n = sum(st in ("block", "single") for st in states)
+        if n == 3:
             w.outcome, w.reason = IDENTIFY, ""
         elif (
             all(st in ("none", "deep") for st in states)

@@ -206,3 +206,37 @@ def test_the_sweep_takes_a_margin_only_unknown_when_texture_and_embedding_agree(
     assert not sweep_accepts(m(margin=0.05), 0.653)  # a close impostor
     assert not sweep_accepts(m(texture_id=None, texture_z=None), 0.653)
     assert not sweep_accepts(m(known=True, pallet_id="1080B"), 0.653)  # nothing to take
+
+
+def test_a_flicker_in_each_slot_of_an_empty_place_is_not_a_pallet():
+    """A detection that shows once in a slot looked at four or more times is a flicker
+    (state ``none``), not a block: an empty place with a flicker in each slot is empty,
+    never a pallet to identify (validation seed 102 of the site answered such a place
+    ``unknown`` after a slow second look)."""
+    places = _places(3)
+    c = _collector(places)
+    blocks = _blocks_of(places[0]) + _blocks_of(places[2])
+    slots = _blocks_of(places[1])
+    img = np.full((CAM.height, CAM.width, 3), 128, np.uint8)
+    img[::2, ::3] = 90
+    speed, rate = 0.3, 15.0  # a slow look: every slot is looked at many times
+    finished, flickered = {}, [False, False, False]
+    t, y, i = 0.0, c.origin[1], 0
+    while c.open():
+        pose = CameraPose.from_yaw(STANDOFF, y, Z, LOOK)
+        if c.wants(t, pose):
+            dets = [d for p in blocks if (d := _box(pose, p)) is not None]
+            for k, p in enumerate(slots):  # each slot's block shows in one frame only
+                d = _box(pose, p)
+                if d is not None and not flickered[k] and abs(p[1] - y) < 0.02:
+                    dets.append(d)
+                    flickered[k] = True
+            c.add(pose, img, dets, i, t)
+        finished.update({w.name: w for w in c.finish_passed((STANDOFF, y, Z))})
+        t, y, i = t + 1.0 / rate, y + speed / rate, i + 1
+    assert all(flickered)
+    w = finished["A-02-1"]
+    assert w.blocks_seen == 3  # each slot has the flicker's crop ...
+    assert w.states == ["none", "none", "none"], w.states
+    assert w.outcome == EMPTY, (w.outcome, w.reason)  # ... and the place is empty
+    assert finished["A-01-1"].outcome == IDENTIFY and finished["A-03-1"].outcome == IDENTIFY
