@@ -83,6 +83,19 @@ def change_plan(
     return True, now
 
 
+def pass_step(
+    t_start: float, t_end: float, home_from_start: float, home_from_end: float
+) -> tuple[float, float]:
+    """One pass as :func:`change_plan` takes it: (seconds to its end, seconds home).
+
+    The charge must get the drone home from anywhere along the pass (``EnoughEnergy``
+    beside it checks the next place and the way home from there), not only from its end:
+    a pass that starts at an aisle's far end and flies towards the pad needs the most
+    charge at its start. The seconds home are raised so that the check at the end also
+    holds at the start: ``max(home_from_end, home_from_start - (t_end - t_start))``."""
+    return t_end, max(home_from_end, home_from_start - (t_end - t_start))
+
+
 def close_pass_timing(timing: dict, now: float, change_s: float) -> None:
     """End the timing of the pass started at ``timing["last"]`` (mission time at its check,
     seconds of its line and transit): what it took beyond them is a sample, unless it was
@@ -132,6 +145,14 @@ class EnoughEnergyForPass(ConditionNode):
         input_port("landing_time", DURATION, 4.0, "time to land, s"),
         input_port("swap_time", DURATION, 60.0, "handling time of a change, s"),
         input_port("reserve", FLOAT, 15.0, "charge to keep at touchdown, %"),
+        input_port(
+            "margin",
+            FLOAT,
+            3.0,
+            "charge the look-ahead keeps beyond the reserve (about one unplanned second look "
+            "and the consumption's noise), so the EnoughEnergy beside a pass does not stop "
+            "it where the plan said it fits, %",
+        ),
         input_port("endurance", DURATION, 360.0, "flight time of a full battery until measured, s"),
         input_port(
             "enabled",
@@ -171,13 +192,15 @@ class EnoughEnergyForPass(ConditionNode):
             if not todo:
                 continue
             start, end = pass_line(plan.passes[p], standoff, lead, todo)
-            flown = travel_m(self.ctx, here, start) / transit + math.dist(start, end) / speed
+            to_start = travel_m(self.ctx, here, start) / transit
+            flown = to_start + math.dist(start, end) / speed
             if not steps:
                 self.set_output("start_point", start)
                 core = flown
-            t += flown + turn
+            t_start, t = t + to_start, t + flown + turn
             back = travel_m(self.ctx, end, home) / transit
-            steps.append((t, back + landing))
+            from_start = travel_m(self.ctx, start, home) / transit
+            steps.append(pass_step(t_start, t, from_start + landing, back + landing))
             change_s.append(self.get_input("swap_time") + landing + 2 * back)
             here = end
         if not steps:
@@ -187,7 +210,8 @@ class EnoughEnergyForPass(ConditionNode):
         if rate is None:
             rate, how = 100.0 / max(self.get_input("endurance"), 1.0), "assumed"
         pct = v.battery.percent
-        change, cost = change_plan(pct, steps, change_s, rate, self.get_input("reserve"))
+        keep = self.get_input("reserve") + max(self.get_input("margin"), 0.0)
+        change, cost = change_plan(pct, steps, change_s, rate, keep)
         # this pass is timed from here to the next check, unless a change comes first
         timing["last"] = None if change else (self.now(), core)
         if change:

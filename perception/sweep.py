@@ -407,11 +407,13 @@ class SweepCollector:
         p = self.params
         states = [w.slot_state(k, p.parallax_max_slope, p.parallax_baseline_m) for k in range(3)]
         w.states = states
-        # a slot is seen when its sightings stand on the face plane (block) or were too few
-        # to tell (single); a crop of a flicker (one sighting in four or more looks: none)
-        # or of something behind the face (deep) is not a block of this place
-        n = sum(st in ("block", "single") for st in states)
-        if n == 3:
+        n = w.blocks_seen
+        # a crop whose sightings are a flicker (one in four or more looks: none) is not
+        # enough alone: three flickers in an empty place are not a pallet. A pallet's slot
+        # can read none when a second look cut its sightings short, so two slots on the
+        # face plane (block) or too briefly seen to tell (single) are enough
+        solid = sum(st in ("block", "single") for st in states)
+        if n == 3 and "deep" not in states and solid >= 2:
             w.outcome, w.reason = IDENTIFY, ""
         elif (
             all(st in ("none", "deep") for st in states)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from nodes.sweep_energy import change_plan, close_pass_timing, pass_overhead
+from nodes.sweep_energy import change_plan, close_pass_timing, pass_overhead, pass_step
 
 RATE = 100.0 / 300.0  # a full battery lasts 300 s
 RESERVE = 15.0
@@ -82,3 +82,16 @@ def test_the_look_ahead_times_passes_on_this_flight_and_skips_a_battery_change()
     assert timing["samples"] == [2.5, 3.0]
     # nothing timed yet: the default
     assert pass_overhead({"last": None, "samples": [4.0]}, 3.0) == (3.0, 0)
+
+
+def test_a_pass_towards_the_pad_needs_the_charge_to_get_home_from_its_start():
+    # a 22 s pass from an aisle's far end (26 s from the pad) to its near end (4 s)
+    t_end, home = pass_step(2.0, 24.0, 26.0, 4.0)
+    assert (t_end, home) == (24.0, 4.0)  # from the end: 28 s in all, as from the start
+    t_end, home = pass_step(2.0, 24.0, 40.0, 4.0)
+    assert (t_end, home) == (24.0, 18.0)  # the start binds: 2 + 40 = 24 + 18
+    # 30 % left at 0.5 %/s, 15 % reserve: 30 s of flight. From the end (24 + 4 s) the
+    # pass fits; from its start (2 + 40 s) it does not: change before it
+    steps = [pass_step(2.0, 24.0, 40.0, 4.0)]
+    assert change_plan(30.0, steps, [64.0, 68.0], 0.5, 15.0)[0] is True
+    assert change_plan(30.0, [(24.0, 4.0)], [64.0, 68.0], 0.5, 15.0)[0] is False
