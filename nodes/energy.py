@@ -27,6 +27,12 @@ NEW_BATTERY_JUMP = 20.0
 MEASURE_AFTER_S = 20.0
 #: ``ctx.resources`` key of the last measured consumption: (mission time, %/s)
 RATE_KEY = "energy_rate"
+#: ``ctx.resources`` key of the last steady charge reading: (mission time, %)
+PERCENT_KEY = "energy_percent"
+#: the charge is read as the median of the readings over this many seconds: the gauge dips
+#: for a moment when the drone brakes or climbs (more thrust, more sag: 0.02 V, a few % at
+#: a low charge) and a check on the dip would stop a pass the charge covers
+STEADY_S = 3.0
 
 
 def travel_m(ctx: Any, a: Any, b: Any) -> float:
@@ -43,6 +49,15 @@ def measured_rate(ctx: Any, now: float, max_age_s: float = 30.0) -> float | None
     got = ctx.resources.get(RATE_KEY)
     if got is None or now - got[0] > max_age_s:
         return None
+    return float(got[1])
+
+
+def steady_percent(ctx: Any, now: float, fallback: float, max_age_s: float = 2.0) -> float:
+    """The charge an ``EnoughEnergy`` read last (the median over :data:`STEADY_S`), if it
+    read within ``max_age_s``; else ``fallback`` (the gauge now)."""
+    got = ctx.resources.get(PERCENT_KEY)
+    if got is None or now - got[0] > max_age_s:
+        return fallback
     return float(got[1])
 
 
@@ -114,6 +129,11 @@ class EnoughEnergy(ConditionNode):
                 self.ctx.resources.pop(RATE_KEY, None)
         if v.is_flying:
             hist.append((now, pct))
+            recent = [p for t, p in hist if now - t <= STEADY_S]
+            pct = statistics.median(recent)
+            self.ctx.resources[PERCENT_KEY] = (now, pct)
+        else:
+            self.ctx.resources.pop(PERCENT_KEY, None)
         (t0, p0) = hist[0] if hist else (now, pct)
         if hist and now - t0 >= MEASURE_AFTER_S and p0 > pct:
             rate = (p0 - pct) / (now - t0)

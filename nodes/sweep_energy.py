@@ -21,7 +21,7 @@ from bt_engine.node import ConditionNode
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, STRING, VEC3, input_port, output_port
 from bt_engine.registry import register
 from nodes.common import vehicle_of
-from nodes.energy import CATEGORY_ENERGY, measured_rate, travel_m
+from nodes.energy import CATEGORY_ENERGY, measured_rate, steady_percent, travel_m
 from nodes.inventory_log import InventoryLog
 from nodes.sweep_plan import pass_line, sweep_plan_of
 
@@ -209,7 +209,7 @@ class EnoughEnergyForPass(ConditionNode):
         how = "measured"
         if rate is None:
             rate, how = 100.0 / max(self.get_input("endurance"), 1.0), "assumed"
-        pct = v.battery.percent
+        pct = steady_percent(self.ctx, self.now(), v.battery.percent)
         keep = self.get_input("reserve") + max(self.get_input("margin"), 0.0)
         change, cost = change_plan(pct, steps, change_s, rate, keep)
         # this pass is timed from here to the next check, unless a change comes first
