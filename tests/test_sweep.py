@@ -84,7 +84,7 @@ def test_a_battery_change_in_the_middle_of_a_level_resumes_at_the_next_place(tmp
     code = _fly(
         out,
         "places=A-0*-1",
-        "battery.initial_soc=0.3",
+        "battery.initial_soc=0.27",
         "rescan_places=false",
         "battery_between_passes=false",
     )
