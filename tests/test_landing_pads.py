@@ -60,3 +60,24 @@ def test_a_pad_the_world_does_not_have_is_refused_before_flight(tmp_path, capsys
     assert "pad-2'" not in err.replace("(pad-1, pad-2)", "")  # only the bad one
     assert not (out / "summary.json").exists()
     assert problems_of_xml(xml) == []  # the tree itself is valid: the world refuses it
+
+
+def test_a_fleet_drone_lands_on_its_landing_pad_where_its_pass_ends(tmp_path):
+    """The fleet file's landing_pads reach the drone's mission: one pass along the aisle
+    from pad-1's end ends at pad-2's, and the drone lands there."""
+    import json
+
+    fleet = tmp_path / "fleet.yaml"
+    fleet.write_text(
+        f"name: t\nmission: {os.path.join(REPO, 'missions', 'inventory.xml')}\n"
+        f"rig: {os.path.join(REPO, AISLE)}\nplaces: A-0*-1\n"
+        "drones:\n  - {name: cf1, pad: pad-1, landing_pads: [pad-2]}\n"
+    )
+    out = tmp_path / "run"
+    assert main(["fleet", str(fleet), "--out", str(out), "-q", "--no-report", "--no-mcap"]) == 0
+    drone = out / "drones" / "cf1"
+    summary = json.loads((drone / "summary.json").read_text())
+    pose = summary["sim"]["final_pose"]
+    x, y = pose["x_m"], pose["y_m"]
+    assert summary["sim"]["landed"] and math.hypot(x - 1.0, y + 2.8) < 0.15, (x, y)
+    assert summary["blackboard"]["landing_pads"] == "pad-2"
