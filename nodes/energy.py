@@ -195,14 +195,24 @@ class ChangeBattery(StatefulActionNode):
         if mode not in ("swap", "charge"):
             return self._fail(f"mode must be swap or charge, got {mode!r}")
         self.mode, self.started_s = mode, self.now()
+        # just landed, the gauge still reads the loaded voltage without the flight's sag
+        # correction (a few %): the charge is the last steady reading in flight, if recent
+        now = self.now()
+        got = self.ctx.resources.get(PERCENT_KEY)
         self.before = self.vehicle.battery.percent
+        self.before_note = ""
+        if got is not None and now - got[0] <= 60.0:
+            self.before = float(got[1])
+            self.before_note = f" (read in flight {now - got[0]:.0f} s before)"
         self.resting_since: float | None = None  # resting (not charging) since
         self.charging_since = self.now()
         why = self.vehicle.battery_service(mode)
         if why:
             return self._fail(why)
         if mode == "swap":
-            self.ctx.log(f"{self.describe()}: battery swapped at {self.before:.0f} %")
+            self.ctx.log(
+                f"{self.describe()}: battery swapped at {self.before:.0f} %{self.before_note}"
+            )
         return RUNNING
 
     def on_running(self) -> NodeStatus:
