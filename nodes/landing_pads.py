@@ -59,17 +59,20 @@ class NearestPad(SyncActionNode):
     )
 
     def preflight(self) -> list[Any]:
-        """A literal pad name the rig's world does not have, before anything flies."""
-        if self.input_entry("pads") is not None:
+        """A pad name the rig's world does not have (written in the mission, or a mission
+        input such as ``--set landing_pads=...``), before anything flies."""
+        try:
+            text = self.get_input("pads")
+        except Exception:  # noqa: BLE001 - written in flight: the tick checks it
             return []
         try:
             world = world_of(self.ctx)
         except ConfigError as exc:
             return [("pads", f"the rig's world cannot be loaded: {exc}")]
-        return [("pads", why) for why in self._unknown(world)]
+        return [("pads", why) for why in self._unknown(world, text)]
 
-    def _unknown(self, world: Any) -> list[str]:
-        names = pad_names(self.get_input("pads"))
+    def _unknown(self, world: Any, text: Any) -> list[str]:
+        names = pad_names(text)
         if not names or world is None:
             return []
         known = world_pads(world)
@@ -79,7 +82,7 @@ class NearestPad(SyncActionNode):
 
     def tick_impl(self) -> NodeStatus:
         world = world_of(self.ctx)
-        bad = self._unknown(world)
+        bad = self._unknown(world, self.get_input("pads"))
         if bad:
             self.failure_reason = bad[0]
             return FAILURE

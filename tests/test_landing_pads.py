@@ -81,3 +81,15 @@ def test_a_fleet_drone_lands_on_its_landing_pad_where_its_pass_ends(tmp_path):
     x, y = pose["x_m"], pose["y_m"]
     assert summary["sim"]["landed"] and math.hypot(x - 1.0, y + 2.8) < 0.15, (x, y)
     assert summary["blackboard"]["landing_pads"] == "pad-2"
+
+
+def test_a_landing_pad_set_on_the_command_line_is_checked_before_flight(tmp_path, capsys):
+    out = tmp_path / "run"
+    mission = os.path.join(REPO, "missions", "inventory.xml")
+    rig = os.path.join(REPO, "rigs", "site.yaml")
+    args = [mission, "--rig", rig, "--set", "landing_pads=pad-5;pad-12", "--out", str(out)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "--set landing_pads: unknown pad 'pad-12': expected one of the world's pads" in err
+    assert "pad-5'" not in err.split("pads (")[0]  # pad-5 is the site's: only pad-12 refused
+    assert not out.exists()
