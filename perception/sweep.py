@@ -434,7 +434,7 @@ class SweepCollector:
             elif n == 0:
                 w.reason = f"{w.stray} block sightings off the expected slots"
             else:
-                w.reason = f"{n} of 3 blocks seen in the pass ({', '.join(states)})"
+                w.reason = f"{solid} of 3 blocks seen on the face in the pass ({', '.join(states)})"
 
 
 def fuse_views(
