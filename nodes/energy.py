@@ -52,13 +52,20 @@ def measured_rate(ctx: Any, now: float, max_age_s: float = 30.0) -> float | None
     return float(got[1])
 
 
-def steady_percent(ctx: Any, now: float, fallback: float, max_age_s: float = 2.0) -> float:
-    """The charge an ``EnoughEnergy`` read last (the median over :data:`STEADY_S`), if it
-    read within ``max_age_s``; else ``fallback`` (the gauge now)."""
+def steady_reading(ctx: Any, now: float, max_age_s: float) -> tuple[float, float] | None:
+    """(the charge an ``EnoughEnergy`` read last in flight: the median over
+    :data:`STEADY_S`, %; how long ago, s), if within ``max_age_s``; else None."""
     got = ctx.resources.get(PERCENT_KEY)
     if got is None or now - got[0] > max_age_s:
-        return fallback
-    return float(got[1])
+        return None
+    return float(got[1]), now - got[0]
+
+
+def steady_percent(ctx: Any, now: float, fallback: float, max_age_s: float = 2.0) -> float:
+    """:func:`steady_reading`'s charge if read within ``max_age_s``, else ``fallback`` (the
+    gauge now)."""
+    got = steady_reading(ctx, now, max_age_s)
+    return fallback if got is None else got[0]
 
 
 def needed_percent(
@@ -197,13 +204,9 @@ class ChangeBattery(StatefulActionNode):
         self.mode, self.started_s = mode, self.now()
         # just landed, the gauge still reads the loaded voltage without the flight's sag
         # correction (a few %): the charge is the last steady reading in flight, if recent
-        now = self.now()
-        got = self.ctx.resources.get(PERCENT_KEY)
-        self.before = self.vehicle.battery.percent
-        self.before_note = ""
-        if got is not None and now - got[0] <= 60.0:
-            self.before = float(got[1])
-            self.before_note = f" (read in flight {now - got[0]:.0f} s before)"
+        got = steady_reading(self.ctx, self.now(), 60.0)
+        self.before = self.vehicle.battery.percent if got is None else got[0]
+        self.before_note = "" if got is None else f" (read in flight {got[1]:.0f} s before)"
         self.resting_since: float | None = None  # resting (not charging) since
         self.charging_since = self.now()
         why = self.vehicle.battery_service(mode)

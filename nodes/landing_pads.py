@@ -32,12 +32,6 @@ def pad_names(text: Any) -> list[str]:
     return [s.strip() for s in items if s.strip()]
 
 
-def world_pads(world: Any) -> dict[str, tuple[float, float]]:
-    """The world's pads by name: (x, y) in m."""
-    pads = (world.data.get("pads") if world is not None else None) or []
-    return {p["name"]: (float(p["position_m"][0]), float(p["position_m"][1])) for p in pads}
-
-
 @register
 class NearestPad(SyncActionNode):
     """``point``: the nearest (by the way around the racks) of ``home`` and the world pads
@@ -75,7 +69,7 @@ class NearestPad(SyncActionNode):
         names = pad_names(text)
         if not names or world is None:
             return []
-        known = world_pads(world)
+        known = world.pads()
         listed = ", ".join(known) or "none: the world has no pads"
         return [f"unknown pad '{n}': expected one of the world's pads ({listed})" for n in names
                 if n not in known]  # fmt: skip
@@ -90,7 +84,7 @@ class NearestPad(SyncActionNode):
         here = vehicle_of(self).position
         best, best_m = "home", travel_m(self.ctx, here, home)
         point = home
-        pads = world_pads(world)
+        pads = world.pads()
         for name in pad_names(self.get_input("pads")):
             x, y = pads[name]
             candidate = (x, y, home[2])

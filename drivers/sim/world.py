@@ -275,6 +275,13 @@ class World:
         bad = set(self.not_enrolled())
         return [i for i in self.identities() if i not in bad]
 
+    def pads(self) -> dict[str, tuple[float, float]]:
+        """The landing / charging pads by name: (x, y) on the floor, m."""
+        return {
+            str(p["name"]): (float(p["position_m"][0]), float(p["position_m"][1]))
+            for p in self.data.get("pads") or []
+        }
+
     def identities(self) -> list[str]:
         """All identities ("1A", "1B", ...) that exist in the world file."""
         return identities(self.data)

@@ -241,7 +241,7 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
     n = len(data["drones"])
     if not 1 <= n <= MAX_DRONES:
         at("drones", f"a fleet flies 1 to {MAX_DRONES} drones, got {n}")
-    pads = {p["name"]: p["position_m"] for p in ((world.data.get("pads") if world else None) or [])}
+    pads = world.pads() if world is not None else {}
     drones: list[DroneSpec] = []
     seen: dict[str, str] = {}
     for i, d in enumerate(data["drones"]):
