@@ -14,9 +14,9 @@ Paths are relative to the fleet file. Everything is checked before anything flie
 problem is reported at once, located (``file:line:col: message``): 1 to 4 drones with
 distinct names, a pad of the world or a start position for each, no pad shared (landing
 pads included), start positions at least the minimum separation apart, no URI used twice,
-the rig, the mission and the place list. The fleet's name and the drones' names become folder names (the run folder,
-``drones/<name>/``), so they must match :data:`SAFE_NAME` (no ``/``, no ``..``): a fleet
-file cannot write outside ``--out``.
+the rig, the mission and the place list. The fleet's name and the drones' names become
+folder names (the run folder, ``drones/<name>/``), so they must match :data:`SAFE_NAME` (no
+``/``, no ``..``): a fleet file cannot write outside ``--out``.
 """
 
 from __future__ import annotations
@@ -255,8 +255,7 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
         start = None
         if d["pad"] is not None and rig is not None:  # no rig: its world's pads are unknown
             if d["pad"] not in pads:
-                known = ", ".join(pads) or "none: the world has no pads"
-                at(f"{key}.pad", f"pad {d['pad']!r} is not a pad of the world ({known})")
+                at(f"{key}.pad", _not_a_pad(d["pad"], pads))
             else:
                 x, y = pads[d["pad"]]
                 start = (float(x), float(y), 0.0)
@@ -266,8 +265,7 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
             at(key, f"drone {d['name']!r} needs a pad (one of the world's pads) or start_m")
         for j, name in enumerate(d["landing_pads"]):
             if rig is not None and name not in pads:
-                known = ", ".join(pads) or "none: the world has no pads"
-                at(f"{key}.landing_pads[{j}]", f"pad {name!r} is not a pad of the world ({known})")
+                at(f"{key}.landing_pads[{j}]", _not_a_pad(name, pads))
         drones.append(
             DroneSpec(
                 d["name"],
@@ -285,6 +283,11 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
     if problems:
         raise MissionError(problems)
     return FleetSpec(path, data, marks, drones, mission, rig_path)
+
+
+def _not_a_pad(name: str, pads: dict) -> str:
+    known = ", ".join(pads) or "none: the world has no pads"
+    return f"pad {name!r} is not a pad of the world ({known})"
 
 
 def _check_shared(data: dict, drones: list[DroneSpec], at: Any) -> None:
