@@ -32,10 +32,11 @@ def plot_tracks(out: str, runners: dict[str, Any], runs: dict[str, Any]) -> str 
             ys = [b.cy + s * x + c * y for x, y in pts]
             colour = "#d7b98e" if b.name.startswith("pallet") else "#90a4ae"
             ax.fill(xs, ys, fc=colour, ec="none")
-        for pad in world.data.get("pads") or []:
-            x, y = pad["position_m"]
+        for k, (name, (x, y)) in enumerate(world.pads().items()):
             ax.plot([x], [y], "o", ms=14, mfc="none", mec="#555")
-            ax.annotate(pad["name"], (x, y - 0.35), ha="center", fontsize=8, color="#555")
+            # pads a metre apart: names alternately below and above, so they do not overlap
+            dy = -0.45 if k % 2 == 0 else 0.3
+            ax.annotate(name, (x, y + dy), ha="center", fontsize=7, color="#555")
     drawn = False
     for i, (name, runner) in enumerate(runners.items()):
         tel = telemetry_arrays(runner.trace)
