@@ -9,9 +9,10 @@ alike. Per variant and seed it prints the mission time, the wall time of the loc
 (``summary.json``'s ``wall_time_s``, what ``btrun fleet`` prints as "x real time"), the
 whole process's CPU time (user + sys, start-up and models included), and, against the
 baseline, whether the answers (``inventory.csv`` without its ``run`` column) and the tick
-logs (every line after the header) are the same. The machine has 2 cores shared with other
-work: CPU time is the steadier figure, wall time the target's. It prints figures; it is not
-a test::
+logs (every line after the header) are the same. Each run also prints how many cores the
+process kept busy in each 5 s of wall time (Linux ``/proc``): where the run is held to one
+core and where it already uses both. The machine has 2 cores shared with other work: CPU
+time is the steadier figure, wall time the target's. It prints figures; it is not a test::
 
     .venv/bin/python bench/fleet_speed.py --seeds 100 --baseline 81e31af \
         --paths perception/verify.py perception/gallery_match.py perception/synth/render.py \
@@ -53,15 +54,39 @@ def tree(ref: str, dest: str, paths: list[str] | None = None, base: str = "") ->
     return dest
 
 
-def fly(where: str, seed: int, out: str) -> dict:
+def _cpu_ticks(pid: int) -> int | None:
+    """User + system CPU of process ``pid`` in clock ticks (Linux ``/proc``; None elsewhere
+    or once it has ended)."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15 of stat)
+
+
+def fly(where: str, seed: int, out: str, window_s: float = 5.0) -> dict:
     """One ``btrun fleet`` run of the tree at ``where`` (its own packages first on the
-    path)."""
+    path), with the cores it kept busy in each ``window_s`` of wall time (``cores``)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     cmd = [sys.executable, "-m", "bt_engine.cli", "fleet", FLEET, "--seed", str(seed)]
-    proc = subprocess.run(
-        cmd + ["--out", out, "--quiet", "--no-report"], cwd=where, capture_output=True, text=True
-    )
+    cmd += ["--out", out, "--quiet", "--no-report"]
+    hz = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    cores: list[float] = []
+    with subprocess.Popen(
+        cmd, cwd=where, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    ) as proc:
+        last, last_t = 0, t0
+        while True:
+            try:
+                stdout, stderr = proc.communicate(timeout=window_s)
+                break
+            except subprocess.TimeoutExpired:
+                now_ticks, now = _cpu_ticks(proc.pid), time.perf_counter()
+                if now_ticks is not None:
+                    cores.append((now_ticks - last) / hz / (now - last_t))
+                    last, last_t = now_ticks, now
     elapsed = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -69,7 +94,7 @@ def fly(where: str, seed: int, out: str) -> dict:
         with open(os.path.join(out, "summary.json"), encoding="utf-8") as f:
             s = json.load(f)
     except OSError:
-        sys.exit(f"{where}: btrun fleet failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+        sys.exit(f"{where}: btrun fleet failed ({proc.returncode}):\n{stdout}\n{stderr}")
     return {
         "mission_s": s["mission_time_s"],
         "wall_s": s["wall_time_s"],
@@ -77,6 +102,7 @@ def fly(where: str, seed: int, out: str) -> dict:
         "process_s": elapsed,
         "status": s["status"],
         "out": out,
+        "cores": cores,
     }
 
 
@@ -128,6 +154,8 @@ def main() -> None:
                         f"real time), {res['cpu_s']:.1f} s CPU (process {res['process_s']:.1f} s)",
                         flush=True,
                     )
+                    trace = " ".join(f"{c:.1f}" for c in res["cores"])
+                    print(f"{'':8} cores busy per 5 s of wall: {trace}", flush=True)
         print("\nvariant   seed  mission (s)  wall (s)  x real time  CPU (s)  x per CPU second")
         for (name, seed), runs in results.items():
             wall = statistics.median(x["wall_s"] for x in runs)
