@@ -236,7 +236,7 @@ class SweepPass(StatefulActionNode):
                 [PassPlace(place, spec.rows[place], spec.look_rad), *near],
                 a,
                 b,
-                replace(params, views=5, want_views=5, off_centre_strays=False),
+                replace(params, views=5, want_views=5, off_centre_strays=False, agree_m=0.0),
             )
 
         self.second = second

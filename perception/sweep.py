@@ -48,6 +48,13 @@ class SweepParams:
     match_along_m: float = 0.12
     #: ... and this close in height, m
     match_height_m: float = 0.09
+    #: sightings at two or more slots whose offsets from the map agree this closely ...
+    agree_m: float = 0.04
+    #: ... and are at least this far off it are a pallet off its place, not flickers
+    #: (:meth:`PlaceWatch.off_place`; closer to its slots, a block is centred in the frames
+    #: the gate picks and gets sightings enough), m. ``agree_m`` 0: not looked for (a
+    #: second look flies slowly: a pallet there gets sightings a baseline apart)
+    off_place_min_m: float = 0.05
     #: the block's box height may be this factor off the height the map predicts (a block on
     #: the wall behind an empty place, or on a neighbour level, is much smaller or larger)
     size_ratio: tuple[float, float] = (0.6, 1.7)
@@ -119,6 +126,8 @@ class PlaceWatch:
     stray: int = 0  # plausible blocks on the place's face that matched no slot
     #: their sightings (camera along, face-plane along), for the parallax test
     stray_hits: list[tuple[float, float]] = field(default_factory=list)
+    #: the map's slots' positions along the pass, m
+    slot_along: tuple[float, float, float] = (0.0, 0.0, 0.0)
     outcome: str = ""
     reason: str = ""
     states: list[str] = field(default_factory=list)
@@ -138,6 +147,29 @@ class PlaceWatch:
         if state == "single" and self.looked[k] >= 4:
             return "none"
         return state
+
+    def off_place(
+        self, max_slope: float, min_baseline_m: float, agree_m: float, min_m: float
+    ) -> tuple[int, float]:
+        """(slots, offset m): two or more slots whose sightings, none of them behind the
+        face plane, agree within ``agree_m`` on one offset from the map of at least
+        ``min_m``; (0, 0.0) if not.
+
+        A pallet racked well off its place is seen off the image centre in most of the
+        frames its slots were looked at in, so each block may get too few sightings for
+        the parallax test (``none``): flickers land at unrelated places, a pallet's three
+        blocks are off alike."""
+        if agree_m <= 0.0:
+            return 0, 0.0
+        errs = [
+            float(np.median([h[1] - self.slot_along[k] for h in self.hits[k]]))
+            for k in range(3)
+            if self.hits[k] and hits_state(self.hits[k], max_slope, min_baseline_m) != "deep"
+        ]
+        if len(errs) < 2 or max(errs) - min(errs) > agree_m:
+            return 0, 0.0
+        offset = float(np.median(errs))
+        return (len(errs), offset) if abs(offset) >= min_m else (0, 0.0)
 
     def stray_blocks(self, max_slope: float, min_baseline_m: float) -> int:
         """Blocks off every slot that stand on the face plane (a pallet far off its place):
@@ -236,7 +268,9 @@ class SweepCollector:
         for pl in places:
             f = np.array([math.cos(pl.look_rad), math.sin(pl.look_rad), 0.0])
             slots = slot_points(pl.row, pl.look_rad, offsets)
-            self.watches.append(PlaceWatch(pl.name, self.along(pl.row), slots, -f))
+            w = PlaceWatch(pl.name, self.along(pl.row), slots, -f)
+            w.slot_along = (self.along(slots[0]), self.along(slots[1]), self.along(slots[2]))
+            self.watches.append(w)
         self.frames = self.dropped = 0
         self._busy_until = -math.inf
         self._last_want: CameraPose | None = None
@@ -413,12 +447,16 @@ class SweepCollector:
         # can read none when a second look cut its sightings short, so two slots on the
         # face plane (block) or too briefly seen to tell (single) are enough
         solid = sum(st in ("block", "single") for st in states)
+        off_slots, offset = w.off_place(
+            p.parallax_max_slope, p.parallax_baseline_m, p.agree_m, p.off_place_min_m
+        )
         if n == 3 and "deep" not in states and solid >= 2:
             w.outcome, w.reason = IDENTIFY, ""
         elif (
             all(st in ("none", "deep") for st in states)
             and w.stray_blocks(p.parallax_max_slope, p.parallax_baseline_m) == 0
             and all(k > 0 for k in w.looked)
+            and not off_slots
         ):
             w.outcome = EMPTY
             deep = states.count("deep")
@@ -431,6 +469,12 @@ class SweepCollector:
                 w.reason = why
             elif not all(k > 0 for k in w.looked):
                 w.reason = f"slots in view {w.looked}: frames missing (dropped or too fast)"
+            elif off_slots and solid < 2:
+                w.reason = (
+                    f"blocks at {off_slots} slots, each seen too briefly, all "
+                    f"{offset * 100:+.0f} cm along the face from the map: a pallet off its "
+                    f"place? ({', '.join(states)})"
+                )
             elif n == 0:
                 w.reason = f"{w.stray} block sightings off the expected slots"
             else:
