@@ -126,8 +126,6 @@ class PlaceWatch:
     stray: int = 0  # plausible blocks on the place's face that matched no slot
     #: their sightings (camera along, face-plane along), for the parallax test
     stray_hits: list[tuple[float, float]] = field(default_factory=list)
-    #: the map's slots' positions along the pass, m
-    slot_along: tuple[float, float, float] = (0.0, 0.0, 0.0)
     outcome: str = ""
     reason: str = ""
     states: list[str] = field(default_factory=list)
@@ -149,11 +147,12 @@ class PlaceWatch:
         return state
 
     def off_place(
-        self, max_slope: float, min_baseline_m: float, agree_m: float, min_m: float
+        self, slot_along: list[float], states: list[str], agree_m: float, min_m: float
     ) -> tuple[int, float]:
-        """(slots, offset m): two or more slots whose sightings, none of them behind the
-        face plane, agree within ``agree_m`` on one offset from the map of at least
-        ``min_m``; (0, 0.0) if not.
+        """(slots, offset m): two or more slots with sightings, none of them behind the
+        face plane (``states``: :meth:`slot_state` per slot), that agree within ``agree_m``
+        on one offset of at least ``min_m`` from the map's slots (``slot_along``: their
+        positions along the pass, m); (0, 0.0) if not.
 
         A pallet racked well off its place is seen off the image centre in most of the
         frames its slots were looked at in, so each block may get too few sightings for
@@ -162,9 +161,9 @@ class PlaceWatch:
         if agree_m <= 0.0:
             return 0, 0.0
         errs = [
-            float(np.median([h[1] - self.slot_along[k] for h in self.hits[k]]))
+            float(np.median([h[1] - slot_along[k] for h in self.hits[k]]))
             for k in range(3)
-            if self.hits[k] and hits_state(self.hits[k], max_slope, min_baseline_m) != "deep"
+            if self.hits[k] and states[k] != "deep"
         ]
         if len(errs) < 2 or max(errs) - min(errs) > agree_m:
             return 0, 0.0
@@ -268,9 +267,7 @@ class SweepCollector:
         for pl in places:
             f = np.array([math.cos(pl.look_rad), math.sin(pl.look_rad), 0.0])
             slots = slot_points(pl.row, pl.look_rad, offsets)
-            w = PlaceWatch(pl.name, self.along(pl.row), slots, -f)
-            w.slot_along = (self.along(slots[0]), self.along(slots[1]), self.along(slots[2]))
-            self.watches.append(w)
+            self.watches.append(PlaceWatch(pl.name, self.along(pl.row), slots, -f))
         self.frames = self.dropped = 0
         self._busy_until = -math.inf
         self._last_want: CameraPose | None = None
@@ -447,9 +444,8 @@ class SweepCollector:
         # can read none when a second look cut its sightings short, so two slots on the
         # face plane (block) or too briefly seen to tell (single) are enough
         solid = sum(st in ("block", "single") for st in states)
-        off_slots, offset = w.off_place(
-            p.parallax_max_slope, p.parallax_baseline_m, p.agree_m, p.off_place_min_m
-        )
+        slot_along = [self.along(s) for s in w.slots]
+        off_slots, offset = w.off_place(slot_along, states, p.agree_m, p.off_place_min_m)
         if n == 3 and "deep" not in states and solid >= 2:
             w.outcome, w.reason = IDENTIFY, ""
         elif (
