@@ -248,14 +248,19 @@ class PerceptionSession:
                         "the demo gallery needs a rig with a world (e.g. rigs/sim.yaml); "
                         "give gallery=<file.sqlite> instead"
                     )
-                path = ensure_demo_gallery(
-                    world,
-                    detector or self.detector(),
-                    embedder,
-                    self.camera,
-                    log=self.log,
-                    overrides=getattr(self.rig, "world_overrides", None),
-                )
+                from drivers.settings import ConfigError
+
+                try:
+                    path = ensure_demo_gallery(
+                        world,
+                        detector or self.detector(),
+                        embedder,
+                        self.camera,
+                        log=self.log,
+                        overrides=getattr(self.rig, "world_overrides", None),
+                    )
+                except ConfigError as exc:  # the world of the gallery fails its checks
+                    raise PerceptionError(f"demo gallery: {exc}") from None
                 g = Gallery.open(path, embedder.model_version)
             elif is_gallery_url(spec):  # postgresql://...#NAME: a gallery in the site store
                 try:

@@ -202,6 +202,34 @@ def test_a_pool_override_names_another_demo_gallery():
     assert keep == {"pallet_pool.count": "2000", "pallet_look.wood": "grey"}
 
 
+def test_a_not_enrolled_override_leaves_those_pallets_out_of_the_demo_gallery():
+    """``--set world.stock.not_enrolled=[...]`` names pallets the gallery must not know:
+    the demo gallery is another one (its own cache file) and does not enrol them. (It used
+    to keep the world file's gallery, which knew them: every such place answered with the
+    pallet's identity counted as a wrong answer.)"""
+    from drivers.sim.world import load_world
+    from nodes.gallery.demo import demo_gallery_path, look_overrides
+
+    class Model:
+        model_version = "m1"
+
+    world = "worlds/site.yaml"
+    more = '["1121","1122","1123","1124","1125","1126","1127","1128","1129","1130","1131"]'
+    sets = {"stock.not_enrolled": more, "stock.not_enrolled_places": "11"}
+    assert look_overrides(sets) == sets
+    assert demo_gallery_path(world, Model, Model, {}) != demo_gallery_path(
+        world, Model, Model, {}, sets
+    )
+    # the other stock keys are there for the world's checks only: the same gallery
+    assert demo_gallery_path(world, Model, Model, {}) == demo_gallery_path(
+        world, Model, Model, {}, {"stock.empty_places": "30", "stock.not_enrolled_places": "4"}
+    )
+    enrolled = load_world(world, look_overrides(sets)).enrolled_identities()
+    assert "1121A" not in enrolled and "1130B" not in enrolled
+    assert "1120A" in enrolled and "1131A" not in enrolled
+    assert "1121A" in load_world(world).enrolled_identities()
+
+
 @pytest.mark.slow
 def test_the_faster_enrolment_identifies_whole_scans_of_its_sides(tmp_path):
     """The demo gallery enrolled from a few views per side (two worker processes) answers
@@ -232,3 +260,25 @@ def test_gallery_commands_take_world_settings(capsys):
     code = main(["gallery", "stats", "demo", "--rig", "rigs/aisle.yaml", "--set", "world.pallet_pool.count=many"])  # fmt: skip
     assert code == 2
     assert "pallet_pool.count: expected an integer" in capsys.readouterr().err
+
+
+def test_a_demo_gallery_whose_world_fails_its_checks_is_reported_not_raised(monkeypatch):
+    """A world the demo gallery cannot be built from (its checks fail) is a perception
+    error, which PerceptionReady's preflight reports before anything flies, not an
+    exception out of the first tick (as a world broken by partial overrides once was)."""
+    from drivers.rig.loader import load_rig
+    from drivers.settings import ConfigError, SettingProblem
+    from nodes.gallery import demo
+    from nodes.perception_session import PerceptionError, PerceptionSession
+
+    def broken(*args, **kwargs):
+        raise ConfigError([SettingProblem("--set", 0, 0, "world: 124 places to fill")])
+
+    monkeypatch.setattr(demo, "ensure_demo_gallery", broken)
+
+    class Model:
+        model_version = "m1"
+
+    session = PerceptionSession(load_rig("rigs/aisle.yaml"), log=lambda m: None)
+    with pytest.raises(PerceptionError, match="demo gallery: --set world: 124 places to fill"):
+        session.gallery("demo", Model, detector=Model)

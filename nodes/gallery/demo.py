@@ -126,9 +126,13 @@ def appearance_key(data: dict) -> bytes:
 
 def look_overrides(overrides: dict[str, str] | None) -> dict[str, str]:
     """The ``--set world.KEY`` items that change which pallets the demo gallery enrols and
-    how they look (``pallet_look.*``, ``pallet_pool.*``): the demo gallery enrols the
-    pallets as the flight will see them (ageing aside)."""
-    keep = ("pallet_look.", "pallet_pool.")
+    how they look (``pallet_look.*``, ``pallet_pool.*``, ``pallet_geometry.*`` and the
+    stock's ``not_enrolled`` list, the pallets it must not know): the demo gallery enrols
+    the pallets as the flight will see them (ageing aside). The rest of ``stock.*`` goes
+    with them so that the world they make passes its checks (a longer ``not_enrolled``
+    list with more ``not_enrolled_places``); only ``not_enrolled`` changes the gallery
+    (:func:`appearance_key`)."""
+    keep = ("pallet_look.", "pallet_pool.", "pallet_geometry.", "stock.")
     return {k: v for k, v in (overrides or {}).items() if k.startswith(keep)}
 
 
