@@ -22,6 +22,7 @@ from bt_engine.node import (
     RUNNING,
     SUCCESS,
     ConditionNode,
+    NodeRuntimeError,
     NodeStatus,
     StatefulActionNode,
     SyncActionNode,
@@ -96,8 +97,8 @@ class PerceptionReady(SyncActionNode):
             self._load()
         except PerceptionError as exc:
             return [("gallery", str(exc))]
-        except Exception:  # an input only known in flight (a blackboard entry): the tick
-            return []
+        except NodeRuntimeError:  # an input only known in flight (a blackboard entry): the
+            return []  # tick (anything else is reported by the mission's preflight)
         return []
 
     def _load(self) -> Any:
