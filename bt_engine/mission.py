@@ -19,7 +19,16 @@ from typing import Any
 from bt_engine.builder import build_tree
 from bt_engine.clock import Clock, SimClock
 from bt_engine.loading import load_spec
-from bt_engine.node import FAILURE, RUNNING, SKIPPED, SUCCESS, BTNode, MissionContext, NodeStatus
+from bt_engine.node import (
+    FAILURE,
+    RUNNING,
+    SKIPPED,
+    SUCCESS,
+    BTNode,
+    MissionContext,
+    NodeRuntimeError,
+    NodeStatus,
+)
 from bt_engine.registry import REGISTRY, Registry
 from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
 from bt_engine.validate import referenced_entries, validate
@@ -250,6 +259,40 @@ class Mission:
                 else:
                     where = node.loc or Loc("<mission>")
                     out.append(Problem(where, f"{node.describe()}: {message}"))
+        out.extend(self.set_value_problems(set_keys or set()))
+        return out
+
+    def set_value_problems(self, set_keys: set[str]) -> list[Problem]:
+        """A ``--set`` value that a port reading it cannot take (``sweep_speed=abc`` read as
+        a number, ``nan`` where a finite number is needed), once per entry, with the first
+        node that reads it: refused before flight, not found by the first tick that reads
+        it, after take-off. Ports inside SubTrees are followed through their remapping."""
+        out: list[Problem] = []
+        done: set[str] = set()
+        for node in self.nodes:
+            for decl in type(node).ports:
+                if not decl.reads:
+                    continue
+                key = node.input_entry(decl.name)
+                if key is None or node.scope is None:
+                    continue
+                entry = node.scope.display_key(key)
+                if entry not in set_keys or entry in done:
+                    continue
+                try:
+                    node.get_input(decl.name)
+                except NodeRuntimeError as exc:
+                    done.add(entry)
+                    value = self.scope.get(entry, None)
+                    why = str(exc).split(f"from {{{key}}}: ", 1)[-1]
+                    where = f" ({node.loc})" if node.loc is not None else ""
+                    out.append(
+                        Problem(
+                            Loc("--set", 0, 0),
+                            f"{entry}={value}: {why} (read as '{decl.name}' by "
+                            f"{node.describe()}{where})",
+                        )
+                    )
         return out
 
     def _note_failure(self, text: str) -> None:

@@ -38,6 +38,55 @@ def test_a_misspelt_input_is_refused_before_anything_flies(tmp_path, capsys) -> 
     assert not out.exists()  # no run folder: nothing was built
 
 
+@pytest.mark.parametrize(
+    ("value", "why"), [("abc", "expected a number, got 'abc'"), ("nan", "expected a finite number")]
+)
+def test_a_set_value_a_port_cannot_take_is_refused_before_anything_flies(
+    tmp_path, capsys, value, why
+) -> None:
+    """``--set sweep_speed=abc`` (or ``nan``) used to pass the pre-flight checks and take off:
+    the first leaf to read it after take-off aborted the mission. The ports that read a
+    ``--set`` entry now convert it before flight, SubTree ports through their remapping."""
+    out = tmp_path / "run"
+    args = ["missions/inventory.xml", "--rig", AISLE_RIG, "--set", f"sweep_speed={value}"]
+    assert main([*args, "--out", str(out), "-q"]) == 2
+    err = _err_lines(capsys)
+    assert err[0].startswith(f"--set sweep_speed={value}: {why}"), err
+    assert "read as 'speed' by" in err[0] and "missions/inventory.xml:" in err[0]
+    assert err[-1] == "1 problem found; nothing was run."
+    assert not out.exists()
+    # the same through a fleet's --set (every drone's mission)
+    fleet = ["fleet", "fleets/site_4.yaml", "--set", f"sweep_speed={value}", "--out", str(out)]
+    assert main(fleet) == 2
+    assert f"--set sweep_speed={value}: {why}" in capsys.readouterr().err
+    assert not (out / "drones").exists()  # nothing flew (the fleet's folder has its fleet.json)
+
+
+def test_a_set_value_read_inside_a_subtree_is_converted_before_flight(tmp_path, capsys) -> None:
+    """A ``--set`` entry reached only through a SubTree's remapping is checked too."""
+    mission = tmp_path / "m.xml"
+    mission.write_text(
+        """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <SubTree ID="Wait" time="{pause}"/>
+  </BehaviorTree>
+  <BehaviorTree ID="Wait">
+    <Sleep msec="{time}"/>
+  </BehaviorTree>
+  <TreeNodesModel>
+    <SubTree ID="Main"><input_port name="pause" default="10"/></SubTree>
+  </TreeNodesModel>
+</root>
+"""
+    )
+    out = tmp_path / "run"
+    assert main([str(mission), "--set", "pause=soon", "--out", str(out), "-q"]) == 2
+    err = _err_lines(capsys)
+    assert err[0].startswith("--set pause=soon: "), err
+    assert "read as 'msec' by Sleep" in err[0]
+    assert not out.exists()
+
+
 def test_bb_prefix_sets_an_undeclared_entry_on_purpose(tmp_path) -> None:
     out = tmp_path / "run"
     args = [SQUARE, "--set", "bb.note=2", "--set", "height=0.8", "--out", str(out), "-q"]
@@ -130,6 +179,21 @@ def test_a_campaign_grid_key_the_mission_does_not_declare_fails_the_dry_run(
     err = _err_lines(capsys)
     assert err[0].startswith(f"{path}:4:8: hieght: {SQUARE} has no input 'hieght'")
     assert "did you mean height?" in err[0]
+
+
+def test_a_campaign_value_a_port_cannot_take_fails_the_dry_run(tmp_path, capsys) -> None:
+    """Every value of a grid (and the bounds of a draw) goes through the ports that read it:
+    ``height: [1.0, high]`` fails the dry run where the file wrote it, not run by run."""
+    path = _campaign(tmp_path, "grid: {height: [1.0, high]}\n")
+    assert main(["campaign", path, "--dry-run"]) == 2
+    err = _err_lines(capsys)
+    assert err[0].startswith(f"{path}:4:8: height=high: expected a number, got 'high'"), err
+    assert "read as 'height' by TakeOff" in err[0]
+    path = _campaign(tmp_path, "random: {height: {choice: [0.5, .nan]}}\n")
+    assert main(["campaign", path, "--dry-run"]) == 2
+    assert "height=nan: expected a finite number" in capsys.readouterr().err
+    path = _campaign(tmp_path, "grid: {height: [1.0, 1.5]}\n")
+    assert main(["campaign", path, "--dry-run"]) == 0, capsys.readouterr().err
 
 
 def test_a_campaign_bb_key_passes_unchecked_and_is_no_rig_setting(tmp_path, capsys) -> None:

@@ -15,10 +15,12 @@ import sys
 from collections.abc import Iterable
 from typing import Any
 
+import yaml
+
 from bt_engine.campaign.rows import Row, value_text
 from bt_engine.campaign.spec import Campaign, FaultCase
 from bt_engine.loading import check_mission
-from bt_engine.mission import UNCHECKED_PREFIX, declared_inputs, undeclared_input
+from bt_engine.mission import UNCHECKED_PREFIX, Mission, declared_inputs, undeclared_input
 from bt_engine.plugins import load_plugins, load_target
 from bt_engine.registry import REGISTRY
 from bt_engine.spec import Loc, MissionError, Problem
@@ -38,7 +40,8 @@ def check_campaign(c: Campaign, rows: Iterable[Row], include_paths: list[str] | 
         for w in warnings:
             print(str(w), file=sys.stderr)
         if not found:
-            problems += _check_inputs(c, written, declared_inputs(spec))
+            inputs = _check_inputs(c, written, declared_inputs(spec))
+            problems += inputs or _check_values(c, Mission(spec))
     checked: set[tuple] = set()
     faults = {case.name: case for case in c.faults or ()}
     for row in rows:
@@ -72,6 +75,44 @@ def _check_inputs(c: Campaign, mission: str, declared: set[str]) -> list[Problem
         message = None if "." in key else undeclared_input(key, declared, mission)
         if message is not None:
             out.append(Problem(c.key_locs.get(key) or Loc(c.path, 1, 1), message))
+    return out
+
+
+def _check_values(c: Campaign, mission: Mission) -> list[Problem]:
+    """Every value the campaign gives a plain (blackboard) key that a port reading it cannot
+    take (``grid: {sweep_speed: [0.5, fast]}``), located where the campaign file wrote the
+    key: each value of a grid or a cycle, the fixed ones, the bounds of a draw."""
+    values: dict[str, list[Any]] = {}
+
+    def add(key: str, vals: Iterable[Any]) -> None:
+        if "." not in key:  # not a rig setting, nor a bb. entry passed on unchecked
+            values.setdefault(key, []).extend(vals)
+
+    for key, v in c.fixed.items():
+        add(key, [v])
+    for key, vs in [*c.grid.items(), *c.cycle.items()]:
+        add(key, vs)
+    for key, d in c.random.items():
+        add(key, d.extremes())
+    for case in c.faults or ():
+        for key, v in case.sets.items():
+            add(key, [v])
+        for key, d in case.draws.items():
+            add(key, d.extremes())
+    out = []
+    for key, vals in values.items():
+        for text in dict.fromkeys(value_text(x) for x in vals):  # as a run's --set reads it
+            try:
+                parsed = yaml.safe_load(text) if text.strip() else ""
+            except yaml.YAMLError:
+                parsed = text
+            ok = isinstance(parsed, (int, float, bool, str, list))
+            mission.scope.set(key, parsed if ok else text)
+            found = mission.set_value_problems({key})
+            if found:  # the first bad value of a key says it
+                where = c.key_locs.get(key) or Loc(c.path, 1, 1)
+                out.append(Problem(where, found[0].message))
+                break
     return out
 
 
