@@ -25,6 +25,7 @@ from __future__ import annotations
 import os
 import re
 import sqlite3
+import time
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -231,11 +232,30 @@ def connect_sqlite(path: str, create: bool = True) -> sqlite3.Connection:
             check_same_thread=False,
         )
         conn.execute(f"PRAGMA busy_timeout = {SQLITE_BUSY_TIMEOUT_MS}")
-        conn.execute("PRAGMA journal_mode = WAL")
+        _wal(conn)
         conn.execute("PRAGMA foreign_keys = ON")
     except (OSError, sqlite3.Error) as exc:
         raise StoreError(f"{path}: cannot open the store file ({exc})") from None
     return conn
+
+
+def _wal(conn: sqlite3.Connection) -> None:
+    """Put the store file in WAL mode (it stays so). Switching needs the file to itself,
+    and SQLite answers "database is locked" at once, without its busy timeout, when
+    another process opens the new file at that moment (two fleets starting on one store
+    did, about one start in five with six at once): the mode is only switched when it is
+    not WAL yet, and a locked switch is tried again until the busy timeout."""
+    deadline = time.monotonic() + SQLITE_BUSY_TIMEOUT_MS / 1000
+    while True:
+        try:
+            mode = conn.execute("PRAGMA journal_mode").fetchone()[0]
+            if str(mode).lower() != "wal":
+                conn.execute("PRAGMA journal_mode = WAL")
+            return
+        except sqlite3.OperationalError as exc:
+            if "locked" not in str(exc) or time.monotonic() > deadline:
+                raise
+            time.sleep(0.02)  # another connection holds the file for a moment
 
 
 def dialect_of(conn: Any) -> str:

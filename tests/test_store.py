@@ -122,7 +122,7 @@ def test_unreachable_postgresql_is_one_line_without_password() -> None:
 
 def _writer(url: str, run: str, places: int, barrier) -> None:
     s = InventoryStore.open(url)
-    barrier.wait()
+    barrier.wait(60)  # a partner that failed to open must not leave this one waiting
     s.begin_run(run)
     for i in range(places):  # one transaction per row, as a flight records
         s.record_rows(run, [_row(f"P-{i:03d}", f"{i}A", drone=run)])
@@ -137,14 +137,18 @@ def test_two_fleets_writing_at_once_lose_nothing(store_url) -> None:
     barrier = ctx.Barrier(2)
     places = 60
     procs = [
-        ctx.Process(target=_writer, args=(store_url, run, places, barrier))
+        ctx.Process(target=_writer, args=(store_url, run, places, barrier), daemon=True)
         for run in ("fleet-a", "fleet-b")
     ]
     for p in procs:
         p.start()
     for p in procs:
         p.join(120)
-        assert p.exitcode == 0
+    codes = [p.exitcode for p in procs]
+    for p in procs:  # a writer still waiting would hold pytest's exit
+        if p.is_alive():
+            p.kill()
+    assert codes == [0, 0]
     with InventoryStore.open(store_url) as s:
         assert s.version() == 1
         for run in ("fleet-a", "fleet-b"):
@@ -194,3 +198,30 @@ def test_recorder_writes_changes_and_survives_a_store_that_goes_away(tmp_path) -
     assert broken.finish("SUCCESS", timeout=1.0) is False
     assert time.monotonic() - t0 < 5
     assert any("cannot record inv-2" in m and "run folder keeps every row" in m for m in said)
+
+
+def test_many_opening_a_new_store_file_at_once_all_get_it(tmp_path) -> None:
+    """Six writers opening a store file that does not exist yet, at the same moment (fleets
+    started together on one store): every one opens it. Switching the new file to WAL used
+    to answer "database is locked" at once, in about one such start in ten, without
+    waiting for the busy timeout."""
+    failed = []
+    for attempt in range(80):
+        url = f"sqlite:///{tmp_path / f'site{attempt}.sqlite'}"
+        barrier = threading.Barrier(6)
+        errors: list[BaseException] = []
+
+        def open_it(url: str = url, barrier: threading.Barrier = barrier, errors=errors) -> None:
+            try:
+                barrier.wait(30)
+                InventoryStore.open(url).close()
+            except BaseException as exc:  # noqa: BLE001 - reported below
+                errors.append(exc)
+
+        threads = [threading.Thread(target=open_it) for _ in range(6)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        failed += [f"attempt {attempt}: {e}" for e in errors]
+    assert not failed, failed[:3]
