@@ -103,6 +103,25 @@ def test_the_faces_split_gives_every_drone_whole_faces(site):
     assert faces["cf1"] | faces["cf2"] == {"A", "B"}
 
 
+def test_three_drones_on_four_faces_get_faces_of_one_aisle_each(site):
+    """Four faces for three drones: one drone takes two. They used to be dealt largest
+    first, and the drone of pad-2 got faces A and D, one in each aisle, while pad-1's got B:
+    the two crossed on their way out and held each other up for minutes. Now the drone with
+    two faces has both faces of one aisle, and no drone crosses another's way."""
+    pads = {"pad-1": (1.0, -10.0, 0.0), "pad-2": (2.0, -10.0, 0.0), "pad-3": (6.0, -10.0, 0.0)}
+    aisle = {"A": 1, "B": 1, "C": 2, "D": 2}
+    for names in (["pad-1", "pad-2", "pad-3"], ["pad-2", "pad-1", "pad-3"]):
+        starts = {f"cf{i}": pads[p] for i, p in enumerate(names)}
+        split = split_places(list(site.places), site, starts, "faces")
+        faces = {d: {site.places[p].rack for p in ps} for d, ps in split.items()}
+        assert sorted(len(ps) for ps in split.values()) == [36, 36, 72]
+        assert all(len({aisle[f] for f in fs}) == 1 for fs in faces.values()), faces
+        # the drone starting further left flies to the face further left: no crossing
+        x = {d: sum(site.places[p].row_m[0] for p in ps) / len(ps) for d, ps in split.items()}
+        by_start = sorted(starts, key=lambda d: starts[d][0])
+        assert [x[d] for d in by_start] == sorted(x.values()), (faces, starts)
+
+
 def test_fewer_faces_than_drones_split_by_levels(site):
     places = [p for p in site.places if p.startswith("A-")]
     starts = {"cf1": (1.0, -10.0, 0.0), "cf2": (2.0, -10.0, 0.0)}
