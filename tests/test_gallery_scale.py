@@ -282,3 +282,44 @@ def test_a_demo_gallery_whose_world_fails_its_checks_is_reported_not_raised(monk
     session = PerceptionSession(load_rig("rigs/aisle.yaml"), log=lambda m: None)
     with pytest.raises(PerceptionError, match="demo gallery: --set world: 124 places to fill"):
         session.gallery("demo", Model, detector=Model)
+
+
+def test_a_rack_standing_on_the_enrolment_slot_is_left_out_of_the_enrolment_scan(tmp_path):
+    """The canonical slot is a fixed spot on the floor (9.30, 0.0). A world with a third
+    aisle put rack E's steel there: the enrolled pallet stood inside it, its blocks hidden
+    from the scan line, and 142 of 234 places were answered right. A rack overlapping the
+    enrolled pallet is left out of the enrolment scan (its own demo gallery); the shipped
+    worlds keep every rack, and their galleries are the same."""
+    import copy
+
+    import yaml
+
+    from drivers.sim.world import load_world
+    from nodes.gallery.demo import canonical_world_data, clear_racks, demo_gallery_path
+
+    class Model:
+        model_version = "m1"
+
+    for world in ("worlds/site.yaml", "worlds/aisle.yaml"):
+        data = load_world(world).data
+        assert clear_racks(data["racks"], data["pallet_geometry"]) == data["racks"]
+    with open("worlds/site.yaml", encoding="utf-8") as f:
+        site = yaml.safe_load(f)
+    third = copy.deepcopy(site["racks"][2])  # (shared lists would be YAML aliases)
+    third.update(name="E", origin_m=[10.0, -8.4])  # faces +x: its steel at x 9..10
+    site["racks"].append(third)
+    site["stock"]["empty_places"] = 46  # 180 places, 124 filled with enrolled pallets
+    path = tmp_path / "site3.yaml"
+    path.write_text(yaml.safe_dump(site))
+    data = load_world(str(path)).data
+    kept = canonical_world_data(data, "1001A")["racks"]
+    assert [r["name"] for r in kept] == ["A", "B", "C", "D"]
+    moved = dict(third, origin_m=[12.0, -8.4])  # x 11..12: clear of the slot, kept
+    assert clear_racks([moved], data["pallet_geometry"]) == [moved]
+    # another gallery than the same world without rack E (which enrols as the site)
+    site["racks"].pop()
+    plain = tmp_path / "plain.yaml"
+    plain.write_text(yaml.safe_dump(site))
+    assert demo_gallery_path(str(path), Model, Model, {}) != demo_gallery_path(
+        str(plain), Model, Model, {}
+    )

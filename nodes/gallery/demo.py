@@ -75,8 +75,9 @@ CANONICAL_LINE = {"x_m": 8.90, "y_from_m": -0.75, "y_to_m": 0.65, "yaw_deg": 0.0
 
 def canonical_world_data(data: dict, identity: str) -> dict:
     """The world of an enrolment scan: ``identity`` alone in the canonical slot (its
-    pallet, the world's geometry, lighting, floor and racks; no other pallet, no obstacle,
-    no placement error), as it looked when enrolled (no ageing)."""
+    pallet, the world's geometry, lighting, floor and racks, but for a rack standing where
+    the enrolled pallet does: :func:`clear_racks`; no other pallet, no obstacle, no
+    placement error), as it looked when enrolled (no ageing)."""
     g = data["pallet_geometry"]
     out = dict(data)  # what changes is replaced below, the rest is shared (a pool of
     # thousands of pallets: a deep copy per side took a second)
@@ -87,10 +88,53 @@ def canonical_world_data(data: dict, identity: str) -> dict:
     out["scan_pallet"] = identity
     out["row_slots"] = []
     out["obstacles"] = []
+    out["racks"] = clear_racks(data.get("racks") or [], g)
     for key in ("placement_error", "placement_offset"):
         out[key] = {k: 0.0 for k in out.get(key, {})}
     out["scan_line"] = dict(CANONICAL_LINE, z_m=CANONICAL_ROW_Z_M)
     return unaged(out)
+
+
+def clear_racks(racks: list[dict], geometry: dict) -> list[dict]:
+    """The racks that leave the canonical slot free. The slot is a fixed place on the
+    floor; a world may put a rack there (a third aisle at x 9-10 m did), and its steel
+    then stood inside and around the enrolled pallet, hid its blocks from the scan line,
+    and enrolled those views (142 of 234 places right). A rack whose footprint overlaps
+    the enrolled pallet's is left out of the enrolment scan; the others stay, so the
+    worlds whose slot is clear enrol as before."""
+    f = math.radians(CANONICAL_SLOT["facing_deg"])
+    n, right = (math.cos(f), math.sin(f)), (-math.sin(f), math.cos(f))
+    half, width = geometry["length_m"] / 2.0, geometry["width_m"]
+    cx, cy = CANONICAL_SLOT["x_m"], CANONICAL_SLOT["y_m"]
+    pallet = [
+        (cx + right[0] * a - n[0] * d, cy + right[1] * a - n[1] * d)
+        for a, d in ((-half, 0.0), (half, 0.0), (half, width), (-half, width))
+    ]
+    out = []
+    for rack in racks:
+        f = math.radians(rack["facing_deg"])
+        n, right = (math.cos(f), math.sin(f)), (-math.sin(f), math.cos(f))
+        (ox, oy), length = rack["origin_m"], rack["bays"] * rack["bay_width_m"]
+        depth = rack.get("depth_m", 1.0)
+        foot = [
+            (ox + right[0] * a - n[0] * d, oy + right[1] * a - n[1] * d)
+            for a, d in ((0.0, 0.0), (length, 0.0), (length, depth), (0.0, depth))
+        ]
+        if not _overlap(pallet, foot):
+            out.append(rack)
+    return out
+
+
+def _overlap(p: list[tuple[float, float]], q: list[tuple[float, float]]) -> bool:
+    """True if the convex polygons ``p`` and ``q`` overlap (separating axis test)."""
+    for poly in (p, q):
+        for (x0, y0), (x1, y1) in zip(poly, poly[1:] + poly[:1], strict=True):
+            ax, ay = y0 - y1, x1 - x0  # the edge's normal
+            a = [ax * x + ay * y for x, y in p]
+            b = [ax * x + ay * y for x, y in q]
+            if max(a) <= min(b) or max(b) <= min(a):
+                return False
+    return True
 
 
 def unaged(data: dict) -> dict:
@@ -303,7 +347,12 @@ def demo_gallery_path(
     from drivers.sim.world import load_world
 
     h = hashlib.sha256()
-    h.update(appearance_key(load_world(world_path, look_overrides(overrides)).data))
+    data = load_world(world_path, look_overrides(overrides)).data
+    h.update(appearance_key(data))
+    racks = data.get("racks") or []
+    kept = clear_racks(racks, data["pallet_geometry"])
+    if len(kept) < len(racks):  # the racks left out of the enrolment scan (none: as before)
+        h.update(repr(sorted(r["name"] for r in racks if r not in kept)).encode())
     h.update(repr(sorted((camera or {}).items())).encode())
     h.update(f"{detector.model_version}|{embedder.model_version}|{ENROL_VERSION}".encode())
     return os.path.join(cache_dir(), "galleries", f"demo-{h.hexdigest()[:16]}.sqlite")
