@@ -16,6 +16,8 @@ import difflib
 from collections.abc import Collection, Iterator, MutableMapping
 from typing import Any
 
+import yaml
+
 from bt_engine.builder import build_tree
 from bt_engine.clock import Clock, SimClock
 from bt_engine.loading import load_spec
@@ -64,6 +66,16 @@ def mission_inputs(spec: MissionSpec) -> dict[str, Any]:
 #: blackboard unchecked: ``--set bb.NAME=VALUE`` sets ``NAME`` even if the mission does not
 #: declare it (an entry a plug-in leaf reads without a port).
 UNCHECKED_PREFIX = "bb."
+
+
+def parse_set_value(text: str) -> Any:
+    """A ``--set`` blackboard value as it goes on the blackboard: a YAML scalar or list
+    (numbers, booleans), otherwise the text; the ports convert it when read."""
+    try:
+        parsed = yaml.safe_load(text) if text.strip() else ""
+    except yaml.YAMLError:
+        return text
+    return parsed if isinstance(parsed, (int, float, bool, str, list)) else text
 
 
 def declared_inputs(spec: MissionSpec, registry: Registry | None = None) -> set[str]:

@@ -14,12 +14,16 @@ from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any
 
-import yaml
-
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.display import spec_rows
 from bt_engine.loading import check_mission
-from bt_engine.mission import UNCHECKED_PREFIX, Mission, declared_inputs, undeclared_input
+from bt_engine.mission import (
+    UNCHECKED_PREFIX,
+    Mission,
+    declared_inputs,
+    parse_set_value,
+    undeclared_input,
+)
 from bt_engine.plugins import Platform, RunTarget, load_target, run_sections, write_report
 from bt_engine.registry import REGISTRY
 from bt_engine.runner import Runner, RunResult
@@ -71,11 +75,7 @@ def parse_sets(
             if message is not None:
                 problems.append(Problem(Loc("--set", 0, 0), message))
                 continue
-        try:
-            parsed = yaml.safe_load(value) if value.strip() else ""
-        except yaml.YAMLError:
-            parsed = value
-        bb[key] = parsed if isinstance(parsed, (int, float, bool, str, list)) else value
+        bb[key] = parse_set_value(value)
     return bb, rig, problems
 
 

@@ -15,12 +15,16 @@ import sys
 from collections.abc import Iterable
 from typing import Any
 
-import yaml
-
 from bt_engine.campaign.rows import Row, value_text
 from bt_engine.campaign.spec import Campaign, FaultCase
 from bt_engine.loading import check_mission
-from bt_engine.mission import UNCHECKED_PREFIX, Mission, declared_inputs, undeclared_input
+from bt_engine.mission import (
+    UNCHECKED_PREFIX,
+    Mission,
+    declared_inputs,
+    parse_set_value,
+    undeclared_input,
+)
 from bt_engine.plugins import load_plugins, load_target
 from bt_engine.registry import REGISTRY
 from bt_engine.spec import Loc, MissionError, Problem
@@ -102,12 +106,7 @@ def _check_values(c: Campaign, mission: Mission) -> list[Problem]:
     out = []
     for key, vals in values.items():
         for text in dict.fromkeys(value_text(x) for x in vals):  # as a run's --set reads it
-            try:
-                parsed = yaml.safe_load(text) if text.strip() else ""
-            except yaml.YAMLError:
-                parsed = text
-            ok = isinstance(parsed, (int, float, bool, str, list))
-            mission.scope.set(key, parsed if ok else text)
+            mission.scope.set(key, parse_set_value(text))
             found = mission.set_value_problems({key})
             if found:  # the first bad value of a key says it
                 where = c.key_locs.get(key) or Loc(c.path, 1, 1)
