@@ -162,6 +162,16 @@ def _frame(rack: dict) -> tuple[tuple[float, float], tuple[float, float]]:
     return n, (-n[1], n[0])
 
 
+def rack_footprint(rack: dict) -> list[tuple[float, float]]:
+    """The rack's corners on the floor (front left, front right, back right, back left)."""
+    n, right = _frame(rack)
+    (ox, oy), length, depth = rack["origin_m"], rack["bays"] * rack["bay_width_m"], rack["depth_m"]
+    return [
+        (ox + right[0] * a - n[0] * d, oy + right[1] * a - n[1] * d)
+        for a, d in ((0.0, 0.0), (length, 0.0), (length, depth), (0.0, depth))
+    ]
+
+
 def rack_places(rack: dict, geometry: dict) -> list[Place]:
     """Every place of a rack, bay by bay, levels from the floor up."""
     n, right = _frame(rack)

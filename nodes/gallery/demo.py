@@ -110,19 +110,9 @@ def clear_racks(racks: list[dict], geometry: dict) -> list[dict]:
         (cx + right[0] * a - n[0] * d, cy + right[1] * a - n[1] * d)
         for a, d in ((-half, 0.0), (half, 0.0), (half, width), (-half, width))
     ]
-    out = []
-    for rack in racks:
-        f = math.radians(rack["facing_deg"])
-        n, right = (math.cos(f), math.sin(f)), (-math.sin(f), math.cos(f))
-        (ox, oy), length = rack["origin_m"], rack["bays"] * rack["bay_width_m"]
-        depth = rack.get("depth_m", 1.0)
-        foot = [
-            (ox + right[0] * a - n[0] * d, oy + right[1] * a - n[1] * d)
-            for a, d in ((0.0, 0.0), (length, 0.0), (length, depth), (0.0, depth))
-        ]
-        if not _overlap(pallet, foot):
-            out.append(rack)
-    return out
+    from drivers.sim.racks import rack_footprint
+
+    return [rack for rack in racks if not _overlap(pallet, rack_footprint(rack))]
 
 
 def _overlap(p: list[tuple[float, float]], q: list[tuple[float, float]]) -> bool:
