@@ -117,3 +117,90 @@ def test_pause_holds_the_motion_and_resume_finishes_it():
     assert a.resume() and not a.resume()
     _step(clock, pf, [], 15.0, until=lambda: g.reached)
     assert g.reached and g.waiting == ""
+
+
+def _head_on(inside=None, height=1.0):
+    """a and b hover 2 m apart and each is sent to the other's far side: each holds where
+    the other must pass (a mutual wait)."""
+    clock, pf = _drones({"a": (-1.0, 0.0), "b": (1.0, 0.0)})
+    a, b = pf["a"].vehicle, pf["b"].vehicle
+    air = Airspace(0.5)
+    air.add(a, inside)
+    air.add(b, inside)
+    guard = SeparationGuard({"a": a, "b": b}, 0.5, 0.2)
+    hooks = [air, guard]
+    _step(clock, pf, hooks, 0.1)
+    ta, tb = a.takeoff(height, 0.5), b.takeoff(height, 0.5)
+    _step(clock, pf, hooks, 8.0, until=lambda: ta.reached and tb.reached)
+    assert ta.reached and tb.reached
+    ga = a.go_to(1.5, 0.0, height, speed_mps=0.5)
+    gb = b.go_to(-1.5, 0.0, height, speed_mps=0.5)
+    assert ga.waiting.startswith("airspace: b's") and gb.waiting.startswith("airspace: a's")
+    return clock, pf, hooks, air, guard, ga, gb
+
+
+def _fly_until_both_reach(clock, pf, hooks, ga, gb, seconds=40.0):
+    a, b = pf["a"].vehicle, pf["b"].vehicle
+    closest, z_range = math.inf, {"a": [9.0, 0.0], "b": [9.0, 0.0]}
+    for _ in range(int(seconds / 0.02)):
+        _step(clock, pf, hooks, 0.02)
+        closest = min(closest, math.dist(a.position, b.position))
+        for name, v in (("a", a), ("b", b)):
+            z_range[name] = [
+                min(z_range[name][0], v.position[2]),
+                max(z_range[name][1], v.position[2]),
+            ]
+        if ga.reached and gb.reached:
+            break
+    return closest, z_range
+
+
+def test_two_drones_waiting_for_each_other_one_steps_aside_and_both_arrive():
+    clock, pf, hooks, air, guard, ga, gb = _head_on()
+    assert air.wait_cycle("a") == ["a", "b"]
+    closest, z = _fly_until_both_reach(clock, pf, hooks, ga, gb)
+    assert ga.reached and gb.reached and not ga.failed and not gb.failed
+    assert air.asides == 1 and pf["a"].vehicle.asides == 1 and pf["b"].vehicle.asides == 0
+    assert air.events[0]["aside"] == "a" and air.events[0]["ring"] == ["a", "b"]
+    assert z["a"][1] > 1.7 and z["b"][1] < 1.1  # a went up out of b's way; b flew level
+    assert closest >= 0.5 and guard.violations == 0
+    assert math.dist(pf["a"].vehicle.position, (1.5, 0.0, 1.0)) < 0.05
+    assert math.dist(pf["b"].vehicle.position, (-1.5, 0.0, 1.0)) < 0.05
+
+
+def test_a_drone_with_no_room_above_steps_down():
+    clock, pf, hooks, air, guard, ga, gb = _head_on(inside=lambda p: p[2] <= 1.5, height=1.2)
+    closest, z = _fly_until_both_reach(clock, pf, hooks, ga, gb)
+    assert ga.reached and gb.reached and air.asides == 1
+    assert z["a"][0] < 0.5 and z["a"][1] < 1.3  # down to 1.2 - 0.75 m, never up
+    assert closest >= 0.5 and guard.violations == 0
+
+
+def test_no_room_to_step_aside_leaves_the_mutual_wait_to_the_time_outs():
+    level = lambda p: abs(p[2] - 1.0) < 0.3  # noqa: E731 (a geofence one level high)
+    clock, pf, hooks, air, guard, ga, gb = _head_on(inside=level)
+    _step(clock, pf, hooks, 10.0)
+    assert ga.waiting and gb.waiting and not ga.reached and not gb.reached
+    assert air.asides == 0 and air.wait_cycle("b") == ["b", "a"]
+    assert abs(pf["a"].vehicle.position[2] - 1.0) < 0.05  # held where it was
+
+
+def test_step_aside_only_for_a_motion_waiting_at_the_gate():
+    clock, pf = _drones({"a": (0.0, 0.0)})
+    a = pf["a"].vehicle
+    _step(clock, pf, [], 0.1)
+    t = a.takeoff(1.0, 0.5)
+    _step(clock, pf, [], 6.0, until=lambda: t.reached)
+    assert a.step_aside((0.0, 0.0, 1.75)) == "no motion waiting at the gate"
+    a.motion_gate = lambda *args: "test: wait"
+    g = a.go_to(0.0, -1.0, 1.0, speed_mps=0.5)
+    assert g.waiting == "test: wait" and a.waiting_at_gate
+    assert "above control.max_altitude_m" in a.step_aside((0.0, 0.0, 50.0))
+    assert "above the ground" in a.step_aside((0.0, 0.0, 0.1))
+    assert a.step_aside((0.0, 0.0, 1.6)) == "" and a.aside_goal == (0.0, 0.0, 1.6)
+    _step(clock, pf, [], 5.0)
+    assert abs(a.position[2] - 1.6) < 0.05 and g.waiting == "test: wait"  # there, waiting
+    a.motion_gate = None
+    _step(clock, pf, [], 10.0, until=lambda: g.reached)
+    assert g.reached and a.aside_goal is None
+    assert math.dist(a.position, (0.0, -1.0, 1.0)) < 0.05

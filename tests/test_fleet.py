@@ -131,9 +131,20 @@ def _ticks(out, drone: str) -> list[dict]:
 
 
 @pytest.mark.slow
-def test_a_fleet_is_deterministic_and_merges_its_inventory(tmp_path):
+def test_a_fleet_is_deterministic_and_merges_its_inventory(tmp_path, monkeypatch):
+    from drivers.safety.airspace import Airspace
+
+    room, add = {}, Airspace.add
+
+    def add_and_see(self, vehicle, inside=None):  # where each drone may step aside
+        room[vehicle.name] = inside
+        return add(self, vehicle, inside)
+
+    monkeypatch.setattr(Airspace, "add", add_and_see)
     args = ["--set", "places=A-02-1;A-07-1", "--seed", "3"]
     a, b = _fly(tmp_path, "a", args), _fly(tmp_path, "b", args)
+    # the airspace has each drone's geofence (rigs/aisle.yaml's box, less its margin)
+    assert room["cf1"]((1.0, 0.0, 1.0)) and not room["cf1"]((1.0, 0.0, 2.4))
     assert a["_code"] == 0 and a["status"] == "SUCCESS"
     assert {r["place"]: r["drone"] for r in a["_rows"]} == {"A-02-1": "cf1", "A-07-1": "cf2"}
     assert {r["run"] for r in a["_rows"]} == {"a"}  # rows name the fleet's own run folder
@@ -150,6 +161,7 @@ def test_a_fleet_is_deterministic_and_merges_its_inventory(tmp_path):
     inv = a["inventory"]
     assert inv["places"] == 2 and inv["wrong"] == 0 and inv["not_scanned"] == 0
     assert a["separation"]["violations"] == 0 and a["collisions"]["drones"] == 0
+    assert a["separation"]["airspace_asides"] == 0 and a["drones"]["cf1"]["asides"] == 0
     # the inventory bench reads the same folder (bench/inventory_campaign.py)
     import importlib.util
 

@@ -8,6 +8,10 @@ Two layers, both over the Vehicle API only:
   remaining way, or the point where it waits, hovers or stands on its pad). If it does, the
   corridor is reserved; if not, the motion waits (the drone holds) and asks again at every
   control step. A reservation shrinks as its drone flies it (:meth:`Airspace.after_step`).
+  Two drones can wait for each other (each holds where the other must pass: a head-on
+  swap of places): the gate finds such a cycle of waits and has one of its drones step
+  aside, straight up or down out of the others' corridors (within its ceiling, the ground
+  and the geofence it is given), where it waits until the way is clear.
 * :class:`SeparationGuard` watches the drones' measured positions every step: when two come
   within ``separation_m + hold_margin_m`` and close in, it pauses the one flying towards the
   other (the drone stops and holds, its motion kept) and resumes it once they are apart, so
@@ -21,10 +25,13 @@ the guard is the backstop for what the reservations did not foresee (gusts, trac
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 Vec3 = tuple[float, float, float]
+#: a drone stepping aside is there this close to its aside point, m
+ASIDE_REACHED_M = 0.1
 
 
 def segment_distance(a0: Vec3, a1: Vec3, b0: Vec3, b1: Vec3) -> float:
@@ -65,15 +72,28 @@ class Airspace:
     """Corridor reservations of the vehicles of one fleet (one process)."""
 
     separation_m: float = 0.5
+    #: a drone stepping aside ends this much farther than the separation from the others'
+    #: corridors, m
+    aside_margin_m: float = 0.25
     vehicles: dict[str, Any] = field(default_factory=dict)
     corridors: dict[str, tuple[Vec3, Vec3]] = field(default_factory=dict)
     waits: int = 0
+    #: steps aside that broke a mutual wait
+    asides: int = 0
+    events: list[dict] = field(default_factory=list)
+    #: a waiting drone's request (start, goal) and the drone it waits for
+    requests: dict[str, tuple[Vec3, Vec3]] = field(default_factory=dict)
+    blocked_by: dict[str, str] = field(default_factory=dict)
+    inside: dict[str, Callable[[Vec3], bool]] = field(default_factory=dict)
 
-    def add(self, vehicle: Any) -> None:
-        """Put ``vehicle`` (named uniquely) under this airspace's gate."""
+    def add(self, vehicle: Any, inside: Callable[[Vec3], bool] | None = None) -> None:
+        """Put ``vehicle`` (named uniquely) under this airspace's gate; ``inside`` says
+        whether a point is one the drone may step aside to (its geofence)."""
         if vehicle.name in self.vehicles:
             raise ValueError(f"two vehicles named {vehicle.name!r} in one airspace")
         self.vehicles[vehicle.name] = vehicle
+        if inside is not None:
+            self.inside[vehicle.name] = inside
         p = tuple(vehicle.position)
         self.corridors[vehicle.name] = (p, p)
         vehicle.motion_gate = self.gate
@@ -96,12 +116,79 @@ class Airspace:
         if hit is not None:
             self.waits += 1
             other, d = hit
+            self.requests[name] = (tuple(start), tuple(goal))
+            self.blocked_by[name] = other
+            self._break_cycle(name)
             return (
                 f"airspace: {other}'s corridor passes {d:.2f} m from this {kind} "
                 f"(minimum {self.separation_m:g} m)"
             )
+        self.requests.pop(name, None)
+        self.blocked_by.pop(name, None)
         self.corridors[name] = (tuple(start), tuple(goal))
         return ""
+
+    def wait_cycle(self, name: str) -> list[str] | None:
+        """The drones waiting for each other in a ring through ``name`` (``name`` first), or
+        None: each waits at the gate for the next one's corridor, the last for ``name``'s."""
+        ring = [name]
+        cur = self.blocked_by.get(name)
+        while cur is not None and cur not in ring:
+            if not self.vehicles[cur].waiting_at_gate:
+                return None
+            ring.append(cur)
+            cur = self.blocked_by.get(cur)
+        return ring if cur == name and len(ring) > 1 else None
+
+    def _break_cycle(self, name: str) -> None:
+        """If ``name`` waits in a ring, have one of the ring's drones (the first by name that
+        has room) step aside out of the others' way; each drone at most once per motion, and
+        another only once the first is where it stepped to and the ring still holds."""
+        ring = self.wait_cycle(name)
+        if ring is None:
+            return
+        for who in ring:  # one of them on its way aside: wait until it is there
+            goal = self.vehicles[who].aside_goal
+            if goal is not None and math.dist(self.vehicles[who].position, goal) > ASIDE_REACHED_M:
+                return
+        for who in sorted(ring):
+            v = self.vehicles[who]
+            if v.aside_goal is not None:
+                continue
+            q = self.aside_point(who, ring)
+            if q is not None and v.step_aside(q) == "":
+                self.asides += 1
+                self.corridors[who] = (tuple(v.position), q)
+                self.events.append(
+                    {"aside": who, "ring": list(ring), "to": [round(c, 3) for c in q]}
+                )
+                return
+
+    def aside_point(self, who: str, ring: list[str]) -> Vec3 | None:
+        """A point straight above or below ``who`` (above first) clear of the corridors the
+        ring's drones ask for and of every other drone's reservation, reached without coming
+        near any of them; None if neither has room (ceiling, ground, geofence)."""
+        v = self.vehicles[who]
+        p = tuple(v.position)
+        clear = self.separation_m + self.aside_margin_m
+        keep = []
+        for other, corridor in self.corridors.items():
+            if other != who:
+                keep.append(corridor)
+                if other in ring and other in self.requests:
+                    keep.append(self.requests[other])
+        inside = self.inside.get(who)
+        for dz in (clear, -clear):
+            q = (p[0], p[1], p[2] + dz)
+            if inside is not None and not inside(q):
+                continue
+            if all(segment_distance(q, q, a, b) >= clear for a, b in keep) and all(
+                segment_distance(p, q, a, b) >= self.separation_m
+                for other, (a, b) in self.corridors.items()
+                if other != who
+            ):
+                return q
+        return None
 
     def after_step(self, t_s: float) -> None:
         """Shrink every reservation to what is left of it: from where the drone is to the
@@ -110,7 +197,13 @@ class Airspace:
             p = tuple(v.position)
             m = v.motion
             moving = m is not None and m.active and not m.reached and not m.waiting and v.is_flying
-            self.corridors[name] = (p, tuple(m.goal)) if moving else (p, p)
+            aside = getattr(v, "aside_goal", None)
+            if moving:
+                self.corridors[name] = (p, tuple(m.goal))
+            elif aside is not None:  # stepping aside while it waits: that short way
+                self.corridors[name] = (p, aside)
+            else:
+                self.corridors[name] = (p, p)
 
 
 @dataclass

@@ -26,6 +26,10 @@ from drivers.vehicle.trajectory import (
 from drivers.vehicle.types import FlightState, YawMode
 
 AIRBORNE = (FlightState.TAKING_OFF, FlightState.FLYING, FlightState.LANDING)
+#: a step aside (:meth:`MotionRequests.step_aside`) flies at this speed, m/s ...
+ASIDE_SPEED_MPS = 0.5
+#: ... and never lower than this above the ground, m
+ASIDE_MIN_HEIGHT_M = 0.3
 
 
 class MotionRequests:
@@ -235,6 +239,7 @@ class MotionRequests:
             return False
         gm.make = gm.restart(self._ref)
         gm.paused = True
+        self._aside = None
         gm.progress.waiting = f"paused: {reason}"
         self.pauses += 1
         self._hold()
@@ -254,6 +259,41 @@ class MotionRequests:
     def paused(self) -> bool:
         """True while a supervisor holds the current motion."""
         return self._gated is not None and self._gated.paused
+
+    @property
+    def waiting_at_gate(self) -> bool:
+        """True while the current take-off, go-to or path waits for the gate (not paused)."""
+        gm = self._gated
+        return gm is not None and not gm.paused and gm.progress.active and bool(gm.progress.waiting)
+
+    @property
+    def aside_goal(self) -> tuple[float, float, float] | None:
+        """Where the drone steps aside to while its motion waits (:meth:`step_aside`)."""
+        return self._aside if self.waiting_at_gate else None
+
+    def step_aside(self, point: Sequence[float], speed_mps: float = ASIDE_SPEED_MPS) -> str:
+        """While the current motion waits at the gate, fly straight to ``point`` at
+        ``speed_mps`` and hold there, still waiting: the gate is asked again at every
+        control step and the motion starts from wherever the drone then is. For an airspace
+        breaking a mutual wait (two drones each holding where the other must pass).
+        "" when the drone steps aside, else why not (nothing is changed then)."""
+        if not self.waiting_at_gate:
+            return "no motion waiting at the gate"
+        if self.flight_state != FlightState.FLYING:
+            return f"not flying ({self.flight_state.value})"
+        q = tuple(float(v) for v in point)
+        if len(q) != 3 or not all(math.isfinite(v) for v in q):
+            return f"not a point: {point!r}"
+        high = self._above_ceiling(q[2])
+        if high:
+            return high
+        if q[2] - self._ground_z < ASIDE_MIN_HEIGHT_M:
+            return f"z={q[2]:g} m is less than {ASIDE_MIN_HEIGHT_M:g} m above the ground"
+        start, yaw = self._start_state()
+        self._ref = LineReference(start, q, yaw, yaw, self._limits(speed_mps), self.now_s)
+        self._aside = q
+        self.asides += 1
+        return ""
 
     # ------------------------------------------------------------------ helpers
     def _refused(self, kind: str, why: str) -> MotionProgress:
@@ -320,9 +360,11 @@ class MotionRequests:
             if not gm.progress.waiting:
                 self.waits += 1
             gm.progress.waiting = why
-            self._hold()
+            if self._aside is None:  # stepping aside: fly on there (it holds at its end)
+                self._hold()
             return False
         gm.progress.waiting = ""
+        self._aside = None
         self._ref = gm.make(start, yaw, self.now_s)
         return True
 
@@ -338,6 +380,7 @@ class MotionRequests:
     def _new_motion(self, kind, goal, goal_yaw, pos_tol, yaw_tol, timeout_s) -> MotionProgress:
         c = self.config
         self._gated = None  # a new request replaces a waiting or paused one
+        self._aside = None
         if self._motion is not None:
             self._motion.cancel(f"replaced by {kind}")
         self._motion = MotionProgress(

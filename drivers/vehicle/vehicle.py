@@ -83,6 +83,8 @@ class Vehicle(MotionRequests):
         self._gated: GatedMotion | None = None  # the current gated motion (running or waiting)
         self.waits = 0  # motions that had to wait at the gate
         self.pauses = 0  # motions paused by a supervisor
+        self._aside: tuple[float, float, float] | None = None  # stepping aside while waiting
+        self.asides = 0  # steps aside out of another drone's way (gate.py)
         self.setpoints_sent = 0
         self.refused_requests = 0  # motion requests refused (non-finite, out of envelope)
         self.refused_setpoints = 0  # non-finite set-points held back (never sent)

@@ -103,7 +103,8 @@ def write_fleet_report(
         "<h2>Separation</h2>",
         f"<p>closest approach {closest} (minimum {sep['minimum_m']:g} m), {sep['violations']} "
         f"violations, {sep['holds']} holds by the guard, {sep['airspace_waits']} motions that "
-        "waited for the airspace.</p>",
+        f"waited for the airspace, {sep.get('airspace_asides', 0)} steps aside out of a mutual "
+        "wait.</p>",
     ]
     png = plot_tracks(out, runners, runs)
     if png:

@@ -25,6 +25,7 @@ from bt_engine.fleet import FleetRunner
 from bt_engine.run_cmd import PreparedRun, finish, make_runner, prepare, release
 from bt_engine.spec import Loc, MissionError, Problem
 from drivers.safety.airspace import Airspace, SeparationGuard
+from drivers.safety.policies import SafetyConfig
 from drivers.settings import ConfigError
 from nodes.fleet.plan import split_places
 from nodes.fleet.spec import FleetSpec, load_fleet
@@ -254,6 +255,16 @@ class _RowPrinter:
             )
 
 
+def _geofence_of(r: PreparedRun) -> Any:
+    """The drone's geofence test with its margin (a point it may step aside to), or None
+    when its safety supervisor does not check one."""
+    for hook in r.hooks:  # nodes.safety_hook.SafetyHook: its supervisor's config
+        config = getattr(getattr(hook, "supervisor", None), "config", None)
+        if isinstance(config, SafetyConfig) and config.geofence_enabled:
+            return lambda p, c=config: c.inside(p, c.geofence_margin_m)
+    return None
+
+
 def _fly(
     spec: FleetSpec,
     args: Any,
@@ -269,7 +280,7 @@ def _fly(
     for name, r in runs.items():
         v = r.platform.vehicle
         v.name = name
-        airspace.add(v)
+        airspace.add(v, _geofence_of(r))
         vehicles[name] = v
     guard = SeparationGuard(vehicles, sep["minimum_m"], sep["hold_margin_m"])
     runners = {name: make_runner(r) for name, r in runs.items()}
@@ -340,6 +351,7 @@ def _summary(
             "collisions": len(hits),
             "waits": r.platform.vehicle.waits,
             "pauses": r.platform.vehicle.pauses,
+            "asides": r.platform.vehicle.asides,
         }
     statuses = [d["status"] for d in drones.values()]
     mission_time = max((d["mission_time_s"] for d in drones.values()), default=0.0)
@@ -348,6 +360,8 @@ def _summary(
         inventory.update(pace(inventory["places_answered"], mission_time, len(drones)))
     sep = guard.summary()
     sep["airspace_waits"] = airspace.waits
+    sep["airspace_asides"] = airspace.asides  # steps aside that broke a mutual wait
+    sep["airspace_events"] = airspace.events[:200]
     closest = sep.get("closest_m")
     return {
         "fleet": spec.data["name"],
@@ -405,6 +419,7 @@ def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
     print(
         f"separation: closest {closest} (minimum {s['minimum_m']:g} m), {s['violations']} "
         f"violations, {s['holds']} holds, {s['airspace_waits']} airspace waits"
+        + (f", {s['airspace_asides']} steps aside" if s.get("airspace_asides") else "")
     )
     if summary.get("report"):
         print(f"report: {os.path.join(out, summary['report'])}")
