@@ -50,6 +50,23 @@ def _step(clock, platforms, hooks, seconds: float, until=None) -> None:
             return
 
 
+def _hovering(starts: dict[str, tuple[float, float]], inside=None, height: float = 1.0):
+    """Two drones in one airspace, under one guard, hovering at ``height`` above their
+    starts."""
+    clock, pf = _drones(starts)
+    a, b = pf["a"].vehicle, pf["b"].vehicle
+    air = Airspace(0.5)
+    air.add(a, inside)
+    air.add(b, inside)
+    guard = SeparationGuard({"a": a, "b": b}, 0.5, 0.2)
+    hooks = [air, guard]
+    _step(clock, pf, hooks, 0.1)  # the first telemetry: where each drone stands
+    ta, tb = a.takeoff(height, 0.5), b.takeoff(height, 0.5)
+    _step(clock, pf, hooks, 8.0, until=lambda: ta.reached and tb.reached)
+    assert ta.reached and tb.reached
+    return clock, pf, hooks, air, guard
+
+
 def test_a_motion_through_a_taken_corridor_waits_until_it_is_free():
     clock, pf = _drones({"a": (0.0, -1.5), "b": (1.5, 0.0)})
     a, b = pf["a"].vehicle, pf["b"].vehicle
@@ -122,17 +139,8 @@ def test_pause_holds_the_motion_and_resume_finishes_it():
 def _head_on(inside=None, height=1.0):
     """a and b hover 2 m apart and each is sent to the other's far side: each holds where
     the other must pass (a mutual wait)."""
-    clock, pf = _drones({"a": (-1.0, 0.0), "b": (1.0, 0.0)})
+    clock, pf, hooks, air, guard = _hovering({"a": (-1.0, 0.0), "b": (1.0, 0.0)}, inside, height)
     a, b = pf["a"].vehicle, pf["b"].vehicle
-    air = Airspace(0.5)
-    air.add(a, inside)
-    air.add(b, inside)
-    guard = SeparationGuard({"a": a, "b": b}, 0.5, 0.2)
-    hooks = [air, guard]
-    _step(clock, pf, hooks, 0.1)
-    ta, tb = a.takeoff(height, 0.5), b.takeoff(height, 0.5)
-    _step(clock, pf, hooks, 8.0, until=lambda: ta.reached and tb.reached)
-    assert ta.reached and tb.reached
     ga = a.go_to(1.5, 0.0, height, speed_mps=0.5)
     gb = b.go_to(-1.5, 0.0, height, speed_mps=0.5)
     assert ga.waiting.startswith("airspace: b's") and gb.waiting.startswith("airspace: a's")
@@ -204,3 +212,50 @@ def test_step_aside_only_for_a_motion_waiting_at_the_gate():
     _step(clock, pf, [], 10.0, until=lambda: g.reached)
     assert g.reached and a.aside_goal is None
     assert math.dist(a.position, (0.0, -1.0, 1.0)) < 0.05
+
+
+def test_a_path_reserves_its_waypoints_not_the_straight_line_to_its_goal():
+    clock, pf, hooks, air, guard = _hovering({"a": (0.0, -1.5), "b": (1.5, 0.0)})
+    a, b = pf["a"].vehicle, pf["b"].vehicle
+    # an L round b: the straight line to the goal passes 0.67 m from b, the path through it
+    g = a.follow_path([(1.5, -1.5, 1.0), (1.5, 1.5, 1.0)], speed_mps=0.5)
+    assert g.waiting.startswith("airspace: b's corridor passes 0.00 m")
+    gb = b.go_to(-1.0, 0.0, 1.0, speed_mps=0.5)  # b leaves; a may go once b is clear
+    assert gb.waiting == ""
+    assert len(air.corridors["b"]) == 2 and air.corridors["b"][-1] == (-1.0, 0.0, 1.0)
+    _step(clock, pf, hooks, 30.0, until=lambda: not g.waiting and a.position[0] > 0.3)
+    # flying, a's reservation is the rest of its path: where it is, its corner, its goal
+    assert air.corridors["a"][1:] == ((1.5, -1.5, 1.0), (1.5, 1.5, 1.0))
+    _step(clock, pf, hooks, 30.0, until=lambda: g.reached and gb.reached)
+    assert g.reached and gb.reached and guard.violations == 0
+    assert air.corridors["a"] == (tuple(a.position),)  # arrived: its position alone
+
+
+def test_the_guard_stops_a_fast_drone_in_time():
+    clock, pf = _drones({"a": (0.0, -4.0), "b": (0.0, 1.0)})
+    a, b = pf["a"].vehicle, pf["b"].vehicle  # no airspace: only the guard keeps them apart
+    guard = SeparationGuard({"a": a, "b": b}, 0.5, 0.2)
+    _step(clock, pf, [guard], 0.1)
+    ta, tb = a.takeoff(1.0, 0.5), b.takeoff(1.0, 0.5)
+    _step(clock, pf, [guard], 6.0, until=lambda: ta.reached and tb.reached)
+    g = a.go_to(0.0, 1.0, 1.0, speed_mps=1.0)  # at 1 m/s straight at b: 0.5 m to stop
+    _step(clock, pf, [guard], 12.0)
+    assert guard.holds == 1 and a.paused and not g.reached
+    assert guard.min_distance_m >= 0.5 and guard.violations == 0
+
+
+def test_a_path_paused_twice_goes_on_through_the_waypoints_it_has_not_reached():
+    clock, pf = _drones({"a": (0.0, -1.5)})
+    a = pf["a"].vehicle
+    _step(clock, pf, [], 0.1)
+    t = a.takeoff(1.0, 0.5)
+    _step(clock, pf, [], 6.0, until=lambda: t.reached)
+    g = a.follow_path([(1.5, -1.5, 1.0), (1.5, 0.0, 1.0), (0.0, 0.0, 1.0)], speed_mps=0.5)
+    _step(clock, pf, [], 20.0, until=lambda: a.position[1] > -1.0)  # on the second leg
+    assert a.pause("one") and a.resume()
+    _step(clock, pf, [], 20.0, until=lambda: a.position[0] < 1.0)  # on the third leg
+    assert a.pause("two") and a.resume()
+    track = []
+    _step(clock, pf, [], 20.0, until=lambda: track.append(a.position) or g.reached)
+    assert g.reached and math.dist(a.position, (0.0, 0.0, 1.0)) < 0.05
+    assert max(p[0] for p in track) < 1.1  # never back to a corner it had passed

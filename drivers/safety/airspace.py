@@ -3,9 +3,10 @@
 Two layers, both over the Vehicle API only:
 
 * :class:`Airspace` is every vehicle's ``motion_gate`` (:mod:`drivers.vehicle.gate`): before a
-  take-off, go-to or path starts, the straight corridor from where the drone is to its goal
-  must pass at least ``separation_m`` from every other drone's reserved corridor (its own
-  remaining way, or the point where it waits, hovers or stands on its pad). If it does, the
+  take-off, go-to or path starts, its corridor (the polyline from where the drone is through
+  a path's waypoints to its goal) must pass at least ``separation_m`` from every other
+  drone's reserved corridor (the rest of its own way, or the point where it waits, hovers or
+  stands on its pad). If it does, the
   corridor is reserved; if not, the motion waits (the drone holds) and asks again at every
   control step. A reservation shrinks as its drone flies it (:meth:`Airspace.after_step`).
   Two drones can wait for each other (each holds where the other must pass: a head-on
@@ -13,8 +14,9 @@ Two layers, both over the Vehicle API only:
   aside, straight up or down out of the others' corridors (within its ceiling, the ground
   and the geofence it is given), where it waits until the way is clear.
 * :class:`SeparationGuard` watches the drones' measured positions every step: when two come
-  within ``separation_m + hold_margin_m`` and close in, it pauses the one flying towards the
-  other (the drone stops and holds, its motion kept) and resumes it once they are apart, so
+  within ``separation_m + hold_margin_m`` plus the distance the closing drone needs to stop
+  (:func:`stopping_m`: at its speed and acceleration limit), it pauses the one flying towards
+  the other (the drone stops and holds, its motion kept) and resumes it once they are apart, so
   they never come closer than the minimum separation. It records the closest approach, the
   holds and any violation.
 
@@ -30,6 +32,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 Vec3 = tuple[float, float, float]
+#: a polyline: where a drone is, then the points it will fly through
+Way = tuple[Vec3, ...]
 #: a drone stepping aside is there this close to its aside point, m
 ASIDE_REACHED_M = 0.1
 
@@ -67,6 +71,26 @@ def _dot(u: list[float], v: list[float]) -> float:
     return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
 
+#: the guard reacts this late (a control step and the firmware's lag), s
+REACTION_S = 0.1
+
+
+def stopping_m(vehicle: Any) -> float:
+    """How far ``vehicle`` flies before it stands once paused now: its reaction at its
+    speed, then braking at its acceleration limit."""
+    vel = vehicle.velocity
+    speed = math.sqrt(vel.vx_mps**2 + vel.vy_mps**2 + vel.vz_mps**2)
+    accel = max(float(vehicle.config.accel_mps2), 1e-3)
+    return speed * REACTION_S + speed * speed / (2.0 * accel)
+
+
+def way_distance(a: Way, b: Way) -> float:
+    """Closest distance between two polylines (a single point is a polyline too)."""
+    sa = list(zip(a, a[1:], strict=False)) or [(a[0], a[0])]
+    sb = list(zip(b, b[1:], strict=False)) or [(b[0], b[0])]
+    return min(segment_distance(p0, p1, q0, q1) for p0, p1 in sa for q0, q1 in sb)
+
+
 @dataclass
 class Airspace:
     """Corridor reservations of the vehicles of one fleet (one process)."""
@@ -76,13 +100,15 @@ class Airspace:
     #: corridors, m
     aside_margin_m: float = 0.25
     vehicles: dict[str, Any] = field(default_factory=dict)
-    corridors: dict[str, tuple[Vec3, Vec3]] = field(default_factory=dict)
+    #: each drone's reservation: the polyline of the way still ahead of it (its position
+    #: alone while it holds, waits or stands)
+    corridors: dict[str, Way] = field(default_factory=dict)
     waits: int = 0
     #: steps aside that broke a mutual wait
     asides: int = 0
     events: list[dict] = field(default_factory=list)
-    #: a waiting drone's request (start, goal) and the drone it waits for
-    requests: dict[str, tuple[Vec3, Vec3]] = field(default_factory=dict)
+    #: a waiting drone's request (its way) and the drone it waits for
+    requests: dict[str, Way] = field(default_factory=dict)
     blocked_by: dict[str, str] = field(default_factory=dict)
     inside: dict[str, Callable[[Vec3], bool]] = field(default_factory=dict)
 
@@ -94,29 +120,29 @@ class Airspace:
         self.vehicles[vehicle.name] = vehicle
         if inside is not None:
             self.inside[vehicle.name] = inside
-        p = tuple(vehicle.position)
-        self.corridors[vehicle.name] = (p, p)
+        self.corridors[vehicle.name] = (tuple(vehicle.position),)
         vehicle.motion_gate = self.gate
 
-    def blocking(self, name: str, start: Vec3, goal: Vec3) -> tuple[str, float] | None:
-        """The first other drone whose corridor comes within the separation of
-        ``start``-``goal`` and the distance, or None."""
-        for other, (a, b) in self.corridors.items():
+    def blocking(self, name: str, way: Way) -> tuple[str, float] | None:
+        """The first other drone whose corridor comes within the separation of ``way`` and
+        the distance, or None."""
+        for other, corridor in self.corridors.items():
             if other == name:
                 continue
-            d = segment_distance(start, goal, a, b)
+            d = way_distance(way, corridor)
             if d < self.separation_m:
                 return other, d
         return None
 
-    def gate(self, name: str, kind: str, start: Vec3, goal: Vec3) -> str:
-        """The vehicles' motion gate: "" (and the corridor reserved) or why to wait."""
+    def gate(self, name: str, kind: str, way: list[Vec3]) -> str:
+        """The vehicles' motion gate: "" (and ``way`` reserved) or why to wait."""
         self.after_step(0.0)  # the others' corridors as they are now
-        hit = self.blocking(name, tuple(start), tuple(goal))
+        want = tuple(tuple(float(c) for c in p) for p in way)
+        hit = self.blocking(name, want)
         if hit is not None:
             self.waits += 1
             other, d = hit
-            self.requests[name] = (tuple(start), tuple(goal))
+            self.requests[name] = want
             self.blocked_by[name] = other
             self._break_cycle(name)
             return (
@@ -125,7 +151,7 @@ class Airspace:
             )
         self.requests.pop(name, None)
         self.blocked_by.pop(name, None)
-        self.corridors[name] = (tuple(start), tuple(goal))
+        self.corridors[name] = want
         return ""
 
     def wait_cycle(self, name: str) -> list[str] | None:
@@ -165,9 +191,9 @@ class Airspace:
                 return
 
     def aside_point(self, who: str, ring: list[str]) -> Vec3 | None:
-        """A point straight above or below ``who`` (above first) clear of the corridors the
-        ring's drones ask for and of every other drone's reservation, reached without coming
-        near any of them; None if neither has room (ceiling, ground, geofence)."""
+        """A point straight above or below ``who`` (above first) clear of the ways the ring's
+        drones ask for and of every other drone's reservation, reached without coming near
+        any of them; None if neither has room (ceiling, ground, geofence)."""
         v = self.vehicles[who]
         p = tuple(v.position)
         clear = self.separation_m + self.aside_margin_m
@@ -182,28 +208,27 @@ class Airspace:
             q = (p[0], p[1], p[2] + dz)
             if inside is not None and not inside(q):
                 continue
-            if all(segment_distance(q, q, a, b) >= clear for a, b in keep) and all(
-                segment_distance(p, q, a, b) >= self.separation_m
-                for other, (a, b) in self.corridors.items()
+            if all(way_distance((q,), w) >= clear for w in keep) and all(
+                way_distance((p, q), c) >= self.separation_m
+                for other, c in self.corridors.items()
                 if other != who
             ):
                 return q
         return None
 
     def after_step(self, t_s: float) -> None:
-        """Shrink every reservation to what is left of it: from where the drone is to the
-        goal of its running motion, or just where it is (a waiting motion holds none)."""
+        """Shrink every reservation to what is left of it: from where the drone is along the
+        way of its running motion, or just where it is (a waiting motion holds none)."""
         for name, v in self.vehicles.items():
-            p = tuple(v.position)
             m = v.motion
             moving = m is not None and m.active and not m.reached and not m.waiting and v.is_flying
-            aside = getattr(v, "aside_goal", None)
+            aside = v.aside_goal
             if moving:
-                self.corridors[name] = (p, tuple(m.goal))
+                self.corridors[name] = tuple(v.way_ahead())
             elif aside is not None:  # stepping aside while it waits: that short way
-                self.corridors[name] = (p, aside)
+                self.corridors[name] = (tuple(v.position), aside)
             else:
-                self.corridors[name] = (p, p)
+                self.corridors[name] = (tuple(v.position),)
 
 
 @dataclass
@@ -220,6 +245,7 @@ class SeparationGuard:
     held: dict[str, str] = field(default_factory=dict)  # paused drone -> the one it yields to
     events: list[dict] = field(default_factory=list)
     _last_violation: set = field(default_factory=set)
+    _held_at: dict[str, float] = field(default_factory=dict)  # paused drone -> distance then
 
     def after_step(self, t_s: float) -> None:
         """Check every pair of drones in the air; pause or resume."""
@@ -243,37 +269,53 @@ class SeparationGuard:
                     )
                 elif d >= self.separation_m:
                     self._last_violation.discard(pair)
-                if d < hold_at:
-                    self._hold_closer(t_s, a, b, d)
+                if d < hold_at + max(stopping_m(va), stopping_m(vb)):
+                    self._hold_closer(t_s, a, b, d, hold_at)
         for name, other in list(self.held.items()):
             v, o = self.vehicles[name], self.vehicles[other]
             d = math.dist(v.position, o.position)
-            if d > hold_at + 0.1 or not o.is_flying or not self._closing(v, o):
+            # apart by more than when it was held (else it would creep closer, held again
+            # and again), the other gone down, or its way turned away
+            far = d > max(hold_at, self._held_at.get(name, 0.0)) + 0.1
+            if far or not o.is_flying or not self._closing(v, o):
                 del self.held[name]
+                self._held_at.pop(name, None)
                 if v.resume():
                     self.events.append({"t_s": round(t_s, 3), "resumed": name, "m": round(d, 3)})
 
-    @staticmethod
-    def _closing(v: Any, o: Any) -> bool:
-        """True if ``v``'s motion (velocity, else remaining way) brings it nearer ``o``."""
+    def _closing(self, v: Any, o: Any) -> bool:
+        """True if ``v``'s way (towards its next point, else its velocity) brings it nearer
+        ``o`` and the line it flies passes within the hold distance of ``o`` (two drones
+        flying side by side a metre apart are not closing in)."""
         p, q = v.position, o.position
         to_o = [q[k] - p[k] for k in range(3)]
-        m = v.motion
-        if m is not None and m.active and not m.reached:
-            ahead = [m.goal[k] - p[k] for k in range(3)]
-            return _dot(ahead, to_o) > 0.0
-        vel = v.velocity
-        return _dot([vel.vx_mps, vel.vy_mps, vel.vz_mps], to_o) > 0.0
+        ahead = None
+        for point in v.way_ahead()[1:]:
+            if math.dist(point, p) >= 0.05:
+                ahead = [point[k] - p[k] for k in range(3)]
+                break
+        if ahead is None:
+            vel = v.velocity
+            ahead = [vel.vx_mps, vel.vy_mps, vel.vz_mps]
+        n = math.sqrt(_dot(ahead, ahead))
+        if n < 1e-9:
+            return False
+        along = _dot(ahead, to_o) / n
+        miss = math.sqrt(max(_dot(to_o, to_o) - along * along, 0.0))
+        return along > 0.0 and miss < self.separation_m + self.hold_margin_m
 
-    def _hold_closer(self, t_s: float, a: str, b: str, d: float) -> None:
+    def _hold_closer(self, t_s: float, a: str, b: str, d: float, hold_at: float) -> None:
         va, vb = self.vehicles[a], self.vehicles[b]
         for name, v, o, other in ((a, va, vb, b), (b, vb, va, a)):
-            if name in self.held or not v.is_flying or not self._closing(v, o):
+            if name in self.held or not v.is_flying or not o.is_flying:
+                continue  # (a drone on the ground is kept clear of by the corridors)
+            if d >= hold_at + stopping_m(v) or not self._closing(v, o):
                 continue
             if other in self.held and self.held[other] == name:
                 continue  # the other already yields to this one
             if v.pause(f"{other} is {d:.2f} m away"):
                 self.held[name] = other
+                self._held_at[name] = d
                 self.holds += 1
                 self.events.append(
                     {"t_s": round(t_s, 3), "held": name, "for": other, "m": round(d, 3)}

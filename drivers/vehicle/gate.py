@@ -1,9 +1,10 @@
 """Motions that wait: a gate for the airspace of several drones, and pauses.
 
 A :class:`~drivers.vehicle.vehicle.Vehicle` may be given a ``motion_gate``: a function
-``gate(vehicle_name, kind, start, goal) -> str`` asked before a take-off, go-to or path
-starts; "" lets it start, any other text is why it must wait (e.g. another drone holds the
-corridor). A waiting motion holds the drone where it is and is asked again at every control
+``gate(vehicle_name, kind, way) -> str`` asked before a take-off, go-to or path starts
+(``way``: the points it would fly through, from where it starts to its goal, a path's
+waypoints between); "" lets it start, any other text is why it must wait (e.g. another drone
+holds the corridor). A waiting motion holds the drone where it is and is asked again at every control
 step; its :class:`~drivers.vehicle.progress.MotionProgress` stays active and says why in
 ``waiting``, so the leaf that asked simply takes longer (its own time-out still applies).
 
@@ -21,8 +22,8 @@ from drivers.vehicle.progress import MotionProgress
 from drivers.vehicle.trajectory import Limits, LineReference, PathReference, Reference
 
 Vec3 = tuple[float, float, float]
-#: gate(vehicle name, motion kind, start, goal) -> "" (go) or why it must wait
-MotionGate = Callable[[str, str, Vec3, Vec3], str]
+#: gate(vehicle name, motion kind, way: start .. goal) -> "" (go) or why it must wait
+MotionGate = Callable[[str, str, list[Vec3]], str]
 #: make(start, start yaw, t0) -> the motion's reference from there
 MakeReference = Callable[[Vec3, float, float], Reference]
 
@@ -47,6 +48,7 @@ class GatedMotion:
             rest = self.path[ref.segment_index :]
             yaws = ref.segment_yaws_rad[ref.segment_index :]
             lim = self.limits
+            self.path = rest  # what the gate is asked for from now on
 
             def make_path(start: Vec3, yaw: float, t0: float) -> Reference:
                 return PathReference([start, *rest], yaws, yaw, lim, t0)

@@ -260,6 +260,20 @@ class MotionRequests:
         """True while a supervisor holds the current motion."""
         return self._gated is not None and self._gated.paused
 
+    def way_ahead(self) -> list[tuple[float, float, float]]:
+        """Where the current motion still goes: the drone's position, then the waypoints of
+        its path not reached yet (or its goal), also while it waits or is paused; only the
+        position when no motion is under way."""
+        p = tuple(self.position)
+        m, ref, gm = self._motion, self._ref, self._gated
+        if m is None or not m.active or m.reached:
+            return [p]
+        if not m.waiting and isinstance(ref, PathReference):
+            return [p, *ref.points[ref.segment_index + 1 :]]
+        if m.waiting and gm is not None and gm.path is not None:
+            return [p, *gm.path]
+        return [p, tuple(m.goal)]
+
     @property
     def waiting_at_gate(self) -> bool:
         """True while the current take-off, go-to or path waits for the gate (not paused)."""
@@ -355,7 +369,8 @@ class MotionRequests:
     def _try_start(self, gm: GatedMotion) -> bool:
         """Ask the gate; start ``gm``'s reference from here if it may go, else hold."""
         start, yaw = self._start_state()
-        why = self.motion_gate(self.name, gm.kind, start, gm.goal) if self.motion_gate else ""
+        way = [start, *(gm.path if gm.path is not None else [gm.goal])]
+        why = self.motion_gate(self.name, gm.kind, way) if self.motion_gate else ""
         if why:
             if not gm.progress.waiting:
                 self.waits += 1
