@@ -82,6 +82,11 @@ class SweepParams:
     max_gap_px: float = 110.0
     #: a place is finished once the camera is this far past its last slot, m
     finish_after_m: float = 0.25
+    #: a frame counts only when the camera is this close to the pass line (its height, its
+    #: distance from the faces): a drone that stepped aside for another, or was pushed off,
+    #: looks at the slots from elsewhere, and what it sees there (or does not) is no
+    #: evidence about them, m
+    on_line_m: float = 0.1
     #: emulated processing time per frame of the host (lock-step only; 0: none dropped), s
     host_frame_s: float = 0.0
     #: boxes off to the side that land on no slot count as stray evidence too (a second,
@@ -272,6 +277,14 @@ class SweepCollector:
         self._busy_until = -math.inf
         self._last_want: CameraPose | None = None
 
+    def on_line(self, p: tuple[float, float, float] | np.ndarray) -> bool:
+        """True if a camera at ``p`` is on the pass line (within ``on_line_m`` in height
+        and across it)."""
+        r = np.asarray(p, float) - self.origin
+        across = abs(float(self.direction[0] * r[1] - self.direction[1] * r[0]))
+        tol = self.params.on_line_m
+        return abs(float(r[2])) <= tol and across <= tol
+
     def along(self, p: tuple[float, float, float] | np.ndarray) -> float:
         """Position of ``p`` along the pass line, m."""
         return float(self.direction @ (np.asarray(p, float) - self.origin))
@@ -298,7 +311,7 @@ class SweepCollector:
 
     def wants(self, t_s: float, pose: CameraPose | None) -> bool:
         """Lock-step gate: process the frame captured at ``t_s`` from ``pose``?"""
-        if pose is None:
+        if pose is None or not self.on_line(pose.position):
             return False
         if t_s < self._busy_until - 1e-9:
             self.dropped += 1
@@ -339,7 +352,10 @@ class SweepCollector:
         frame_index: int = 0,
         t_s: float = 0.0,
     ) -> None:
-        """Match one processed frame's detections to the slots of the places near it."""
+        """Match one processed frame's detections to the slots of the places near it (none
+        from a camera off the pass line)."""
+        if not self.on_line(pose.position):
+            return
         self.frames += 1
         cam = self.camera
         h, w_px = bgr.shape[:2]
