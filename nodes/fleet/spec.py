@@ -123,7 +123,7 @@ FLEET_SCHEMA = M(
                 "hold_margin_m": F(
                     "float",
                     0.2,
-                    "the guard holds a drone closing in within minimum + this (m)",
+                    "the guard holds a drone closing in within minimum + this + its stop (m)",
                     min=0.0,
                 ),
             }
