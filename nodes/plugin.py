@@ -85,13 +85,17 @@ class RigTarget:
         )
 
     def finished(self, summary_written: bool = True) -> None:
-        """The run is over: let the guard process go (idempotent)."""
+        """The run is over: stop its perception worker, let the guard process go
+        (idempotent)."""
         mission = getattr(self, "mission", None)
         if mission is not None:  # the site store: the run's end and its last rows
             from nodes.site.recording import finish_recording
 
             self.mission = None
             finish_recording(mission.ctx.resources, getattr(self, "run_dir", None))
+            session = mission.ctx.resources.get("perception")
+            if session is not None:  # its worker thread and galleries (nodes.perception_session)
+                session.close()
         guard = getattr(self, "guard", None)
         if guard is not None:
             guard.finished(summary_written)

@@ -270,6 +270,9 @@ class SweepPass(StatefulActionNode):
     def _fail(self, reason: str) -> NodeStatus:
         self.ctx.log(f"{self.describe()} failed: {reason}")
         self.failure_reason = reason
+        jobs = getattr(self, "jobs", None)
+        if jobs is not None:  # its worker thread ends (what it had not finished is lost)
+            jobs.drain()
         v = getattr(self, "vehicle", None)
         if v is not None and v.is_flying:
             v.hover()
@@ -327,6 +330,7 @@ class SweepPass(StatefulActionNode):
                 f"{self.main.frames} frames looked at"
                 + (f", {self.main.dropped} dropped" if self.main.dropped else "")
             )
+            self.jobs.drain()  # idle: nothing is lost; its worker thread ends
             return SUCCESS
         return RUNNING
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import threading
 
 import pytest
 from helpers import REPO
@@ -206,6 +207,10 @@ def test_in_real_time_the_pass_takes_the_worker_frames_and_identifies_off_the_ti
     assert rows["A-03-1"]["answer"] in ("empty", "unknown")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["inventory"]["places_per_hour"] > 0
+    # the run's worker threads ended with it (left running, one of them inside torch when
+    # the process exited made the C++ runtime abort: "terminate called ...")
+    left = {t.name for t in threading.enumerate()} & {"perception", "sweep-identify"}
+    assert not left, left
 
 
 def test_a_second_look_at_an_empty_place_answers_empty(tmp_path, monkeypatch):
