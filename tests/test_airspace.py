@@ -116,12 +116,19 @@ def test_the_guard_pauses_the_drone_closing_in_and_resumes_it():
     assert any("resumed" in e for e in guard.events)
 
 
-def test_pause_holds_the_motion_and_resume_finishes_it():
-    clock, pf = _drones({"a": (0.0, 0.0)})
+def _one_hovering(start: tuple[float, float]):
+    """One drone hovering 1 m above ``start``, no airspace."""
+    clock, pf = _drones({"a": start})
     a = pf["a"].vehicle
     _step(clock, pf, [], 0.1)
     t = a.takeoff(1.0, 0.5)
     _step(clock, pf, [], 6.0, until=lambda: t.reached)
+    assert t.reached
+    return clock, pf, a
+
+
+def test_pause_holds_the_motion_and_resume_finishes_it():
+    clock, pf, a = _one_hovering((0.0, 0.0))
     g = a.go_to(0.0, -3.0, 1.0, speed_mps=0.5)  # along the aisle
     _step(clock, pf, [], 2.0)
     assert a.pause("test") and not a.pause("again")
@@ -194,11 +201,7 @@ def test_no_room_to_step_aside_leaves_the_mutual_wait_to_the_time_outs():
 
 
 def test_step_aside_only_for_a_motion_waiting_at_the_gate():
-    clock, pf = _drones({"a": (0.0, 0.0)})
-    a = pf["a"].vehicle
-    _step(clock, pf, [], 0.1)
-    t = a.takeoff(1.0, 0.5)
-    _step(clock, pf, [], 6.0, until=lambda: t.reached)
+    clock, pf, a = _one_hovering((0.0, 0.0))
     assert a.step_aside((0.0, 0.0, 1.75)) == "no motion waiting at the gate"
     a.motion_gate = lambda *args: "test: wait"
     g = a.go_to(0.0, -1.0, 1.0, speed_mps=0.5)
@@ -245,11 +248,7 @@ def test_the_guard_stops_a_fast_drone_in_time():
 
 
 def test_a_path_paused_twice_goes_on_through_the_waypoints_it_has_not_reached():
-    clock, pf = _drones({"a": (0.0, -1.5)})
-    a = pf["a"].vehicle
-    _step(clock, pf, [], 0.1)
-    t = a.takeoff(1.0, 0.5)
-    _step(clock, pf, [], 6.0, until=lambda: t.reached)
+    clock, pf, a = _one_hovering((0.0, -1.5))
     g = a.follow_path([(1.5, -1.5, 1.0), (1.5, 0.0, 1.0), (0.0, 0.0, 1.0)], speed_mps=0.5)
     _step(clock, pf, [], 20.0, until=lambda: a.position[1] > -1.0)  # on the second leg
     assert a.pause("one") and a.resume()

@@ -182,9 +182,8 @@ class Airspace:
             if v.aside_goal is not None:
                 continue
             q = self.aside_point(who, ring)
-            if q is not None and v.step_aside(q) == "":
+            if q is not None and v.step_aside(q) == "":  # (its reservation: after_step)
                 self.asides += 1
-                self.corridors[who] = (tuple(v.position), q)
                 self.events.append(
                     {"aside": who, "ring": list(ring), "to": [round(c, 3) for c in q]}
                 )
