@@ -4,9 +4,11 @@ A :class:`~drivers.vehicle.vehicle.Vehicle` may be given a ``motion_gate``: a fu
 ``gate(vehicle_name, kind, way) -> str`` asked before a take-off, go-to or path starts
 (``way``: the points it would fly through, from where it starts to its goal, a path's
 waypoints between); "" lets it start, any other text is why it must wait (e.g. another drone
-holds the corridor). A waiting motion holds the drone where it is and is asked again at every control
-step; its :class:`~drivers.vehicle.progress.MotionProgress` stays active and says why in
-``waiting``, so the leaf that asked simply takes longer (its own time-out still applies).
+holds the corridor). A waiting motion holds the drone where it is and is asked again at
+every control step; its :class:`~drivers.vehicle.progress.MotionProgress` stays active and
+says why in ``waiting``, so the leaf that asked simply takes longer (its own time-out still
+applies). While it waits, the gate may have it step aside out of another drone's way
+(``Vehicle.step_aside``); it then goes on from there.
 
 A supervisor may also ``pause`` a running motion (two drones too close): the drone stops at
 the acceleration limit and holds; ``resume`` sends it on from where it stands to the same
