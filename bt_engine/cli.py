@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 
 from bt_engine.plugins import Command, plugin_commands
 from bt_engine.spec import Loc, MissionError, Problem
@@ -300,6 +301,12 @@ def check_before_flight(spec, rig: str | None, sets: list[str], seed: int = 0) -
         return problems
     resources = {"platform": None, "seed": seed, "run_dir": None, "resume_from": None}
     mission = Mission(spec, resources={**resources, **target.resources()}, blackboard=bb)
+    # what the checks load or build (a demo gallery: minutes for thousands of pallets) is
+    # said as it goes, on stderr: stdout keeps the verdicts
+    wall0 = time.monotonic()
+    mission.ctx.echo = lambda msg: print(
+        f"[wall {time.monotonic() - wall0:6.1f} s] {msg}", file=sys.stderr, flush=True
+    )
     try:
         return mission.preflight(set_keys=set(bb))
     finally:

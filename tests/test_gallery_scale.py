@@ -323,3 +323,95 @@ def test_a_rack_standing_on_the_enrolment_slot_is_left_out_of_the_enrolment_scan
     assert demo_gallery_path(str(path), Model, Model, {}) != demo_gallery_path(
         str(plain), Model, Model, {}
     )
+
+
+_KILLED_BUILD = """
+import sys
+from drivers.rig.loader import load_rig
+from nodes.gallery.demo import build_gallery
+from nodes.perception_session import PerceptionSession
+
+s = PerceptionSession(load_rig("rigs/site.yaml"), log=lambda m: None)
+world = s.world_path()
+sides = [f"{1001 + i // 2}{'AB'[i % 2]}" for i in range(400)]
+build_gallery(sys.argv[1], world, sides, s.detector(), s.embedder(), s.camera,
+              log=lambda m: print(m, flush=True), workers=2)
+"""
+
+
+def _children(pid: int) -> set[int]:
+    """The live child processes of ``pid`` (Linux /proc)."""
+    import os
+
+    out = set()
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    fields = f.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid and fields[0] != "Z":
+                out.add(int(entry))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` is running (not gone, not a zombie)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="Linux /proc")
+def test_a_killed_build_leaves_no_worker_behind(tmp_path):
+    """A btrun killed outright (SIGKILL) while building a demo gallery over two worker
+    processes takes its workers with it: they used to wait forever on their task queue,
+    each holding the models and the world."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _KILLED_BUILD, str(tmp_path / "g.sqlite")],
+        cwd=repo,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    workers: set[int] = set()
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            line = proc.stdout.readline()  # type: ignore[union-attr]
+            # the first progress line: both workers are enrolling
+            if "enrolled" in line:
+                workers = {p for p in _children(proc.pid) if "spawn_main" in _cmdline(p)}
+                break
+        assert len(workers) == 2, "the build did not start its two workers"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and any(_alive(p) for p in workers):
+            time.sleep(0.2)  # a process test: other processes' time, not a simulated clock
+        assert not any(_alive(p) for p in workers), "a build worker outlived its parent"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for p in workers:  # without the fix: not left running after the test
+            if _alive(p):
+                os.kill(p, signal.SIGKILL)
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""

@@ -219,3 +219,16 @@ def test_v3_spellings_load():
         '<BehaviorTree ID="S"><AlwaysSuccess/></BehaviorTree></root>'
     )
     assert problems_of(xml) == []
+
+
+@pytest.mark.slow
+def test_validate_says_what_it_builds_as_it_goes(tmp_path, monkeypatch, capsys):
+    """`btrun validate --rig` builds a missing demo gallery, as a run would (for thousands
+    of pallets, minutes): it says so and shows the build's progress on stderr, not minutes
+    of silence; stdout keeps the verdict."""
+    monkeypatch.setenv("BTRUN_CACHE_DIR", str(tmp_path))
+    assert main(["validate", "--rig", "rigs/sim.yaml", "missions/pallet_scan.xml"]) == 0
+    out, err = capsys.readouterr()
+    assert out.strip() == "missions/pallet_scan.xml: ok"
+    assert "building the demo gallery" in err and "sides enrolled in" in err
+    assert err.startswith("[wall ")

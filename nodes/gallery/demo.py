@@ -463,6 +463,7 @@ def _init_worker(
 
     worker = isinstance(models[0], str)
     if worker:
+        _die_with_parent()
         import cv2
 
         from perception.detector import BlockDetector
@@ -485,6 +486,29 @@ def _init_worker(
         factors=tuple(float(f) for f in (camera or {}).get("white_balance", (1.0, 1.0, 1.0))),
         worker=worker,  # a worker process: say which models it loaded
     )
+
+
+def _die_with_parent() -> None:
+    """Linux: have the kernel kill this build worker when the process that started it dies.
+    A killed btrun (SIGKILL, an OOM kill) would otherwise leave its workers waiting forever
+    on their task queue, whose write end each of them holds open, with the models and the
+    world in memory."""
+    import multiprocessing
+    import sys
+
+    parent = multiprocessing.parent_process()
+    if not sys.platform.startswith("linux") or parent is None:
+        return
+    import ctypes
+    import signal
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent.pid:  # the parent died before the line above
+        os._exit(1)
 
 
 def _enrol_side(job: tuple[int, str]) -> tuple:
