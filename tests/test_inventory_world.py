@@ -80,6 +80,52 @@ def test_a_bad_rack_in_a_file_is_located(tmp_path):
     assert "levels must go up from the floor" in problem.message
 
 
+@pytest.mark.parametrize(
+    "overrides, key, fragment",
+    [
+        ({"racks.0.bay_width_m": "1.0"}, "racks[0].bay_width_m", "pallet does not fit"),
+        ({"racks.0.depth_m": "0.5"}, "racks[0].depth_m", "needs 0.85 m"),
+        ({"racks.0.levels_m": "[0.2, 0.3]"}, "racks[0].levels_m", "at least 0.244 m apart"),
+        (
+            {"stock.placement_error.lateral_m": "0.15"},
+            "stock.placement_error.lateral_m",
+            "neighbouring bays overlap in rack A: at most 0.100 m",
+        ),
+        (
+            {"stock.placement_error.depth_m": "0.2"},
+            "stock.placement_error.depth_m",
+            "through the back of the rack in rack A: at most 0.150 m",
+        ),
+        (
+            {"stock.placement_error.height_m": "0.6"},
+            "stock.placement_error.height_m",
+            "into the beam of the level above in rack A: at most 0.556 m",
+        ),
+    ],
+)
+def test_a_rack_that_cannot_hold_its_pallets_is_refused(overrides, key, fragment):
+    """Pallets that would overlap their neighbours, stand through the rack's back or in
+    the beam above (the rack's sizes, or placement errors too large for them) are refused
+    before anything flies, the message naming the key; errors within the room pass."""
+    with pytest.raises(ConfigError) as exc:
+        load_world(AISLE, overrides)
+    (problem,) = exc.value.problems
+    assert problem.message.startswith(f"world.{key}: ") and fragment in problem.message
+    load_world(AISLE, {"stock.placement_error.lateral_m": "0.1", "stock.placement_error.depth_m": "0.15"})  # fmt: skip
+
+
+def test_a_rack_too_shallow_in_a_file_is_located(tmp_path):
+    text = open(AISLE).read()
+    assert "    depth_m: 1.0\n" in text
+    bad = tmp_path / "aisle.yaml"
+    bad.write_text(text.replace("    depth_m: 1.0\n", "    depth_m: 0.6\n", 1))
+    with pytest.raises(ConfigError) as exc:
+        load_world(str(bad))
+    (problem,) = exc.value.problems
+    assert problem.line == text[: text.index("    depth_m: 1.0\n")].count("\n") + 1
+    assert problem.message.startswith("0.6 m is too shallow for a 0.8 m deep pallet")
+
+
 def test_the_rack_is_solid():
     w = load_world(AISLE)
     place = w.places["A-04-1"]

@@ -339,6 +339,75 @@ def draw_pose_error(error: dict, seed: int, place: str) -> dict[str, float]:
     return out
 
 
+def _fit_problems(data: dict) -> list[tuple[str, str]]:
+    """(key, message) where a rack cannot hold its pallets: a pallet wider than the space
+    between the uprights, shallower than the rack, or taller than the space under the
+    next level's beam; or placement errors (``stock.placement_error``) by which pallets of
+    neighbouring bays could overlap, a pallet stand through the rack's back or reach the
+    beam above (each said once, with the racks it concerns)."""
+    out: list[tuple[str, str]] = []
+    g = data["pallet_geometry"]
+    length, width, height = g["length_m"], g["width_m"], g["height_m"]
+    err = (data.get("stock") or {}).get("placement_error") or {}
+    lat, dep, up = (float(err.get(k) or 0.0) for k in ("lateral_m", "depth_m", "height_m"))
+    lat_room: dict[str, float] = {}  # rack -> the most lateral error its bays allow
+    dep_room: dict[str, float] = {}
+    up_room: dict[str, float] = {}
+    for i, r in enumerate(data.get("racks") or []):
+        key, name = f"racks[{i}]", r["name"]
+        clear = r["bay_width_m"] - r["upright_m"]
+        if clear < length:
+            out.append(
+                (
+                    f"{key}.bay_width_m",
+                    f"{r['bay_width_m']:g} m bays with {r['upright_m']:g} m uprights leave "
+                    f"{clear:.2f} m: a {length:g} m pallet does not fit",
+                )
+            )
+        else:
+            lat_room[name] = (r["bay_width_m"] - length) / 2.0
+        need = r["setback_m"] + width
+        if need > r["depth_m"] + 1e-9:
+            out.append(
+                (
+                    f"{key}.depth_m",
+                    f"{r['depth_m']:g} m is too shallow for a {width:g} m deep pallet "
+                    f"standing {r['setback_m']:g} m behind the front line: needs {need:.2f} m",
+                )
+            )
+        else:
+            dep_room[name] = r["depth_m"] - need
+        levels = r["levels_m"] or []
+        gaps = [b - a for a, b in zip(levels, levels[1:], strict=False) if b > a]
+        if gaps and min(gaps) < height + r["beam_m"] - 1e-9:
+            out.append(
+                (
+                    f"{key}.levels_m",
+                    f"levels {min(gaps):.3f} m apart: a {height:g} m pallet reaches the "
+                    f"{r['beam_m']:g} m beam of the level above; at least "
+                    f"{height + r['beam_m']:.3f} m apart",
+                )
+            )
+        elif gaps:
+            up_room[name] = min(gaps) - height - r["beam_m"]
+    for value, room, field, what in (
+        (lat, lat_room, "lateral_m", "lets pallets of neighbouring bays overlap"),
+        (dep, dep_room, "depth_m", "pushes pallets through the back of the rack"),
+        (up, up_room, "height_m", "raises pallets into the beam of the level above"),
+    ):
+        over = sorted(n for n, m in room.items() if value > m + 1e-9)
+        if over:
+            most = min(room[n] for n in over)
+            out.append(
+                (
+                    f"stock.placement_error.{field}",
+                    f"{value:g} m {what} in rack{'s' if len(over) > 1 else ''} "
+                    f"{', '.join(over)}: at most {most:.3f} m there",
+                )
+            )
+    return out
+
+
 def stock_problems(data: dict, places: list[Place]) -> list[tuple[str, str]]:
     """(key, message) for every inconsistency of racks, stock and pads (located by the
     caller): duplicate names, fixed entries naming unknown places or identities, a pallet
@@ -355,6 +424,7 @@ def stock_problems(data: dict, places: list[Place]) -> list[tuple[str, str]]:
             problems.append(
                 (f"racks[{i}].levels_m", f"levels must go up from the floor, got {levels}")
             )
+    problems += _fit_problems(data)
     pads = [p["name"] for p in data["pads"]]
     for i, name in enumerate(pads):
         if pads.index(name) != i:

@@ -353,12 +353,15 @@ def identities(data: dict) -> list[str]:
     return [f"{p['id']}{s}" for p in with_generated_pallets(data)["pallets"] for s in ("A", "B")]
 
 
-def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
-    """Semantic checks of validated world data, located with ``marks`` (path -> loc)."""
+def check_world(
+    data: dict, marks: Marks, path: str, name_keys: bool = False
+) -> list[SettingProblem]:
+    """Semantic checks of validated world data, located with ``marks`` (path -> loc);
+    ``name_keys``: each message starts with the key it is about (no marks to locate it)."""
     problems = []
 
     def where(key: str, message: str) -> SettingProblem:
-        return problem_at(marks, key, path, message)
+        return problem_at(marks, key, path, f"{key}: {message}" if name_keys else message)
 
     data = with_generated_pallets(data)
     seen = set()
@@ -413,9 +416,10 @@ def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0
             )
         # what the overrides broke (a stock the pool cannot fill, ...), said as --set
         before = {p.message for p in problems}
-        for p in check_world(data, {}, path):
+        plain, keyed = check_world(data, {}, path), check_world(data, {}, path, name_keys=True)
+        for p, k in zip(plain, keyed, strict=True):
             if p.message not in before:
-                problems.append(SettingProblem("--set", 0, 0, f"world: {p.message}"))
+                problems.append(SettingProblem("--set", 0, 0, f"world.{k.message}"))
     if problems:
         raise ConfigError(problems)
     return World(data, path, seed)
