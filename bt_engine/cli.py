@@ -11,7 +11,7 @@ import os
 import sys
 import time
 
-from bt_engine.plugins import Command, plugin_commands
+from bt_engine.plugins import Command, PluginError, plugin_commands
 from bt_engine.spec import Loc, MissionError, Problem
 
 COMMANDS = ("run", "validate", "show", "convert", "nodes", "replay", "campaign")
@@ -220,7 +220,11 @@ def _main(argv: list[str] | None, early: dict | None) -> int:
     from bt_engine.interrupts import release_early_interrupts
 
     argv = list(sys.argv[1:] if argv is None else argv)
-    extra = plugin_commands()
+    try:
+        extra = plugin_commands()
+    except PluginError as exc:
+        print(f"btrun: {exc}", file=sys.stderr)
+        return 2
     if argv and argv[0] not in COMMANDS and argv[0] not in extra and not argv[0].startswith("-"):
         argv.insert(0, "run")
     parser = _parser(extra)

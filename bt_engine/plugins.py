@@ -128,35 +128,69 @@ class RunReporter(Protocol):
 _loaded: list[Plugin] | None = None
 
 
-def _names() -> list[str]:
-    names: list[str] = []
+def _entry_point_names() -> list[str]:
     try:
-        names = [ep.value for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)]
+        return [ep.value for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)]
     except Exception:  # pragma: no cover - very old importlib.metadata
-        names = []
+        return []
+
+
+def _names() -> list[str]:
+    names = _entry_point_names()
     extra = [n.strip() for n in os.environ.get(ENV_VAR, "").split(",") if n.strip()]
     return list(dict.fromkeys(names + extra))
 
 
-def _load(spec: str) -> Plugin:
+class PluginError(Exception):
+    """A plug-in that cannot be loaded: its name, where it was named, and why (one line)."""
+
+
+def _where_raised(exc: BaseException) -> str:
+    """`` (file:line)`` of the innermost frame of ``exc``'s traceback in the plug-in's own
+    code (not importlib's, not this module's); empty if there is none."""
+    import traceback
+
+    here = os.path.abspath(__file__)
+    frames = [
+        f
+        for f in traceback.extract_tb(exc.__traceback__)
+        if "importlib" not in f.filename and os.path.abspath(f.filename) != here
+    ]
+    return f" ({frames[-1].filename}:{frames[-1].lineno})" if frames else ""
+
+
+def _load(spec: str, source: str = "") -> Plugin:
     module, _, attr = spec.partition(":")
-    obj: Any = importlib.import_module(module)
-    for part in attr.split(".") if attr else ():
-        obj = getattr(obj, part)
+    named = f"plug-in {spec!r}" + (f" ({source})" if source else "")
+    try:
+        obj: Any = importlib.import_module(module)
+        for part in attr.split(".") if attr else ():
+            obj = getattr(obj, part)
+    except Exception as exc:  # any failure of a third party's import: one located line
+        raise PluginError(
+            f"{named} could not be loaded: {type(exc).__name__}: {exc}{_where_raised(exc)}"
+        ) from exc
     if not isinstance(obj, Plugin):
-        raise TypeError(
-            f"btrun plug-in {spec!r} is not a plug-in object (needs: name, load_target, "
-            "write_report, commands)"
+        needs = ("name", "load_target", "write_report", "commands")
+        missing = [m for m in needs if not hasattr(obj, m)]
+        raise PluginError(
+            f"{named} is not a plug-in object: it lacks {', '.join(missing) or 'nothing'} "
+            "(a plug-in has name, load_target, write_report and commands: "
+            "bt_engine.plugins.Plugin)"
         )
     return obj
 
 
 def load_plugins() -> list[Plugin]:
-    """Import every plug-in once and return them (errors propagate: a broken plug-in must not
-    be silently ignored)."""
+    """Import every plug-in once and return them. A broken plug-in is never silently
+    ignored: :class:`PluginError` says which, where it was named and why."""
     global _loaded
     if _loaded is None:
-        _loaded = [_load(spec) for spec in _names()]
+        installed = set(_entry_point_names())
+        _loaded = [
+            _load(spec, "an installed entry point" if spec in installed else ENV_VAR)
+            for spec in _names()
+        ]
     return _loaded
 
 
