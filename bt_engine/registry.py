@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import difflib
 import inspect
+import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -57,6 +58,38 @@ def _children_range(kind: str, cls: Any) -> tuple[int, int | None]:
     return (0, 0)
 
 
+#: a node ID or a port name as a mission file writes it (an XML tag or attribute name)
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+#: attribute names a port may not take (BehaviorTree.CPP reserves them, and ``_`` ones)
+RESERVED_PORTS = ("name", "ID")
+
+
+def _checked_ports(node_id: str, declared: Any) -> dict[str, Port]:
+    """``{name: port}`` of a node's declaration, refusing (``ValueError``) an ID or port
+    name a mission file cannot write, a port declared twice, and a default its own type
+    does not take (it would fail only when the node first ran, in flight)."""
+    from bt_engine.ports import NO_DEFAULT, PortValueError, blackboard_ref
+
+    if not _NAME.match(node_id):
+        raise ValueError(f"node ID {node_id!r}: expected letters, digits and _ (an XML name)")
+    ports: dict[str, Port] = {}
+    for p in declared:
+        where = f"node {node_id!r}, port {p.name!r}"
+        if not isinstance(p.name, str) or not _NAME.match(p.name) or p.name.startswith("_"):
+            raise ValueError(f"{where}: expected letters, digits and _, not starting with _")
+        if p.name in RESERVED_PORTS:
+            raise ValueError(f"{where}: a reserved attribute name ({', '.join(RESERVED_PORTS)})")
+        if p.name in ports:
+            raise ValueError(f"{where}: declared twice")
+        if p.default is not NO_DEFAULT and p.default is not None and not blackboard_ref(p.default):
+            try:
+                p.type.convert(p.default)
+            except PortValueError as exc:
+                raise ValueError(f"{where}: default {p.default!r}: {exc}") from None
+        ports[p.name] = p
+    return ports
+
+
 class Registry:
     """A name -> :class:`NodeModel` table with aliases (e.g. ``SequenceStar``)."""
 
@@ -74,8 +107,10 @@ class Registry:
         if kind not in KINDS:
             raise ValueError(f"{cls.__name__}: kind must be one of {KINDS}, not {kind!r}")
         if node_id in self._models and not replace and self._models[node_id].cls is not cls:
-            raise ValueError(f"a node called {node_id!r} is already registered")
-        ports = {p.name: p for p in getattr(cls, "ports", ())}
+            raise ValueError(
+                f"a node called {node_id!r} is already registered: give yours another bt_id"
+            )
+        ports = _checked_ports(node_id, getattr(cls, "ports", ()))
         lo, hi = _children_range(kind, cls)
         model = NodeModel(
             id=node_id,

@@ -14,15 +14,26 @@ from bt_engine.cli import main
 def plugin_env(tmp_path, monkeypatch):
     """Set ``BTRUN_PLUGINS`` to a module written in ``tmp_path`` (fresh plug-in list)."""
 
+    import sys
+
+    from bt_engine.registry import REGISTRY
+
+    module = []
+
     def use(spec: str, source: str | None = None) -> None:
+        module.append(spec.partition(":")[0])
         if source is not None:
-            (tmp_path / f"{spec.partition(':')[0]}.py").write_text(source)
+            (tmp_path / f"{module[-1]}.py").write_text(source)
         monkeypatch.syspath_prepend(str(tmp_path))
         monkeypatch.setenv("BTRUN_PLUGINS", spec)
         monkeypatch.setattr(plugins, "_loaded", None)
 
+    saved = (dict(REGISTRY._models), dict(REGISTRY._aliases))
     yield use
     plugins._loaded = None  # the next test loads the installed plug-ins again
+    REGISTRY._models, REGISTRY._aliases = saved  # no test leaf left registered
+    for name in module:
+        sys.modules.pop(name, None)
 
 
 @pytest.mark.parametrize(
@@ -63,3 +74,64 @@ def test_a_plugin_that_cannot_load_is_one_line_and_exit_2(
     assert not (tmp_path / "run").exists()
     if spec == "raising_plugin":  # where in the plug-in's own code it failed
         assert f"{tmp_path / 'raising_plugin.py'}:3)" in err
+
+
+_LEAF = """
+from bt_engine import StatefulActionNode, register, SUCCESS
+from bt_engine.ports import INT, input_port
+
+
+@register
+class {cls}(StatefulActionNode):
+    \"\"\"A leaf of a plug-in.\"\"\"
+
+    bt_id = {bt_id!r}
+    ports = {ports}
+
+    def on_start(self):
+        return SUCCESS
+"""
+
+
+@pytest.mark.parametrize(
+    "bt_id, ports, expected",
+    [
+        ("TakeOff", "()", "a node called 'TakeOff' is already registered: give yours another"),
+        ("Snap", '(input_port("a", INT, 1), input_port("a", INT, 2))', "port 'a': declared twice"),
+        ("Bad Id", "()", "node ID 'Bad Id': expected letters, digits and _"),
+        (
+            "Snap",
+            '(input_port("count", INT, "three"),)',
+            "port 'count': default 'three': expected a whole number",
+        ),  # fmt: skip
+        ("Snap", '(input_port("name", INT, 1),)', "port 'name': a reserved attribute name"),
+        ("Snap", '(input_port("_x", INT, 1),)', "port '_x': expected letters, digits and _, not"),
+    ],
+)
+def test_a_leaf_a_mission_could_not_use_is_refused_at_its_class(
+    plugin_env, tmp_path, capsys, bt_id, ports, expected
+):
+    """A plug-in leaf whose ID or ports a mission file could not write, with a port declared
+    twice or a default its type refuses (which would fail only in flight), is refused when
+    the plug-in loads, located at the leaf's class in the plug-in's file."""
+    from helpers import LEAF_PLUGIN_TAIL
+
+    source = _LEAF.format(cls="Leaf", bt_id=bt_id, ports=ports) + LEAF_PLUGIN_TAIL
+    plugin_env("leafy_plugin:PLUGIN", source)
+    assert main(["validate", "missions/square.xml"]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and "Traceback" not in err, err
+    line = source.splitlines().index("@register") + 1
+    assert err.rstrip().endswith(f"({tmp_path / 'leafy_plugin.py'}:{line})")
+
+
+def test_a_good_plugin_leaf_loads_and_validates(plugin_env, tmp_path, capsys):
+    from helpers import LEAF_PLUGIN_TAIL
+
+    ports = '(input_port("count", INT, 3),)'
+    plugin_env("good_plugin:PLUGIN", _LEAF.format(cls="Leaf", bt_id="Snap", ports=ports) + LEAF_PLUGIN_TAIL)  # fmt: skip
+    mission = tmp_path / "m.xml"
+    mission.write_text(
+        '<root BTCPP_format="4"><BehaviorTree ID="Main"><Snap count="2"/></BehaviorTree></root>'
+    )
+    assert main(["validate", str(mission)]) == 0, capsys.readouterr().err
