@@ -230,39 +230,6 @@ def test_textures_made_ahead_on_a_worker_give_the_same_frames():
         assert np.array_equal(img, ref) and nearest == ref_nearest
 
 
-def test_a_frame_that_needs_many_textures_makes_them_on_both_threads(monkeypatch):
-    """The first frame facing a row of pallets needs every face at once: this thread makes
-    them first to last while the worker takes them last to first, and the frame is the one
-    of a scene whose textures were all made beforehand, one after another."""
-    import threading
-
-    import perception.synth.render as rd
-
-    def row() -> Scene:
-        return Scene.build(
-            [PalletSpec(str(k), "AB"[k % 2], 9.3, -2.0 + 1.3 * k, 0.2, math.pi) for k in range(5)],
-            light=LIGHT,
-        )
-
-    made_by: list[str] = []
-    make = rd._Textures._make
-
-    def counted(self, quad, event):
-        made_by.append(threading.current_thread().name)
-        make(self, quad, event)
-
-    monkeypatch.setattr(rd._Textures, "_make", counted)
-    both, serial = row(), row()
-    for q in serial.objects:
-        q.levels  # noqa: B018  (every texture made here, in order, before any frame)
-    pose = CameraPose.from_yaw(7.0, 0.6, 0.6, 0.0)  # the whole row in view
-    img, nearest = render_scene(CAM, pose, both)
-    ref, ref_nearest = render_scene(CAM, pose, serial)
-    assert np.array_equal(img, ref) and nearest == ref_nearest
-    assert len(made_by) >= 5
-    assert "texture-lookahead" in made_by and threading.current_thread().name in made_by
-
-
 def _verify_and_render_in_child(queue) -> None:
     rng = np.random.default_rng(11)
     cohort = [(f"c{i}", _side(rng)) for i in range(6)]

@@ -114,21 +114,6 @@ class _Textures:
             event.wait()
         quad.levels  # noqa: B018  (made here if the worker could not)
 
-    def ready_all(self, quads: list[Quad]) -> None:
-        """Make sure every one of ``quads`` is textured, on both threads: this one makes
-        them first to last while the worker, leaving its look-ahead, takes them last to
-        first (a frame that first faces a rack needs many at once)."""
-        todo = [q for q in quads if callable(q.texture)]
-        if len(todo) > 1:
-            with self._lock:
-                for q in todo:  # each in front of the one before: the worker starts at the end
-                    if id(q) not in self._making:
-                        self._queue.appendleft(q)
-                        self._queued.add(id(q))
-                self._start()
-        for q in todo:
-            self.ready(q)  # made here, or waited for if the worker has it
-
     def want(self, quads: list[Quad]) -> None:
         """Queue ``quads`` (nearest first) to be made on the worker thread."""
         with self._lock:
@@ -136,17 +121,13 @@ class _Textures:
                 if id(q) not in self._queued and id(q) not in self._making and callable(q.texture):
                     self._queue.append(q)
                     self._queued.add(id(q))
-            self._start()
-
-    def _start(self) -> None:
-        """Wake the worker (started on first use) if anything is queued; lock held."""
-        if self._queue:
-            if self._thread is None:
-                self._thread = threading.Thread(
-                    target=self._run, name="texture-lookahead", daemon=True
-                )
-                self._thread.start()
-            self._lock.notify()
+            if self._queue:
+                if self._thread is None:
+                    self._thread = threading.Thread(
+                        target=self._run, name="texture-lookahead", daemon=True
+                    )
+                    self._thread.start()
+                self._lock.notify()
 
     def _make(self, quad: Quad, event: threading.Event) -> None:
         try:
@@ -331,8 +312,8 @@ def _draw_objects(
     sel = np.flatnonzero(drawn)
     homog = None
     if len(sel):
-        # made on first sight (on both threads), or by the look-ahead before
-        _TEXTURES.ready_all([objects[order[i]] for i in sel])
+        for i in sel:
+            _TEXTURES.ready(objects[order[i]])  # made on first sight (or by the look-ahead)
         maps = np.stack([objects[order[i]].texture_map() for i in sel])
         A = np.matmul(R, maps)
         A[:, :, 2] += t
