@@ -10,7 +10,9 @@ place should be empty::
     A-02-1,106
 
 or the same as JSON: a list of ``{"place": ..., "pallet": ...}`` objects (``null`` or
-``""`` for an empty place), the list under ``"rows"``, or a ``{place: pallet}`` object.
+``""`` for an empty place), the list under ``"rows"``, or a ``{place: pallet}`` object; or
+an XLSX workbook whose first sheet has a header row with ``place`` and ``pallet`` (read
+with openpyxl; problems located as ``stock.xlsx:ROW:COLUMN``).
 Pallets are named as the WMS names them (``103``); a side name (``103B``) stands for its
 pallet. :func:`read_expected` reads it before flight (bounded, :mod:`bt_engine.files`) and
 reports every problem where it is (``stock.csv:4:8: ...``): a bad header or bad JSON, an
@@ -28,7 +30,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Any
 
-from bt_engine.files import read_text
+from bt_engine.files import read_bytes
 from bt_engine.spec import Loc, Problem
 from drivers.settings import did_you_mean
 from perception.expected import pallet_of
@@ -98,6 +100,70 @@ def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]],
             continue
         out.append((place, pallet, where_place, where_pallet))
     return out, problems
+
+
+#: how a ZIP archive (an XLSX workbook) starts
+_ZIP = b"PK\x03\x04"
+#: the header row is looked for in this many columns of an XLSX sheet
+_XLSX_HEADER_COLUMNS = 50
+
+
+def _cell_text(value: Any) -> str:
+    """A spreadsheet cell as the text a CSV export would hold (``1001`` for 1001.0)."""
+    if value is None:
+        return ""
+    if isinstance(value, float) and value.is_integer():
+        return str(int(value))
+    return str(value).strip()
+
+
+def _entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+    """(place, pallet, where, where) per row of the first sheet of an XLSX workbook (as a
+    WMS exports it: a header row with ``place`` and ``pallet``; cached formula results);
+    located as ``file:row:column``."""
+    from openpyxl import load_workbook
+
+    try:
+        wb = load_workbook(io.BytesIO(data), read_only=True, data_only=True)
+    except Exception as exc:  # a third party's parser of any file: one located line
+        return [], [Problem(Loc(path, 1, 1), f"not a readable XLSX workbook: {exc}")]
+    try:
+        if not wb.worksheets:
+            return [], [Problem(Loc(path, 1, 1), "the workbook has no sheet")]
+        ws = wb.worksheets[0]
+        rows = ws.iter_rows(values_only=True, max_col=_XLSX_HEADER_COLUMNS)
+        first = next(rows, None)
+        header = [_cell_text(c).lower() for c in (first or ())]
+        if "place" not in header or "pallet" not in header:
+            got = ",".join(_cell_text(c) for c in (first or ()))[:80]
+            return [], [
+                Problem(
+                    Loc(path, 1, 1),
+                    f"expected a header row with 'place' and 'pallet' in the first sheet "
+                    f"('{ws.title}'), got '{got}'",
+                )
+            ]
+        pc, qc = header.index("place"), header.index("pallet")
+        out, problems = [], []
+        body = ws.iter_rows(min_row=2, values_only=True, max_col=max(pc, qc) + 1)
+        for i, row in enumerate(body, start=2):
+            if i > MAX_EXPECTED_PLACES + 2:
+                problems.append(Problem(Loc(path, i, 1), f"more than {MAX_EXPECTED_PLACES} rows"))
+                break
+            cells = [_cell_text(c) for c in row]
+            if not any(cells):
+                continue
+            place = cells[pc] if pc < len(cells) else ""
+            pallet = cells[qc] if qc < len(cells) else ""
+            if not place:
+                problems.append(Problem(Loc(path, i, pc + 1), "a row without a place"))
+                continue
+            out.append((place, pallet, Loc(path, i, pc + 1), Loc(path, i, qc + 1)))
+        return out, problems
+    except Exception as exc:  # a sheet openpyxl cannot read to the end
+        return [], [Problem(Loc(path, 1, 1), f"not a readable XLSX workbook: {exc}")]
+    finally:
+        wb.close()
 
 
 def _offset_loc(path: str, text: str, offset: int) -> Loc:
@@ -185,13 +251,26 @@ def read_expected(
         else os.path.join(base_dir, text_spec)
     )
     read: list[Problem] = []
-    text = read_text(path, read, where, what="expected stocks", limit=MAX_EXPECTED_BYTES)
-    if text is None:
+    data = read_bytes(path, read, where, what="expected stocks", limit=MAX_EXPECTED_BYTES)
+    if data is None:
         return None, [Problem(where, f"expected stock: {read[0].message}")]
-    if path.lower().endswith(".json") or text.lstrip()[:1] in ("[", "{"):
-        entries, problems = _entries_json(path, text)
+    if path.lower().endswith((".xlsx", ".xlsm")) or data.startswith(_ZIP):
+        entries, problems = _entries_xlsx(path, data)
     else:
-        entries, problems = _entries_csv(path, text)
+        try:
+            text = data.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            return None, [
+                Problem(
+                    where,
+                    f"expected stock: {path} is not UTF-8 text (byte {exc.start}): "
+                    "expected CSV, JSON or an XLSX workbook",
+                )
+            ]
+        if path.lower().endswith(".json") or text.lstrip()[:1] in ("[", "{"):
+            entries, problems = _entries_json(path, text)
+        else:
+            entries, problems = _entries_csv(path, text)
     names = list(getattr(world, "places", None) or {})
     stock = ExpectedStock(path)
     pallet_at: dict[str, tuple[str, Loc]] = {}

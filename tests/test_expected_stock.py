@@ -78,6 +78,60 @@ def test_every_problem_is_located_in_the_file(tmp_path, world, name, text, where
     assert message in p.message
 
 
+def _xlsx(path, rows: list[list]) -> str:
+    from openpyxl import Workbook
+
+    wb = Workbook()
+    ws = wb.active
+    ws.title = "Stock"
+    for row in rows:
+        ws.append(row)
+    wb.save(path)
+    return str(path)
+
+
+def test_a_wms_xlsx_is_read_as_its_csv_would_be(tmp_path, world):
+    """A workbook as a WMS exports it (header row in any case and order, numbers as
+    numbers, an empty cell for an empty place, blank rows) reads as the CSV; problems are
+    located at row:column of its first sheet."""
+    rows = [["Pallet", "Place", "note"], [109, "A-01-1", "x"], [None, "A-01-2"], [], [110.0, "A-02-1"]]  # fmt: skip
+    stock, problems = read_expected(_xlsx(tmp_path / "s.xlsx", rows), world, WHERE)
+    assert problems == []
+    assert stock.places == {"A-01-1": "109", "A-01-2": None, "A-02-1": "110"}
+    bad = [["place", "pallet"], ["A-01-1", 109], ["A-1-2", 3], ["A-02-1", "109B"], [None, 4]]
+    path = _xlsx(tmp_path / "bad.xlsx", bad)
+    _, problems = read_expected(path, world, WHERE)
+    got = sorted((p.loc.line, p.loc.col, p.message.split(" (")[0]) for p in problems)
+    assert got == [
+        (3, 1, "unknown place 'A-1-2'"),
+        (4, 2, "pallet '109B' expected at two places: A-01-1"),
+        (5, 1, "a row without a place"),
+    ]
+    assert all(p.loc.file == path for p in problems)
+
+
+@pytest.mark.parametrize(
+    "name, content, message",
+    [
+        ("s.xlsx", b"place,pallet\nA-01-1,1\n", "not a readable XLSX workbook"),
+        ("s.csv", b"PK\x03\x04 a zip", "not a readable XLSX workbook"),
+        ("s.csv", b"\xff\xfeA-01-1", "is not UTF-8 text (byte 0): expected CSV, JSON or an XLSX"),
+    ],
+)
+def test_a_file_that_is_no_stock_says_what_was_expected(tmp_path, world, name, content, message):
+    (tmp_path / name).write_bytes(content)
+    _, problems = read_expected(str(tmp_path / name), world, WHERE)
+    assert len(problems) == 1 and message in problems[0].message
+
+
+def test_an_xlsx_without_the_header_names_its_sheet(tmp_path, world):
+    path = _xlsx(tmp_path / "s.xlsx", [["location", "id"], ["A-01-1", 1]])
+    _, problems = read_expected(path, world, WHERE)
+    (p,) = problems
+    assert (p.loc.line, p.loc.col) == (1, 1)
+    assert "header row with 'place' and 'pallet' in the first sheet ('Stock')" in p.message
+
+
 def test_a_missing_file_is_reported_at_the_input(tmp_path, world):
     stock, problems = read_expected(str(tmp_path / "nope.csv"), world, WHERE)
     assert stock is None and problems[0].loc == WHERE
