@@ -216,6 +216,22 @@ def main(argv: list[str] | None = None, earlier_interrupts: list[str] | None = N
             pass  # the run (if any) already acted on it
 
 
+def _command_typo(word: str, commands: list[str]) -> str | None:
+    """What to say when ``word`` (not a command) is no mission file either but reads like a
+    misspelt command (``btrun vaildate ...``); None to run it as a mission."""
+    import difflib
+
+    if os.path.exists(word) or os.path.splitext(word)[1] or os.sep in word:
+        return None  # a file, or meant as one: `btrun run` says what is wrong with it
+    close = difflib.get_close_matches(word, commands, n=1, cutoff=0.7)
+    if not close:
+        return None
+    return (
+        f"unknown command '{word}' (did you mean '{close[0]}'?); "
+        f"commands: {', '.join(commands)}; a mission file runs as `btrun MISSION`"
+    )
+
+
 def _main(argv: list[str] | None, early: dict | None) -> int:
     from bt_engine.interrupts import release_early_interrupts
 
@@ -226,6 +242,10 @@ def _main(argv: list[str] | None, early: dict | None) -> int:
         print(f"btrun: {exc}", file=sys.stderr)
         return 2
     if argv and argv[0] not in COMMANDS and argv[0] not in extra and not argv[0].startswith("-"):
+        typo = _command_typo(argv[0], [*COMMANDS, *extra])
+        if typo:
+            print(f"btrun: {typo}", file=sys.stderr)
+            return 2
         argv.insert(0, "run")
     parser = _parser(extra)
     try:

@@ -155,9 +155,33 @@ def load_spec(path: str, include_paths: Iterable[str] | None = None) -> MissionS
         return spec
     if not os.path.exists(path):
         spec = MissionSpec(file=path)
-        spec.load_problems.append(Problem(Loc(path, 0, 0), "mission file not found"))
+        spec.load_problems.append(
+            Problem(Loc(path, 1, 1), f"mission file not found{_missing_hint(path)}")
+        )
         return spec
     return load_xml(path, include_paths=include_paths)
+
+
+def _missing_hint(path: str) -> str:
+    """`` (did you mean 'missions/square.xml'?)`` for a mission path that does not exist:
+    the closest mission file by name in its folder or in ``missions/`` of that folder;
+    empty if none is close."""
+    import difflib
+
+    folder = os.path.dirname(path) or "."
+    found: dict[str, str] = {}
+    for where in (folder, os.path.join(folder, "missions")):
+        try:
+            names = sorted(os.listdir(where))
+        except OSError:
+            continue
+        for name in names:
+            if name.lower().endswith((".xml", ".yaml", ".yml")):
+                shown = os.path.normpath(os.path.join(where, name))
+                found.setdefault(name, shown)
+                found.setdefault(os.path.splitext(name)[0], shown)
+    close = difflib.get_close_matches(os.path.basename(path), list(found), n=1, cutoff=0.75)
+    return f" (did you mean '{found[close[0]]}'?)" if close else ""
 
 
 def check_mission(

@@ -232,3 +232,30 @@ def test_validate_says_what_it_builds_as_it_goes(tmp_path, monkeypatch, capsys):
     assert out.strip() == "missions/pallet_scan.xml: ok"
     assert "building the demo gallery" in err and "sides enrolled in" in err
     assert err.startswith("[wall ")
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (
+            ["vaildate", "missions/square.xml"],
+            "btrun: unknown command 'vaildate' (did you mean 'validate'?)",
+        ),  # fmt: skip
+        (["flet", "fleets/aisle_2.yaml"], "btrun: unknown command 'flet' (did you mean 'fleet'?)"),
+        (["square"], "square:1:1: mission file not found (did you mean 'missions/square.xml'?)"),
+        (
+            ["missions/sqare.xml"],
+            "missions/sqare.xml:1:1: mission file not found (did you mean 'missions/square.xml'?)",
+        ),  # fmt: skip
+        (["nosuch.xml"], "nosuch.xml:1:1: mission file not found\n"),
+    ],
+)
+def test_a_misspelt_command_or_mission_gets_a_did_you_mean(tmp_path, capsys, argv, expected):
+    """`btrun MISSION` is short for `btrun run MISSION`: a word that is neither a command
+    nor a file, close to a command, is said to be a misspelt command (it used to be run as
+    a mission, with argparse's 'unrecognized arguments'); a missing mission file names the
+    closest one by name. Nothing runs (exit 2)."""
+    assert main([*argv, "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(expected) and "Traceback" not in err
+    assert not (tmp_path / "run").exists()
