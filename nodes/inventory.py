@@ -144,7 +144,7 @@ class InventoryPlan(SyncActionNode):
     world, bay by bay, up one bay and down the next), names or patterns (``A-01-1;A-0?-2``),
     or a CSV file with a ``place`` column. With ``--resume`` the places the interrupted run
     answered are left out. Unknown places are refused before anything flies (located).
-    ``expected``: the WMS's expected stock (a ``place,pallet`` CSV or the same as JSON),
+    ``expected``: the WMS's expected stock (a ``place,pallet`` CSV, the same as JSON or XLSX),
     checked before flight and kept on the inventory, which then also writes the
     discrepancy report. SUCCESS with ``queue`` (for LoopString); FAILURE if the list or the
     expected stock cannot be used."""
@@ -157,7 +157,7 @@ class InventoryPlan(SyncActionNode):
             "expected",
             STRING,
             "",
-            "expected stock: a place,pallet CSV (or JSON) as a WMS exports; empty: none",
+            "expected stock: a place,pallet CSV (or JSON, or XLSX) as a WMS exports; empty: none",
         ),
         output_port("queue", ANY, "the places left to answer, in order (LoopString's queue)"),
         output_port("total", INT, "places planned (including those already answered)"),
