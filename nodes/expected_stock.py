@@ -117,53 +117,71 @@ def _cell_text(value: Any) -> str:
     return str(value).strip()
 
 
-def _entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
-    """(place, pallet, where, where) per row of the first sheet of an XLSX workbook (as a
-    WMS exports it: a header row with ``place`` and ``pallet``; cached formula results);
-    located as ``file:row:column``."""
+def xlsx_table(
+    path: str, data: bytes, limit: int
+) -> tuple[str, list[str], list[tuple[int, list[str]]], list[Problem]]:
+    """The first sheet of the XLSX workbook ``data`` (openpyxl; formulas by their saved
+    results): its title, its first row (cells as text, trailing empty cells left out), and its other
+    non-blank rows as (row number, cells as text: ``1001`` for 1001.0) up to ``limit``
+    rows, only as many columns as the header has; or the problems (located at
+    ``path``:1:1, or at the row past the limit)."""
     from openpyxl import load_workbook
 
     try:
         wb = load_workbook(io.BytesIO(data), read_only=True, data_only=True)
     except Exception as exc:  # a third party's parser of any file: one located line
-        return [], [Problem(Loc(path, 1, 1), f"not a readable XLSX workbook: {exc}")]
+        return "", [], [], [Problem(Loc(path, 1, 1), f"not a readable XLSX workbook: {exc}")]
     try:
         if not wb.worksheets:
-            return [], [Problem(Loc(path, 1, 1), "the workbook has no sheet")]
+            return "", [], [], [Problem(Loc(path, 1, 1), "the workbook has no sheet")]
         ws = wb.worksheets[0]
-        rows = ws.iter_rows(values_only=True, max_col=_XLSX_HEADER_COLUMNS)
-        first = next(rows, None)
-        header = [_cell_text(c).lower() for c in (first or ())]
-        if "place" not in header or "pallet" not in header:
-            got = ",".join(_cell_text(c) for c in (first or ()))[:80]
-            return [], [
-                Problem(
-                    Loc(path, 1, 1),
-                    f"expected a header row with 'place' and 'pallet' in the first sheet "
-                    f"('{ws.title}'), got '{got}'",
-                )
-            ]
-        pc, qc = header.index("place"), header.index("pallet")
-        out, problems = [], []
-        body = ws.iter_rows(min_row=2, values_only=True, max_col=max(pc, qc) + 1)
+        first = next(ws.iter_rows(values_only=True, max_col=_XLSX_HEADER_COLUMNS), None)
+        header = [_cell_text(c) for c in (first or ())]
+        while header and not header[-1]:
+            header.pop()
+        rows: list[tuple[int, list[str]]] = []
+        if not header:
+            return ws.title, header, rows, []
+        body = ws.iter_rows(min_row=2, values_only=True, max_col=len(header))
         for i, row in enumerate(body, start=2):
-            if i > MAX_EXPECTED_PLACES + 2:
-                problems.append(Problem(Loc(path, i, 1), f"more than {MAX_EXPECTED_PLACES} rows"))
-                break
+            if i > limit + 1:
+                return ws.title, header, rows, [Problem(Loc(path, i, 1), f"more than {limit} rows")]
             cells = [_cell_text(c) for c in row]
-            if not any(cells):
-                continue
-            place = cells[pc] if pc < len(cells) else ""
-            pallet = cells[qc] if qc < len(cells) else ""
-            if not place:
-                problems.append(Problem(Loc(path, i, pc + 1), "a row without a place"))
-                continue
-            out.append((place, pallet, Loc(path, i, pc + 1), Loc(path, i, qc + 1)))
-        return out, problems
+            if any(cells):
+                rows.append((i, cells))
+        return ws.title, header, rows, []
     except Exception as exc:  # a sheet openpyxl cannot read to the end
-        return [], [Problem(Loc(path, 1, 1), f"not a readable XLSX workbook: {exc}")]
+        return "", [], [], [Problem(Loc(path, 1, 1), f"not a readable XLSX workbook: {exc}")]
     finally:
         wb.close()
+
+
+def _entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+    """(place, pallet, where, where) per row of the first sheet of an XLSX workbook (as a
+    WMS exports it: a header row with ``place`` and ``pallet``), located as
+    ``file:row:column``."""
+    title, header, rows, problems = xlsx_table(path, data, MAX_EXPECTED_PLACES)
+    if problems and not rows:
+        return [], problems
+    names = [h.lower() for h in header]
+    if "place" not in names or "pallet" not in names:
+        return [], [
+            Problem(
+                Loc(path, 1, 1),
+                f"expected a header row with 'place' and 'pallet' in the first sheet "
+                f"('{title}'), got '{','.join(header)[:80]}'",
+            )
+        ]
+    pc, qc = names.index("place"), names.index("pallet")
+    out = []
+    for i, cells in rows:
+        place = cells[pc] if pc < len(cells) else ""
+        pallet = cells[qc] if qc < len(cells) else ""
+        if not place:
+            problems.append(Problem(Loc(path, i, pc + 1), "a row without a place"))
+            continue
+        out.append((place, pallet, Loc(path, i, pc + 1), Loc(path, i, qc + 1)))
+    return out, problems
 
 
 def _offset_loc(path: str, text: str, offset: int) -> Loc:
@@ -316,4 +334,4 @@ def read_expected(
     return stock, problems
 
 
-__all__ = ["EMPTY_SPELLINGS", "ExpectedStock", "read_expected"]
+__all__ = ["EMPTY_SPELLINGS", "ExpectedStock", "read_expected", "xlsx_table"]

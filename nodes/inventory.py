@@ -24,13 +24,13 @@ import os
 import re
 from typing import Any
 
-from bt_engine.files import read_text
+from bt_engine.files import read_bytes, read_text
 from bt_engine.node import FAILURE, SUCCESS, NodeStatus, SyncActionNode
 from bt_engine.ports import ANY, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from bt_engine.spec import Loc, Problem
 from drivers.settings import ConfigError, did_you_mean
-from nodes.expected_stock import ExpectedStock, read_expected
+from nodes.expected_stock import ExpectedStock, read_expected, xlsx_table
 from nodes.inventory_log import (
     EMPTY,
     IDENTIFIED,
@@ -82,8 +82,9 @@ def resolve_places(
     """The place names ``spec`` asks for, in order, without repeats, and what is wrong.
 
     ``spec`` is ``all`` (every place of the world, bay by bay), names or glob patterns
-    separated by ``;`` or ``,`` (``A-01-1;A-02-*``), or a ``.csv`` file whose ``place``
-    column (or first column) lists them; problems are located at ``where`` or in the CSV.
+    separated by ``;`` or ``,`` (``A-01-1;A-02-*``), or a ``.csv`` file (or ``.xlsx``: its
+    first sheet) whose ``place`` column (or first column) lists them; problems are located
+    at ``where`` or in the file.
     """
     names = list(world.places) if world is not None else []
     if not names:
@@ -99,7 +100,7 @@ def resolve_places(
         return all_places_order(world), []
     tokens: list[tuple[str, Loc]] = []
     problems: list[Problem] = []
-    if text.lower().endswith(".csv"):
+    if text.lower().endswith((".csv", ".xlsx")):
         path = text if os.path.isabs(text) or os.path.exists(text) else os.path.join(base_dir, text)
         tokens, problems = _csv_tokens(path, where)
     else:
@@ -117,8 +118,22 @@ def resolve_places(
 
 
 def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Problem]]:
-    """Place names of a CSV file with their line and column (``place`` column or the first)."""
-    read: list[Problem] = []  # a regular, bounded UTF-8 file (a FIFO would block)
+    """Place names of a CSV file (or an XLSX workbook's first sheet) with their line and
+    column (``place`` column or the first)."""
+    read: list[Problem] = []  # a regular, bounded file (a FIFO would block)
+    if path.lower().endswith(".xlsx"):
+        data = read_bytes(path, read, where, what="place lists")
+        if data is None:
+            return [], [Problem(where, f"place list: {read[0].message}")]
+        _, header, body, problems = xlsx_table(path, data, MAX_PLACES)
+        names = [h.lower() for h in header]
+        if "place" in names:
+            col, rows = names.index("place"), body
+        else:  # no header: the first row is a place too
+            col, rows = 0, [(1, header), *body]
+        return [
+            (r[col], Loc(path, i, col + 1)) for i, r in rows if col < len(r) and r[col]
+        ], problems
     text = read_text(path, read, where, what="place lists")
     if text is None:
         return [], [Problem(where, f"place list: {read[0].message}")]
@@ -142,7 +157,7 @@ def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Prob
 class InventoryPlan(SyncActionNode):
     """Turn ``places`` into the queue of places still to answer: ``all`` (every place of the
     world, bay by bay, up one bay and down the next), names or patterns (``A-01-1;A-0?-2``),
-    or a CSV file with a ``place`` column. With ``--resume`` the places the interrupted run
+    or a CSV or XLSX file with a ``place`` column. With ``--resume`` the places the interrupted run
     answered are left out. Unknown places are refused before anything flies (located).
     ``expected``: the WMS's expected stock (a ``place,pallet`` CSV, the same as JSON or XLSX),
     checked before flight and kept on the inventory, which then also writes the
@@ -152,7 +167,9 @@ class InventoryPlan(SyncActionNode):
     bt_id = "InventoryPlan"
     category = CATEGORY_INVENTORY
     ports = (
-        input_port("places", STRING, "all", "all, names/patterns (A-01-1;A-02-*) or a .csv file"),
+        input_port(
+            "places", STRING, "all", "all, names/patterns (A-01-1;A-02-*), a .csv or .xlsx file"
+        ),
         input_port(
             "expected",
             STRING,

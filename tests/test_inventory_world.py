@@ -162,6 +162,29 @@ def test_a_csv_place_list_reports_bad_lines_where_they_are(tmp_path):
     ]
 
 
+def test_an_xlsx_place_list_with_or_without_a_header(tmp_path):
+    """A workbook's first sheet lists places as the CSV does: its ``Place`` column (any
+    case) or, without that header, its first column from the first row; problems located
+    at row:column."""
+    from openpyxl import Workbook
+
+    w = load_world(AISLE)
+    for rows, name in (
+        ([["aisle", "Place"], ["A", "A-03-2"], [], ["A", "A-0?-1"], ["A", "B-03-2"]], "h.xlsx"),
+        ([["A-03-2"], ["A-0?-1"], ["B-03-2"]], "n.xlsx"),
+    ):
+        wb = Workbook()
+        for row in rows:
+            wb.active.append(row)
+        wb.save(tmp_path / name)
+        names, problems = resolve_places(str(tmp_path / name), w, Loc("m.xml", 1, 1))
+        assert names[:2] == ["A-03-2", "A-01-1"] and "B-03-2" not in names
+        line, col = (5, 2) if name == "h.xlsx" else (3, 1)
+        assert [str(p) for p in problems] == [
+            f"{tmp_path / name}:{line}:{col}: unknown place 'B-03-2' (did you mean 'A-03-2'?)"
+        ]
+
+
 def test_btrun_refuses_unknown_places_before_anything_flies(tmp_path, capsys):
     out = tmp_path / "run"
     code = main(
