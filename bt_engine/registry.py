@@ -59,7 +59,8 @@ def _children_range(kind: str, cls: Any) -> tuple[int, int | None]:
 
 
 #: a node ID or a port name as a mission file writes it (an XML tag or attribute name)
-_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.\-]*$")
+_NAME_RULE = "expected an XML name: letters, digits, _, . and -, starting with a letter or _"
 #: attribute names a port may not take (BehaviorTree.CPP reserves them, and ``_`` ones)
 RESERVED_PORTS = ("name", "ID")
 
@@ -71,12 +72,12 @@ def _checked_ports(node_id: str, declared: Any) -> dict[str, Port]:
     from bt_engine.ports import NO_DEFAULT, PortValueError, blackboard_ref
 
     if not _NAME.match(node_id):
-        raise ValueError(f"node ID {node_id!r}: expected letters, digits and _ (an XML name)")
+        raise ValueError(f"node ID {node_id!r}: {_NAME_RULE}")
     ports: dict[str, Port] = {}
     for p in declared:
         where = f"node {node_id!r}, port {p.name!r}"
         if not isinstance(p.name, str) or not _NAME.match(p.name) or p.name.startswith("_"):
-            raise ValueError(f"{where}: expected letters, digits and _, not starting with _")
+            raise ValueError(f"{where}: {_NAME_RULE}, not starting with _")
         if p.name in RESERVED_PORTS:
             raise ValueError(f"{where}: a reserved attribute name ({', '.join(RESERVED_PORTS)})")
         if p.name in ports:
