@@ -13,7 +13,7 @@ This is the Python face of btrun for tests and tools::
 from __future__ import annotations
 
 import difflib
-from collections.abc import Collection, Iterator, MutableMapping
+from collections.abc import Callable, Collection, Iterator, MutableMapping
 from typing import Any
 
 import yaml
@@ -250,11 +250,23 @@ class Mission:
         is located where the port's value came from: the node's element in the mission
         file, or ``--set`` when it reads a blackboard entry given there (``set_keys``).
         A preflight that raises is reported as a problem, never as a traceback.
+
+        The checks of node classes with ``preflight_loads = True`` (they load models or
+        build a gallery: seconds to minutes) run last, and only once every other check and
+        the ``--set`` values have passed: a typo is refused at once, not after a build.
         """
+        out = self._preflight(lambda node: not getattr(node, "preflight_loads", False), set_keys)
+        out.extend(self.set_value_problems(set_keys or set()))
+        if not out:
+            out = self._preflight(lambda node: getattr(node, "preflight_loads", False), set_keys)
+        return out
+
+    def _preflight(self, which: Callable[[Any], bool], set_keys: set[str] | None) -> list[Problem]:
+        """The problems of the pre-flight checks of the nodes ``which`` selects."""
         out: list[Problem] = []
         for node in self.nodes:
             check = getattr(node, "preflight", None)
-            if check is None:
+            if check is None or not which(node):
                 continue
             try:
                 found = list(check() or ())
@@ -271,7 +283,6 @@ class Mission:
                 else:
                     where = node.loc or Loc("<mission>")
                     out.append(Problem(where, f"{node.describe()}: {message}"))
-        out.extend(self.set_value_problems(set_keys or set()))
         return out
 
     def set_value_problems(self, set_keys: set[str]) -> list[Problem]:

@@ -80,6 +80,9 @@ class PerceptionReady(SyncActionNode):
 
     bt_id = "PerceptionReady"
     category = CATEGORY_PERCEPTION
+    #: its pre-flight check loads the models and builds the demo gallery: run last, once
+    #: every cheaper check has passed (bt_engine.mission.Mission.preflight)
+    preflight_loads = True
     ports = (
         _DETECTOR,
         _EMBEDDER,

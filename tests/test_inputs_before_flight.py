@@ -324,3 +324,18 @@ def test_a_bad_list_index_is_refused_with_the_list_length(capsys) -> None:
         line.startswith("--set world.row_slots.x.y_m=1: 'x' is not an index: world.row_slots")
         for line in err
     )
+
+
+def test_a_bad_input_is_refused_before_any_model_or_gallery_is_loaded(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    """The checks that load the models and build the demo gallery (PerceptionReady's) run
+    last, once every cheaper check has passed: a bad ``--set`` value or an unknown place is
+    refused at once, with no gallery built (it took a minute on the site: a fleet's
+    refusal of ``sweep_speed=abc`` came after building its demo gallery)."""
+    monkeypatch.setenv("BTRUN_CACHE_DIR", str(tmp_path / "cache"))
+    for bad in (["--set", "sweep_speed=abc"], ["--set", "places=A-99-1"]):
+        args = ["validate", "--rig", AISLE_RIG, *bad, "missions/inventory.xml"]
+        assert main(args) == 2
+        assert "1 problem found; nothing was run." in capsys.readouterr().err
+    assert not (tmp_path / "cache" / "galleries").exists()  # nothing was built
