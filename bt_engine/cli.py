@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 from bt_engine.plugins import Command, PluginError, plugin_commands
 from bt_engine.spec import Loc, MissionError, Problem
@@ -311,7 +310,7 @@ def check_before_flight(spec, rig: str | None, sets: list[str], seed: int = 0) -
     with the rig's resources (its world). Returns every located problem."""
     from bt_engine.mission import Mission, declared_inputs
     from bt_engine.plugins import load_target
-    from bt_engine.run_cmd import parse_sets
+    from bt_engine.run_cmd import parse_sets, wall_echo
 
     bb, overrides, problems = parse_sets(sets, declared_inputs(spec), spec.file)
     try:
@@ -327,10 +326,7 @@ def check_before_flight(spec, rig: str | None, sets: list[str], seed: int = 0) -
     mission = Mission(spec, resources={**resources, **target.resources()}, blackboard=bb)
     # what the checks load or build (a demo gallery: minutes for thousands of pallets) is
     # said as it goes, on stderr: stdout keeps the verdicts
-    wall0 = time.monotonic()
-    mission.ctx.echo = lambda msg: print(
-        f"[wall {time.monotonic() - wall0:6.1f} s] {msg}", file=sys.stderr, flush=True
-    )
+    mission.ctx.echo = wall_echo(sys.stderr)
     try:
         return mission.preflight(set_keys=set(bb))
     finally:

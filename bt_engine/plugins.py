@@ -141,26 +141,21 @@ def _names() -> list[str]:
     return list(dict.fromkeys(names + extra))
 
 
-#: btrun's own packages (their frames are not where a plug-in went wrong)
-_PACKAGES = ("bt_engine", "nodes", "drivers", "perception")
-
-
 class PluginError(Exception):
     """A plug-in that cannot be loaded: its name, where it was named, and why (one line)."""
 
 
 def _where_raised(exc: BaseException) -> str:
     """`` (file:line)`` of the innermost frame of ``exc``'s traceback in the plug-in's own
-    code (not importlib's, not btrun's: a node refused by the registry is located at its
+    code (not importlib's, not the engine's: a node the registry refuses is located at its
     class); empty if there is none."""
     import traceback
 
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    btrun = tuple(os.path.join(root, d) + os.sep for d in _PACKAGES)
+    engine = os.path.dirname(os.path.abspath(__file__)) + os.sep
     frames = [
         f
         for f in traceback.extract_tb(exc.__traceback__)
-        if "importlib" not in f.filename and not os.path.abspath(f.filename).startswith(btrun)
+        if "importlib" not in f.filename and not os.path.abspath(f.filename).startswith(engine)
     ]
     return f" ({frames[-1].filename}:{frames[-1].lineno})" if frames else ""
 

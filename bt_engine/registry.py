@@ -13,7 +13,7 @@ import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from bt_engine.ports import Port
+from bt_engine.ports import NO_DEFAULT, Port, PortValueError, blackboard_ref
 
 if TYPE_CHECKING:
     from bt_engine.node import BTNode
@@ -69,8 +69,6 @@ def _checked_ports(node_id: str, declared: Any) -> dict[str, Port]:
     """``{name: port}`` of a node's declaration, refusing (``ValueError``) an ID or port
     name a mission file cannot write, a port declared twice, and a default its own type
     does not take (it would fail only when the node first ran, in flight)."""
-    from bt_engine.ports import NO_DEFAULT, PortValueError, blackboard_ref
-
     if not _NAME.match(node_id):
         raise ValueError(f"node ID {node_id!r}: {_NAME_RULE}")
     ports: dict[str, Port] = {}

@@ -10,9 +10,9 @@ from __future__ import annotations
 import os
 import sys
 import time
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TextIO
 
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.display import spec_rows
@@ -190,6 +190,18 @@ def resume_settings(args) -> list[Problem]:
     return []
 
 
+def wall_echo(stream: TextIO | None = None) -> Callable[[str], None]:
+    """A printer of messages stamped with the wall time since now (``[wall   1.2 s] ...``),
+    for work outside the mission clock (models and galleries loading before the first
+    tick); ``stream``: default stdout."""
+    wall0 = time.monotonic()
+
+    def echo(msg: str) -> None:
+        print(f"[wall {time.monotonic() - wall0:6.1f} s] {msg}", file=stream, flush=True)
+
+    return echo
+
+
 def prepare(
     args, clock: Any = None, resources: dict[str, Any] | None = None, warn: bool = True
 ) -> PreparedRun:
@@ -248,11 +260,8 @@ def prepare(
         blackboard=bb,
     )
     built_at = clock.now()
-    wall0 = time.monotonic()
     if not getattr(args, "quiet", False):  # models and galleries load now: say so as it goes
-        mission.ctx.echo = lambda msg: print(
-            f"[wall {time.monotonic() - wall0:6.1f} s] {msg}", flush=True
-        )
+        mission.ctx.echo = wall_echo()
     preflight = mission.preflight(set_keys=set(bb))
     mission.ctx.echo = None
     if hasattr(clock, "restart_at") and not external_clock:  # preflight is not mission time
@@ -428,7 +437,6 @@ def finish(run: PreparedRun, runner: Runner, result: RunResult, echo: bool = Tru
     each on stderr, never a traceback); if the summary itself cannot be built, its engine
     keys are written (:func:`bt_engine.summary.minimal_summary`).
     """
-    from collections.abc import Callable
 
     from bt_engine.summary import add_error, error_line, minimal_summary
 

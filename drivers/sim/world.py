@@ -353,26 +353,24 @@ def identities(data: dict) -> list[str]:
     return [f"{p['id']}{s}" for p in with_generated_pallets(data)["pallets"] for s in ("A", "B")]
 
 
-def check_world(
-    data: dict, marks: Marks, path: str, name_keys: bool = False
-) -> list[SettingProblem]:
-    """Semantic checks of validated world data, located with ``marks`` (path -> loc);
-    ``name_keys``: each message starts with the key it is about (no marks to locate it)."""
+def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
+    """Semantic checks of validated world data, located with ``marks`` (path -> loc)."""
+    return [problem_at(marks, key, path, message) for key, message in _world_problems(data)]
+
+
+def _world_problems(data: dict) -> list[tuple[str, str]]:
+    """(key, message) for every semantic problem of validated world data (unlocated)."""
     problems = []
-
-    def where(key: str, message: str) -> SettingProblem:
-        return problem_at(marks, key, path, f"{key}: {message}" if name_keys else message)
-
     data = with_generated_pallets(data)
     seen = set()
     for i, p in enumerate(data["pallets"]):
         if p["id"] in seen:
-            problems.append(where(f"pallets[{i}].id", f"duplicate pallet id '{p['id']}'"))
+            problems.append((f"pallets[{i}].id", f"duplicate pallet id '{p['id']}'"))
         seen.add(p["id"])
     known = identities(data)
     if data["scan_pallet"] not in known and str(data["scan_pallet"]).lower() not in EMPTY:
         problems.append(
-            where(
+            (
                 "scan_pallet",
                 f"scan_pallet '{data['scan_pallet']}' is not a pallet "
                 f"side of this world (known: {', '.join(known) or 'none'}; "
@@ -381,15 +379,14 @@ def check_world(
         )
     if not data["racks"] and len(data["row_slots"]) < max(0, len(data["pallets"]) - 1):
         problems.append(
-            where(
+            (
                 "row_slots",
                 f"{len(data['pallets']) - 1} pallets need row "
                 f"slots but only {len(data['row_slots'])} are given",
             )
         )
     places = [p for rack in data["racks"] for p in rack_places(rack, data["pallet_geometry"])]
-    for key, message in stock_problems(data, places):
-        problems.append(where(key, message))
+    problems += stock_problems(data, places)
     return problems
 
 
@@ -416,10 +413,9 @@ def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0
             )
         # what the overrides broke (a stock the pool cannot fill, ...), said as --set
         before = {p.message for p in problems}
-        plain, keyed = check_world(data, {}, path), check_world(data, {}, path, name_keys=True)
-        for p, k in zip(plain, keyed, strict=True):
-            if p.message not in before:
-                problems.append(SettingProblem("--set", 0, 0, f"world.{k.message}"))
+        for key, message in _world_problems(data):
+            if message not in before:
+                problems.append(SettingProblem("--set", 0, 0, f"world.{key}: {message}"))
     if problems:
         raise ConfigError(problems)
     return World(data, path, seed)
