@@ -326,16 +326,16 @@ def test_a_rack_standing_on_the_enrolment_slot_is_left_out_of_the_enrolment_scan
 
 
 _KILLED_BUILD = """
-import sys
+import os, sys
 from drivers.rig.loader import load_rig
-from nodes.gallery.demo import build_gallery
+from nodes.gallery.demo import _enrolled_sides
 from nodes.perception_session import PerceptionSession
 
 s = PerceptionSession(load_rig("rigs/site.yaml"), log=lambda m: None)
-world = s.world_path()
 sides = [f"{1001 + i // 2}{'AB'[i % 2]}" for i in range(400)]
-build_gallery(sys.argv[1], world, sides, s.detector(), s.embedder(), s.camera,
-              log=lambda m: print(m, flush=True), workers=2)
+for _ in _enrolled_sides(s.world_path(), sides, s.detector(), s.embedder(), s.camera, None, 2):
+    print("enrolling", flush=True)  # the workers are running: kill me now
+    os.read(0, 1)  # and wait for it (stdin never gives a byte)
 """
 
 
@@ -356,55 +356,49 @@ def _children(pid: int) -> set[int]:
     return out
 
 
-def _alive(pid: int) -> bool:
-    """Whether process ``pid`` is running (not gone, not a zombie)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 @pytest.mark.slow
-@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="Linux /proc")
-def test_a_killed_build_leaves_no_worker_behind(tmp_path):
+@pytest.mark.skipif(not hasattr(__import__("os"), "pidfd_open"), reason="Linux pidfds")
+def test_a_killed_build_leaves_no_worker_behind():
     """A btrun killed outright (SIGKILL) while building a demo gallery over two worker
     processes takes its workers with it: they used to wait forever on their task queue,
     each holding the models and the world."""
     import os
+    import select
     import signal
     import subprocess
     import sys
-    import time
 
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     proc = subprocess.Popen(
-        [sys.executable, "-c", _KILLED_BUILD, str(tmp_path / "g.sqlite")],
+        [sys.executable, "-c", _KILLED_BUILD],
         cwd=repo,
-        stdout=subprocess.DEVNULL,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
     )
-    workers: set[int] = set()
+    fds: list[int] = []
     try:
-        # killed as soon as both workers exist: one still starting up (before it asked to
-        # die with its parent) must end too, on finding its parent gone
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None and len(workers) < 2:
-            time.sleep(0.1)  # a process test: other processes' time, not a simulated clock
-            workers = {p for p in _children(proc.pid) if "spawn_main" in _cmdline(p)}
-        assert len(workers) == 2, "the build did not start its two workers"
+        assert select.select([proc.stdout], [], [], 120)[0], "the build did not start"
+        assert proc.stdout.readline() == b"enrolling\n"  # type: ignore[union-attr]
+        workers = {p for p in _children(proc.pid) if "spawn_main" in _cmdline(p)}
+        assert len(workers) == 2, "the build did not run on two workers"
+        fds = [os.pidfd_open(p) for p in workers]  # readable once the process has ended
         proc.send_signal(signal.SIGKILL)
         proc.wait()
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and any(_alive(p) for p in workers):
-            time.sleep(0.2)  # a process test: other processes' time, not a simulated clock
-        assert not any(_alive(p) for p in workers), "a build worker outlived its parent"
+        ended: set[int] = set()
+        while len(ended) < len(fds):
+            ready = select.select([f for f in fds if f not in ended], [], [], 30)[0]
+            assert ready, "a build worker outlived its parent"
+            ended.update(ready)
     finally:
         if proc.poll() is None:
             proc.kill()
-        for p in workers:  # without the fix: not left running after the test
-            if _alive(p):
-                os.kill(p, signal.SIGKILL)
+        for fd in fds:  # without the fix: not left running after the test
+            try:
+                signal.pidfd_send_signal(fd, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            os.close(fd)
 
 
 def _cmdline(pid: int) -> str:
