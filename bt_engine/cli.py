@@ -11,7 +11,7 @@ import os
 import sys
 
 from bt_engine.plugins import Command, PluginError, plugin_commands
-from bt_engine.spec import Loc, MissionError, Problem
+from bt_engine.spec import MissionError, Problem
 
 COMMANDS = ("run", "validate", "show", "convert", "nodes", "replay", "campaign")
 
@@ -133,7 +133,8 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     v = sub.add_parser(
         "validate",
         help="check mission files; report every problem (with --rig or --set: also against a "
-        "rig and its world, as btrun run checks before take-off, flying nothing)",
+        "rig and its world, as btrun run checks before take-off, flying nothing); rig, "
+        "world, fleet and campaign files are checked as their commands would",
     )
     v.add_argument("files", nargs="+")
     v.add_argument(
@@ -151,7 +152,10 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         "the default rig); repeatable",
     )
     v.add_argument(
-        "--seed", type=int, default=0, help="seed of the world's stock drawn (default 0)"
+        "--seed",
+        type=int,
+        default=None,
+        help="seed of the world's stock drawn (default 0; a fleet file's own)",
     )
     _include_path(v)
 
@@ -280,19 +284,31 @@ def _main(argv: list[str] | None, early: dict | None) -> int:
 
 
 def _cmd_validate(args) -> int:
+    from bt_engine.file_kinds import check_other_file
     from bt_engine.loading import check_mission
+    from bt_engine.preflight import check_before_flight
     from bt_engine.registry import REGISTRY
 
     worst = 0
     all_problems: list[Problem] = []
     against_rig = bool(args.rig or args.set)
+    seed = 0 if args.seed is None else args.seed
     for f in args.files:
+        other = check_other_file(f, args.set, args.seed, args.rig)
+        if other is not None:  # a rig, a world, a fleet, a campaign: its own checks
+            kind, problems = other
+            if problems:
+                all_problems += problems
+                worst = 2
+            else:
+                print(f"{f}: ok ({kind})")
+            continue
         warnings: list[Problem] = []
         spec, problems = check_mission(f, REGISTRY, args.include_path, warnings)
         for w in warnings:  # file:line:col: warning: ... (validation still passes)
             print(str(w), file=sys.stderr)
         if against_rig and not problems:
-            problems = check_before_flight(spec, args.rig, args.set, args.seed)
+            problems = check_before_flight(spec, args.rig, args.set, seed)
         if problems:
             all_problems += problems
             worst = 2
@@ -303,43 +319,15 @@ def _cmd_validate(args) -> int:
     return worst
 
 
-def check_before_flight(spec, rig: str | None, sets: list[str], seed: int = 0) -> list[Problem]:
-    """What ``btrun run`` checks before take-off, without building a platform or flying:
-    the ``--set`` items against the mission's inputs, the rig and world files (through the
-    plug-in) and every node's pre-flight check (:meth:`bt_engine.mission.Mission.preflight`)
-    with the rig's resources (its world). Returns every located problem."""
-    from bt_engine.mission import Mission, declared_inputs
-    from bt_engine.plugins import load_target
-    from bt_engine.run_cmd import parse_sets, wall_echo
-
-    bb, overrides, problems = parse_sets(sets, declared_inputs(spec), spec.file)
-    try:
-        target = load_target(rig, overrides)
-    except MissionError as exc:
-        return problems + exc.problems
-    if target is None:
-        where = Loc(rig or "--set", 0, 0)
-        return [*problems, Problem(where, "no vehicle plug-in is installed to use a rig")]
-    if problems:
-        return problems
-    resources = {"platform": None, "seed": seed, "run_dir": None, "resume_from": None}
-    mission = Mission(spec, resources={**resources, **target.resources()}, blackboard=bb)
-    # what the checks load or build (a demo gallery: minutes for thousands of pallets) is
-    # said as it goes, on stderr: stdout keeps the verdicts
-    mission.ctx.echo = wall_echo(sys.stderr)
-    try:
-        return mission.preflight(set_keys=set(bb))
-    finally:
-        mission.close()
-
-
 def _load_valid(path: str, include_paths: list[str]):
+    from bt_engine.file_kinds import not_a_mission
     from bt_engine.loading import check_mission
     from bt_engine.registry import REGISTRY
 
     spec, problems = check_mission(path, REGISTRY, include_paths)
     if problems:
-        raise MissionError(problems)
+        other = not_a_mission(path)  # a rig or a fleet given as the mission
+        raise MissionError([other] if other is not None else problems)
     return spec
 
 

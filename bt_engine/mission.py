@@ -242,7 +242,7 @@ class Mission:
         self.status = status
         return status
 
-    def preflight(self, set_keys: set[str] | None = None) -> list[Problem]:
+    def preflight(self, set_keys: set[str] | None = None, loads: bool = True) -> list[Problem]:
         """Let every node check its inputs against the run before anything flies.
 
         A node class may define ``preflight() -> list[Problem | tuple[str, str]]`` (e.g. an
@@ -254,10 +254,11 @@ class Mission:
         The checks of node classes with ``preflight_loads = True`` (they load models or
         build a gallery: seconds to minutes) run last, and only once every other check and
         the ``--set`` values have passed: a typo is refused at once, not after a build.
+        ``loads=False`` leaves them out (a fleet check that already found a problem).
         """
         out = self._preflight(lambda node: not getattr(node, "preflight_loads", False), set_keys)
         out.extend(self.set_value_problems(set_keys or set()))
-        if not out:
+        if not out and loads:
             out = self._preflight(lambda node: getattr(node, "preflight_loads", False), set_keys)
         return out
 

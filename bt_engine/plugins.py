@@ -20,7 +20,10 @@ report on the run implement :class:`RunReporter`.
 
 Optional: a plug-in may also have ``run_sections(trace, mission) -> dict``: sections of
 ``summary.json`` computed from the finished run's per-tick trace (btrun's own adds
-``motions``, the tracking figures of every motion); see :func:`run_sections`.
+``motions``, the tracking figures of every motion); see :func:`run_sections`. And
+``file_kinds() -> dict[str, FileKind]``: the other files it reads (btrun's own: rigs,
+worlds, fleets), which ``btrun validate`` then checks as their command would
+(:mod:`bt_engine.preflight`).
 """
 
 from __future__ import annotations
@@ -91,6 +94,20 @@ class Command:
     help: str
     setup: Callable[[Any], None]  # setup(argparse.ArgumentParser)
     run: Callable[[Any], int]  # run(parsed args) -> exit code
+
+
+@dataclass(frozen=True)
+class FileKind:
+    """A kind of YAML file a plug-in reads besides missions (a rig, a fleet): told apart by
+    its top-level ``keys``; ``check(path, sets, seed)`` returns every located problem, as
+    the command that reads the file would find them before flying (``seed`` None: the
+    file's or the command's default); ``usage`` says how the file is used."""
+
+    keys: frozenset[str]
+    check: Callable[[str, list[str], int | None], list]
+    usage: str
+    #: whether ``--set KEY=VALUE`` items apply to the file (as to the command using it)
+    takes_sets: bool = True
 
 
 @runtime_checkable

@@ -218,6 +218,12 @@ def prepare(
         raise MissionError(resume_problems)
     warnings: list[Problem] = []
     spec, problems = check_mission(args.mission, REGISTRY, None, warnings)
+    if problems:  # a rig or a fleet given as the mission: say what it is, not its keys
+        from bt_engine.file_kinds import not_a_mission
+
+        other = not_a_mission(args.mission)
+        if other is not None:
+            raise MissionError([other])
     for w in warnings if warn else ():  # file:line:col: warning: ... (the mission still flies)
         print(str(w), file=sys.stderr)
     declared = None if problems else declared_inputs(spec)  # a typo never flies the default

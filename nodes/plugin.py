@@ -11,6 +11,8 @@ Importing it imports :mod:`nodes` (which registers every leaf). It gives the eng
 * :meth:`DronePlugin.write_report` - the flight report (:mod:`nodes.report`);
 * :meth:`DronePlugin.run_sections` - ``motions`` in ``summary.json``: each motion's
   tracking figures (what the report's motion table shows, for campaigns to tabulate);
+* :meth:`DronePlugin.file_kinds` - rig, world and fleet files, which ``btrun validate``
+  checks as ``btrun rig check`` and ``btrun fleet --check`` do (:mod:`nodes.file_checks`);
 * :meth:`DronePlugin.commands` - ``btrun sim serve ...``, ``btrun rig ...``,
   ``btrun fleet ...``, ``btrun gallery ...`` and ``btrun inventory ...`` (the site store).
 """
@@ -21,7 +23,7 @@ import argparse
 from typing import Any
 
 import nodes  # noqa: F401  (registers the leaves)
-from bt_engine.plugins import Command, Platform
+from bt_engine.plugins import Command, FileKind, Platform
 from bt_engine.runner import REST_TICK_BUDGET_S
 from bt_engine.spec import Loc, MissionError, Problem
 from bt_engine.watchdog import busy_factor
@@ -179,6 +181,12 @@ class DronePlugin:
 
         tel = telemetry_arrays(trace)
         return {"motions": motion_summary(motions, tel)} if tel is not None else {}
+
+    def file_kinds(self) -> dict[str, FileKind]:
+        """Rig, world and fleet files, for ``btrun validate`` (:mod:`nodes.file_checks`)."""
+        from nodes import file_checks
+
+        return file_checks.KINDS
 
     def commands(self) -> dict[str, Command]:
         """``btrun sim serve crazyflie|aideck ...`` and ``btrun gallery ...``."""

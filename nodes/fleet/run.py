@@ -26,10 +26,15 @@ from bt_engine.run_cmd import PreparedRun, finish, make_runner, prepare, release
 from bt_engine.spec import Loc, MissionError, Problem
 from drivers.safety.airspace import Airspace, SeparationGuard
 from drivers.safety.policies import SafetyConfig
-from drivers.settings import ConfigError
-from nodes.fleet.plan import split_places
+from nodes.fleet.check import (
+    check_fleet,
+    common_sets,
+    drone_sets,
+    planned_places,
+    rig_and_world,
+    split,
+)
 from nodes.fleet.spec import FleetSpec, load_fleet
-from nodes.inventory import resolve_places
 from nodes.inventory_log import InventoryError, InventoryLog, discrepancy_lines, pace, pace_line
 
 DRONE_CONTACT_M = 0.12  # two Crazyflie collision spheres (2 x 0.06 m) touch
@@ -60,6 +65,12 @@ def setup(p: argparse.ArgumentParser) -> None:
         metavar="URL",
         help="site store the merged inventory is recorded in (sqlite:///FILE, "
         "postgresql://...; default site.sqlite beside the run folder; docs/store.md)",
+    )
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="check the fleet file, its rig and world, the place split and each drone's "
+        "mission with its settings, as before take-off; fly nothing",
     )
     p.add_argument("--quiet", "-q", action="store_true", help="print only the results")
     p.add_argument("--no-report", action="store_true", help="skip the reports")
@@ -109,42 +120,46 @@ def _previous_seed(resume: str | None) -> int | None:
 
 
 def run(args: Any) -> int:
-    """``btrun fleet``: check, fly, merge, report; the exit code (0: every drone SUCCESS)."""
+    """``btrun fleet``: check, fly, merge, report; the exit code (0: every drone SUCCESS).
+    With ``--check``: the checks alone (exit 0: every input is fit to fly)."""
+    if getattr(args, "check", False):
+        lines = check_fleet(args.fleet, args.set, args.seed)
+        print(f"{args.fleet}: ok ({len(lines)} drones; " + ", ".join(lines) + ")")
+        return 0
     spec = load_fleet(args.fleet)
     seed = args.seed if args.seed is not None else _previous_seed(args.resume)
     seed = spec.data["seed"] if seed is None else seed
     out = args.out or os.path.join("runs", f"{spec.data['name']}-{time.strftime('%Y%m%d-%H%M%S')}")
-    common = [f"{k}={_text(v)}" for k, v in spec.data["set"].items()] + list(args.set)
-    rig, world = _rig_and_world(spec, common, seed)
+    common = common_sets(spec, args.set)
+    rig, world = rig_and_world(spec, common, seed)
     try:
         merged = InventoryLog(out, args.resume, "fleet", _truth(rig, world), None, _layout(world))
     except InventoryError as exc:
         raise MissionError([exc.problem()]) from None
     merged.recorder = _recorder(args, out, spec)
-    split = _split(spec, world, merged, common)
-    common = [item for item in common if item.partition("=")[0] != "places"]
+    shares = _split(spec, world, merged, common)
     os.makedirs(out, exist_ok=True)
     atomic_write_text(
         os.path.join(out, "fleet.json"),
-        json.dumps({"fleet": os.path.abspath(spec.path), "seed": seed, "set": common}, indent=1),
+        json.dumps(
+            {
+                "fleet": os.path.abspath(spec.path),
+                "seed": seed,
+                "set": [item for item in common if item.partition("=")[0] != "places"],
+            },
+            indent=1,
+        ),
     )
     printer = _RowPrinter(merged, args.quiet)
     clock = WallClock(1.0) if rig.realtime_factor else SimClock()
     runs: dict[str, PreparedRun] = {}
     try:
         for d in spec.drones:
-            if split is not None and not split[d.name]:
+            if shares is not None and not shares[d.name]:
                 if not args.quiet:
                     print(f"btrun fleet: {d.name} has no place left to fly; it stays on its pad")
                 continue
-            sets = common + [f"{k}={_text(v)}" for k, v in d.sets.items()]
-            sets.append(f"sim.start_m=[{d.start_m[0]}, {d.start_m[1]}, {d.start_m[2]}]")
-            if d.uri:
-                sets.append(f"crazyflie.uri={d.uri}")
-            if d.landing_pads:
-                sets.append("landing_pads=" + ";".join(d.landing_pads))
-            if split is not None:
-                sets.append("places=" + ";".join(split[d.name]))
+            sets = drone_sets(d, common, shares[d.name] if shares is not None else None)
             ns = _drone_args(spec, args, sets, seed, os.path.join(out, "drones", d.name))
             runs[d.name] = prepare(
                 ns,
@@ -178,29 +193,6 @@ def _recorder(args: Any, out: str, spec: FleetSpec) -> Any:
         raise MissionError([Problem(Loc("--store", 0, 0), str(exc))]) from None
 
 
-def _text(value: Any) -> str:
-    return (
-        json.dumps(value) if isinstance(value, (list, dict, bool)) or value is None else str(value)
-    )
-
-
-def _rig_and_world(spec: FleetSpec, common: list[str], seed: int) -> tuple[Any, Any]:
-    from drivers.rig.loader import load_rig
-
-    over = {}
-    for item in common:
-        key, _, value = item.partition("=")
-        if "." in key:
-            over[key[4:] if key.startswith("rig.") else key] = value
-    try:
-        rig = load_rig(spec.rig, over)
-        return rig, rig.load_world(seed)
-    except ConfigError as exc:
-        raise MissionError(
-            [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
-        ) from None
-
-
 def _truth(rig: Any, world: Any) -> Any:
     if rig.kind != "sim" or world is None:
         return None
@@ -214,22 +206,14 @@ def _layout(world: Any) -> dict[str, list]:
 def _split(
     spec: FleetSpec, world: Any, merged: InventoryLog, common: list[str]
 ) -> dict[str, list[str]] | None:
-    """Each drone's places (None: neither the fleet file nor --set names places). A
-    ``places=`` among the common settings replaces the fleet file's list."""
-    given = [item.partition("=")[2] for item in common if item.partition("=")[0] == "places"]
-    text = given[-1] if given else spec.data["places"]
-    if text is None:
+    """Each drone's places not yet answered (None: neither the fleet file nor --set names
+    places); the merged inventory learns the planned places."""
+    places = planned_places(spec, world, common)
+    if places is None:
         return None
-    base = os.path.dirname(os.path.abspath(spec.path))
-    where = Loc("--set", 0, 0) if given else spec.loc("places")
-    places, problems = resolve_places(text, world, where, base)
-    if problems:
-        raise MissionError(problems)
     merged.planned = list(places)
     done = merged.finished()
-    todo = [p for p in places if p not in done]
-    starts = {d.name: d.start_m for d in spec.drones}
-    return split_places(todo, world, starts, spec.data["split"])
+    return split(spec, world, [p for p in places if p not in done])
 
 
 class _RowPrinter:

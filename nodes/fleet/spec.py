@@ -169,8 +169,11 @@ def _relative(base: str, path: str | None) -> str | None:
         return None
     if os.path.isabs(path):
         return path
-    here = os.path.join(os.path.dirname(os.path.abspath(base)), path)
-    return here if os.path.exists(here) or not os.path.exists(path) else path
+    here = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(base)), path))
+    if not os.path.exists(here) and os.path.exists(path):
+        return path
+    shown = os.path.relpath(here)  # as messages show it: missions/x.xml, not /a/fleets/../
+    return here if shown.startswith(os.pardir) else shown
 
 
 def _problems(exc: ConfigError) -> list[Problem]:

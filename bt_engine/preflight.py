@@ -1,0 +1,40 @@
+"""What ``btrun run`` checks before take-off, flying nothing: :func:`check_before_flight`
+(``btrun validate --rig``, ``btrun fleet --check`` per drone)."""
+
+from __future__ import annotations
+
+import sys
+
+from bt_engine.mission import Mission, declared_inputs
+from bt_engine.plugins import load_target
+from bt_engine.run_cmd import parse_sets, wall_echo
+from bt_engine.spec import Loc, MissionError, Problem
+
+
+def check_before_flight(
+    spec, rig: str | None, sets: list[str], seed: int = 0, loads: bool = True
+) -> list[Problem]:
+    """What ``btrun run`` checks before take-off, without building a platform or flying:
+    the ``--set`` items against the mission's inputs, the rig and world files (through the
+    plug-in) and every node's pre-flight check (:meth:`bt_engine.mission.Mission.preflight`)
+    with the rig's resources (its world); ``loads=False`` leaves out the checks that load
+    models or build a gallery. Returns every located problem."""
+    bb, overrides, problems = parse_sets(sets, declared_inputs(spec), spec.file)
+    try:
+        target = load_target(rig, overrides)
+    except MissionError as exc:
+        return problems + exc.problems
+    if target is None:
+        where = Loc(rig or "--set", 0, 0)
+        return [*problems, Problem(where, "no vehicle plug-in is installed to use a rig")]
+    if problems:
+        return problems
+    resources = {"platform": None, "seed": seed, "run_dir": None, "resume_from": None}
+    mission = Mission(spec, resources={**resources, **target.resources()}, blackboard=bb)
+    # what the checks load or build (a demo gallery: minutes for thousands of pallets) is
+    # said as it goes, on stderr: stdout keeps the verdicts
+    mission.ctx.echo = wall_echo(sys.stderr)
+    try:
+        return mission.preflight(set_keys=set(bb), loads=loads)
+    finally:
+        mission.close()
