@@ -69,20 +69,37 @@ class ExpectedStock:
         return None
 
 
+#: what may stand between the columns of a WMS's CSV export: a comma, or a semicolon (what a
+#: spreadsheet writes where the decimal mark is a comma) or a tab
+DELIMITERS = (",", ";", "\t")
+
+
+def csv_rows(text: str) -> tuple[list[list[str]], str]:
+    """The rows of CSV ``text`` and the delimiter they were split at: the one of
+    :data:`DELIMITERS` found most often in the first line (a comma if none is), so that
+    ``place;pallet`` and tab-separated exports read as ``place,pallet`` does. Raises
+    :class:`csv.Error` for a file the csv module cannot read."""
+    first = text.split("\n", 1)[0]
+    delimiter = max(DELIMITERS, key=lambda d: (first.count(d), d == ","))
+    return list(csv.reader(io.StringIO(text, newline=""), delimiter=delimiter)), delimiter
+
+
 def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
     """(place, pallet, where the place is, where the pallet is) per CSV row."""
     try:
-        rows = list(csv.reader(io.StringIO(text, newline="")))
+        rows, delimiter = csv_rows(text)
     except csv.Error as exc:
         return [], [Problem(Loc(path, 1, 1), f"not a readable CSV file: {exc}")]
     if not rows:
         return [], [Problem(Loc(path, 1, 1), "the expected stock is empty: a header place,pallet")]
     header = [c.strip().lower() for c in rows[0]]
     if "place" not in header or "pallet" not in header:
-        got = ",".join(rows[0])[:80]
+        got = delimiter.join(rows[0])[:80].replace("\t", "\\t")
         return [], [
             Problem(
-                Loc(path, 1, 1), f"expected a header 'place,pallet' (as a WMS exports), got '{got}'"
+                Loc(path, 1, 1),
+                f"expected a header 'place,pallet' (as a WMS exports; a ';' or a tab between "
+                f"the columns reads too), got '{got}'",
             )
         ]
     pc, qc = header.index("place"), header.index("pallet")

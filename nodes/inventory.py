@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import csv
 import fnmatch
-import io
 import math
 import os
 import re
@@ -30,7 +29,7 @@ from bt_engine.ports import ANY, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from bt_engine.spec import Loc, Problem
 from drivers.settings import ConfigError, did_you_mean
-from nodes.expected_stock import ExpectedStock, read_expected, xlsx_table
+from nodes.expected_stock import ExpectedStock, csv_rows, read_expected, xlsx_table
 from nodes.inventory_log import (
     EMPTY,
     IDENTIFIED,
@@ -138,7 +137,7 @@ def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Prob
     if text is None:
         return [], [Problem(where, f"place list: {read[0].message}")]
     try:
-        rows = list(csv.reader(io.StringIO(text, newline="")))
+        rows, _ = csv_rows(text)  # a comma, a semicolon or a tab between the columns
     except csv.Error as exc:
         return [], [Problem(where, f"cannot read the place list {path}: {exc}")]
     if not rows:

@@ -50,6 +50,20 @@ def test_a_wms_csv_is_read_with_empty_places(tmp_path, world):
     assert stock.place_of("109B") == "A-01-1" and stock.place_of("110") is None
 
 
+@pytest.mark.parametrize("delimiter", [";", "\t"])
+def test_a_csv_with_semicolons_or_tabs_reads_as_with_commas(tmp_path, world, delimiter):
+    """What a spreadsheet saves as CSV where the decimal mark is a comma (``place;pallet``),
+    or a tab-separated export: the same stock, problems located alike."""
+    text = f"Place{delimiter}Pallet\nA-01-1{delimiter}109\nA-01-2{delimiter}\nA-1-3{delimiter}5\n"
+    stock, problems = _read(tmp_path, "s.csv", text, world)
+    assert stock is None or stock.places.get("A-01-1") == "109"
+    assert [(p.loc.line, p.loc.col) for p in problems] == [(4, 1)]
+    assert "unknown place 'A-1-3'" in problems[0].message
+    good = text.rsplit("A-1-3", 1)[0]
+    stock, problems = _read(tmp_path, "s.csv", good, world)
+    assert problems == [] and stock.places == {"A-01-1": "109", "A-01-2": None}
+
+
 def test_the_same_as_json_in_three_shapes(tmp_path, world):
     rows = '[{"place": "A-01-1", "pallet": "109"}, {"place": "A-01-2", "pallet": null}]'
     for text in (rows, '{"rows": ' + rows + "}", '{"A-01-1": "109", "A-01-2": null}'):

@@ -162,6 +162,22 @@ def test_a_csv_place_list_reports_bad_lines_where_they_are(tmp_path):
     ]
 
 
+@pytest.mark.parametrize("delimiter", [";", "\t"])
+def test_a_place_list_with_semicolons_or_tabs_reads_as_with_commas(tmp_path, delimiter):
+    """A spreadsheet saved as CSV where the decimal mark is a comma separates the columns
+    with ';' (a tab-separated export too): the place column is found and located alike."""
+    w = load_world(AISLE)
+    csv = tmp_path / "places.csv"
+    csv.write_text(
+        delimiter.join(["aisle", "place"]) + f"\nA{delimiter}A-03-2\nA{delimiter}B-03-2\n"
+    )
+    names, problems = resolve_places(str(csv), w, Loc("m.xml", 1, 1))
+    assert names == ["A-03-2"]
+    assert [str(p) for p in problems] == [
+        f"{csv}:3:3: unknown place 'B-03-2' (did you mean 'A-03-2'?)"
+    ]
+
+
 def test_an_xlsx_place_list_with_or_without_a_header(tmp_path):
     """A workbook's first sheet lists places as the CSV does: its ``Place`` column (any
     case) or, without that header, its first column from the first row; problems located
