@@ -117,6 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     from drivers.sim.renderers import pallet
     from drivers.sim.world import load_world
     from nodes.gallery import demo
+    from nodes.gallery.enrol_scan import look_overrides
     from nodes.perception_session import PerceptionSession
     from perception.detector import BlockDetector
     from perception.embedder import BlockEmbedder
@@ -125,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     session = PerceptionSession(rig)
     world_path = session.world_path()
     overrides = getattr(rig, "world_overrides", None)
-    identities = load_world(world_path, demo.look_overrides(overrides)).enrolled_identities()
+    identities = load_world(world_path, look_overrides(overrides)).enrolled_identities()
     jobs = list(enumerate(identities))[args.first : args.first + args.sides]
     # as a build worker: the shipped weights, one torch thread
     detector, embedder = BlockDetector.load(None, threads=1), BlockEmbedder.load(None, threads=1)

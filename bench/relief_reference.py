@@ -338,16 +338,16 @@ def _clear_caches() -> None:
 def reference() -> Iterator[None]:
     """The pre-optimisation texture synthesis in place of the shipped one (caches emptied
     on the way in and out, so no texture made by one is used by the other)."""
-    from nodes.gallery import demo
+    from nodes.gallery import enrol_scan
 
     here = globals()
     saved = [(m, name, getattr(m, name)) for m, names in _PATCHES for name in names]
-    saved.append((demo, "CACHE_OFFSETS", demo.CACHE_OFFSETS))
+    saved.append((enrol_scan, "CACHE_OFFSETS", enrol_scan.CACHE_OFFSETS))
     _clear_caches()
     try:
         for m, name, _ in saved[:-1]:
             setattr(m, name, here[name])
-        demo.CACHE_OFFSETS = False
+        enrol_scan.CACHE_OFFSETS = False
         yield
     finally:
         for m, name, f in saved:

@@ -194,7 +194,7 @@ def test_list_pages_and_stats(tmp_path, capsys):
 
 
 def test_a_pool_override_names_another_demo_gallery():
-    from nodes.gallery.demo import look_overrides
+    from nodes.gallery.enrol_scan import look_overrides
 
     keep = look_overrides(
         {"pallet_pool.count": "2000", "pallet_look.wood": "grey", "scan_slot.y_m": "1"}
@@ -208,7 +208,8 @@ def test_a_not_enrolled_override_leaves_those_pallets_out_of_the_demo_gallery():
     to keep the world file's gallery, which knew them: every such place answered with the
     pallet's identity counted as a wrong answer.)"""
     from drivers.sim.world import load_world
-    from nodes.gallery.demo import demo_gallery_path, look_overrides
+    from nodes.gallery.demo import demo_gallery_path
+    from nodes.gallery.enrol_scan import look_overrides
 
     class Model:
         model_version = "m1"
@@ -235,7 +236,8 @@ def test_the_faster_enrolment_identifies_whole_scans_of_its_sides(tmp_path):
     """The demo gallery enrolled from a few views per side (two worker processes) answers
     a whole enrolment scan flown at another seed for each of its sides."""
     from drivers.rig.loader import load_rig
-    from nodes.gallery.demo import build_gallery, scan_blocks, scan_frames
+    from nodes.gallery.demo import build_gallery
+    from nodes.gallery.enrol_scan import scan_blocks, scan_frames
     from nodes.perception_session import PerceptionSession
 
     s = PerceptionSession(load_rig("rigs/aisle.yaml"), log=lambda m: None)
@@ -295,7 +297,8 @@ def test_a_rack_standing_on_the_enrolment_slot_is_left_out_of_the_enrolment_scan
     import yaml
 
     from drivers.sim.world import load_world
-    from nodes.gallery.demo import canonical_world_data, clear_racks, demo_gallery_path
+    from nodes.gallery.demo import demo_gallery_path
+    from nodes.gallery.enrol_scan import canonical_world_data, clear_racks
 
     class Model:
         model_version = "m1"

@@ -159,22 +159,23 @@ def test_scenes_share_their_boxes_and_render_as_before(reference) -> None:
 
 def test_enrolment_frames_are_chosen_as_before() -> None:
     from drivers.sim.world import load_world
-    from nodes.gallery import demo
+    from nodes.gallery import enrol_scan
 
     data = load_world("worlds/warehouse.yaml").data
-    demo._OFFSETS.clear()
+    enrol_scan._OFFSETS.clear()
     cached = [
-        list(demo.enrolment_frames(data, "worlds/warehouse.yaml", i, None)) for i in ("1A", "2B")
+        list(enrol_scan.enrolment_frames(data, "worlds/warehouse.yaml", i, None))
+        for i in ("1A", "2B")
     ]
-    demo.CACHE_OFFSETS = False
+    enrol_scan.CACHE_OFFSETS = False
     try:
         fresh = [
-            list(demo.enrolment_frames(data, "worlds/warehouse.yaml", i, None))
+            list(enrol_scan.enrolment_frames(data, "worlds/warehouse.yaml", i, None))
             for i in ("1A", "2B")
         ]
     finally:
-        demo.CACHE_OFFSETS = True
-    assert len(demo._OFFSETS) == 1  # every side of the world: one scan geometry
+        enrol_scan.CACHE_OFFSETS = True
+    assert len(enrol_scan._OFFSETS) == 1  # every side of the world: one scan geometry
     for a, b in zip(cached, fresh, strict=True):
         assert [t for _, t in a] == [t for _, t in b]
         assert all(

@@ -12,7 +12,8 @@ from drivers.rig.loader import REPO_ROOT, ConfigError, load_rig
 from drivers.sim import world as world_mod
 from drivers.sim.renderers.pallet import scene_from_world
 from drivers.sim.world import load_world
-from nodes.gallery.demo import appearance_key, canonical_world_data
+from nodes.gallery.demo import appearance_key
+from nodes.gallery.enrol_scan import canonical_world_data
 from perception.synth import looks
 from perception.synth.appearance import styles_from_world
 

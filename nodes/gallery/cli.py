@@ -301,7 +301,7 @@ def _crops_of_run(run_dir: str) -> list[np.ndarray]:
 
 
 def _enrol(args: argparse.Namespace) -> int:
-    from nodes.gallery.demo import scan_blocks, scan_frames
+    from nodes.gallery.enrol_scan import scan_blocks, scan_frames
     from perception.gallery_views import png_bytes
 
     if args.gallery == "demo":
