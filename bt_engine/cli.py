@@ -236,7 +236,7 @@ def _command_typo(word: str, commands: list[str]) -> str | None:
 
 
 def _main(argv: list[str] | None, early: dict | None) -> int:
-    from bt_engine.interrupts import release_early_interrupts
+    from bt_engine.interrupts import release_early_interrupts, sigterm_interrupts
 
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
@@ -255,6 +255,7 @@ def _main(argv: list[str] | None, early: dict | None) -> int:
         args = parser.parse_args(argv)
         if args.command != "run":
             release_early_interrupts(early)
+            sigterm_interrupts()  # a kill stops it as Ctrl-C does: what it made is cleaned up
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 1

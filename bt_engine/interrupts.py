@@ -35,6 +35,13 @@ def catch_early_interrupts(earlier: list[str] | None = None) -> dict | None:
     return old
 
 
+def interrupt_pending() -> bool:
+    """Whether a SIGINT/SIGTERM is waiting for the run (see :func:`catch_early_interrupts`):
+    long work before the first tick (a gallery build) asks, and stops, rather than make a
+    Ctrl-C wait until it is done."""
+    return bool(PENDING_INTERRUPTS)
+
+
 def release_early_interrupts(old: dict | None) -> None:
     """Give the signals back to the handlers :func:`catch_early_interrupts` replaced; a
     signal that arrived meanwhile (and no run consumed) is raised now as KeyboardInterrupt."""
@@ -63,3 +70,19 @@ def _restore_sigint(old: dict | None) -> None:
             signal.signal(sig, handler)
         except (ValueError, TypeError):
             pass
+
+
+def sigterm_interrupts() -> None:
+    """Make SIGTERM raise KeyboardInterrupt, as Ctrl-C does, where it would kill the process
+    outright (its default): a command stopped by ``kill`` then cleans up as one stopped by
+    Ctrl-C (a gallery build's temporary file removed, its worker processes ended, an
+    emulator closed). Main thread only; a handler already installed is kept."""
+
+    def handler(signum, frame):  # noqa: ARG001
+        raise KeyboardInterrupt
+
+    try:
+        if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+            signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not in the main thread
+        pass

@@ -268,7 +268,14 @@ def prepare(
     built_at = clock.now()
     if not getattr(args, "quiet", False):  # models and galleries load now: say so as it goes
         mission.ctx.echo = wall_echo()
-    preflight = mission.preflight(set_keys=set(bb))
+    try:
+        preflight = mission.preflight(set_keys=set(bb))
+    except BaseException:  # a Ctrl-C that stopped a gallery build: nothing has flown
+        if platform is not None:
+            platform.shutdown("interrupted before flight")
+        release(target, written=False)
+        mission.close()
+        raise
     mission.ctx.echo = None
     if hasattr(clock, "restart_at") and not external_clock:  # preflight is not mission time
         clock.restart_at(built_at)

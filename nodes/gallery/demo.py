@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from bt_engine.interrupts import interrupt_pending
 from nodes.gallery.enrol_scan import (
     _canonical_scan,
     clear_racks,
@@ -120,6 +121,7 @@ def build_gallery(
     os.unlink(tmp)
     n, start = len(identities), time.perf_counter()
     every = 1 if n <= 50 else PROGRESS_EVERY
+    sides: Any = (side for side in ())  # closed in the end, whatever happens
     try:
         with Gallery.create(tmp, embedder.model_version, embedder.dim) as g:
             g.set_thresholds(embedder.thresholds)
@@ -129,6 +131,8 @@ def build_gallery(
                 world_path, identities, detector, embedder, camera, overrides, workers
             )
             for i, (identity, found, vectors, vis, pngs) in enumerate(sides):
+                if interrupt_pending():  # btrun run defers a Ctrl-C to its first tick
+                    raise KeyboardInterrupt
                 if found < 3:
                     raise GalleryError(f"enrolment scan of {identity} found {found} of 3 blocks")
                 source = f"rendered scan of {os.path.basename(world_path)}"
@@ -150,7 +154,11 @@ def build_gallery(
                     (BUILD_SECONDS_KEY, repr(time.perf_counter() - start)),
                 )
         os.replace(tmp, path)
+    except KeyboardInterrupt:
+        log("  interrupted: the demo gallery was not built (nothing half-made is kept)")
+        raise
     finally:
+        sides.close()  # the worker processes: no side still queued is started
         if os.path.exists(tmp):
             os.unlink(tmp)
     log(f"  {n} sides enrolled in {time.perf_counter() - start:.1f} s")
@@ -186,17 +194,20 @@ def _enrolled_sides(
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(
+    pool = ProcessPoolExecutor(
         workers,
         mp_context=multiprocessing.get_context("spawn"),
         initializer=_init_worker,
         initargs=(world_path, overrides, camera, paths),
-    ) as pool:
+    )
+    try:
         for side in pool.map(_enrol_side, jobs, chunksize=4):
             versions = side[-1]
             if versions != (detector.model_version, embedder.model_version):
                 raise RuntimeError(f"a build worker loaded other models: {versions}")
             yield side[:-1]
+    finally:  # stopped early (an error, a Ctrl-C): the sides not started are dropped
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _init_worker(
