@@ -123,6 +123,8 @@ def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]],
 _ZIP = b"PK\x03\x04"
 #: the header row is looked for in this many columns of an XLSX sheet
 _XLSX_HEADER_COLUMNS = 50
+#: ... and in this many rows (a report's title, date and blank lines above it)
+_XLSX_HEADER_ROWS = 20
 
 
 def _cell_text(value: Any) -> str:
@@ -135,13 +137,15 @@ def _cell_text(value: Any) -> str:
 
 
 def xlsx_table(
-    path: str, data: bytes, limit: int
+    path: str, data: bytes, limit: int, needs: tuple[str, ...] = ()
 ) -> tuple[str, list[str], list[tuple[int, list[str]]], list[Problem]]:
     """The first sheet of the XLSX workbook ``data`` (openpyxl; formulas by their saved
-    results): its title, its first row (cells as text, trailing empty cells left out), and its other
-    non-blank rows as (row number, cells as text: ``1001`` for 1001.0) up to ``limit``
-    rows, only as many columns as the header has; or the problems (located at
-    ``path``:1:1, or at the row past the limit)."""
+    results): its title, its header row (cells as text, trailing empty cells left out) and
+    the non-blank rows below it as (row number, cells as text: ``1001`` for 1001.0) up to
+    ``limit`` rows, only as many columns as the header has; or the problems (located at
+    ``path``:1:1, or at the row past the limit). The header is the first of the sheet's
+    first :data:`_XLSX_HEADER_ROWS` rows that holds every name of ``needs`` (any case): a
+    WMS report may have a title and a date above it. Without one, it is the first row."""
     from openpyxl import load_workbook
 
     try:
@@ -152,16 +156,27 @@ def xlsx_table(
         if not wb.worksheets:
             return "", [], [], [Problem(Loc(path, 1, 1), "the workbook has no sheet")]
         ws = wb.worksheets[0]
-        first = next(ws.iter_rows(values_only=True, max_col=_XLSX_HEADER_COLUMNS), None)
-        header = [_cell_text(c) for c in (first or ())]
+        top = ws.iter_rows(
+            values_only=True, max_col=_XLSX_HEADER_COLUMNS, max_row=_XLSX_HEADER_ROWS
+        )
+        found = [[_cell_text(c) for c in row] for row in top]
+        at = next(
+            (
+                r
+                for r, cells in enumerate(found, start=1)
+                if needs and set(needs) <= {c.lower() for c in cells}
+            ),
+            1,
+        )
+        header = list(found[at - 1]) if found else []
         while header and not header[-1]:
             header.pop()
         rows: list[tuple[int, list[str]]] = []
         if not header:
             return ws.title, header, rows, []
-        body = ws.iter_rows(min_row=2, values_only=True, max_col=len(header))
-        for i, row in enumerate(body, start=2):
-            if i > limit + 1:
+        body = ws.iter_rows(min_row=at + 1, values_only=True, max_col=len(header))
+        for i, row in enumerate(body, start=at + 1):
+            if i > limit + at:
                 return ws.title, header, rows, [Problem(Loc(path, i, 1), f"more than {limit} rows")]
             cells = [_cell_text(c) for c in row]
             if any(cells):
@@ -177,7 +192,7 @@ def _entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc
     """(place, pallet, where, where) per row of the first sheet of an XLSX workbook (as a
     WMS exports it: a header row with ``place`` and ``pallet``), located as
     ``file:row:column``."""
-    title, header, rows, problems = xlsx_table(path, data, MAX_EXPECTED_PLACES)
+    title, header, rows, problems = xlsx_table(path, data, MAX_EXPECTED_PLACES, ("place", "pallet"))
     if problems and not rows:
         return [], problems
     names = [h.lower() for h in header]
@@ -185,8 +200,9 @@ def _entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc
         return [], [
             Problem(
                 Loc(path, 1, 1),
-                f"expected a header row with 'place' and 'pallet' in the first sheet "
-                f"('{title}'), got '{','.join(header)[:80]}'",
+                f"expected a header row with 'place' and 'pallet' in the first "
+                f"{_XLSX_HEADER_ROWS} rows of the first sheet ('{title}'), got "
+                f"'{','.join(header)[:80]}'",
             )
         ]
     pc, qc = names.index("place"), names.index("pallet")

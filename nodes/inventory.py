@@ -124,7 +124,7 @@ def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Prob
         data = read_bytes(path, read, where, what="place lists")
         if data is None:
             return [], [Problem(where, f"place list: {read[0].message}")]
-        _, header, body, problems = xlsx_table(path, data, MAX_PLACES)
+        _, header, body, problems = xlsx_table(path, data, MAX_PLACES, ("place",))
         names = [h.lower() for h in header]
         if "place" in names:
             col, rows = names.index("place"), body

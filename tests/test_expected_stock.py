@@ -124,6 +124,16 @@ def test_a_wms_xlsx_is_read_as_its_csv_would_be(tmp_path, world):
     assert all(p.loc.file == path for p in problems)
 
 
+def test_an_xlsx_report_with_a_title_above_its_header(tmp_path, world):
+    """A WMS report often puts a title and a date above the table: the header row is
+    looked for in the first rows, and problems keep the sheet's own row numbers."""
+    rows = [["Stock report"], ["2026-11-27"], [], ["Place", "Pallet"], ["A-01-1", 109], ["A-1-2", 3]]  # fmt: skip
+    stock, problems = read_expected(_xlsx(tmp_path / "s.xlsx", rows), world, WHERE)
+    assert [(p.loc.line, p.loc.col) for p in problems] == [(6, 1)], problems
+    stock, problems = read_expected(_xlsx(tmp_path / "s.xlsx", rows[:5]), world, WHERE)
+    assert problems == [] and stock.places == {"A-01-1": "109"}
+
+
 @pytest.mark.parametrize(
     "name, content, message",
     [
@@ -143,7 +153,10 @@ def test_an_xlsx_without_the_header_names_its_sheet(tmp_path, world):
     _, problems = read_expected(path, world, WHERE)
     (p,) = problems
     assert (p.loc.line, p.loc.col) == (1, 1)
-    assert "header row with 'place' and 'pallet' in the first sheet ('Stock')" in p.message
+    assert (
+        "header row with 'place' and 'pallet' in the first 20 rows of the first sheet ('Stock')"
+        in p.message
+    )
 
 
 def test_a_missing_file_is_reported_at_the_input(tmp_path, world):
