@@ -141,9 +141,10 @@ class PreparedRun:
 
 
 def resume_settings(args) -> list[Problem]:
-    """``--resume RUN``: take the rig, seed and ``--set`` items of the interrupted run from
-    its tick log's header where this call does not give them (in place on ``args``);
-    problems if RUN is no run folder or flew another mission."""
+    """``--resume RUN``: take the rig and seed of the interrupted run from its tick log's
+    header where this call does not give them, and its ``--set`` items followed by this
+    call's (a key given again takes the new value) (in place on ``args``);
+    problems if RUN is no run folder, flew another mission or another seed."""
     previous = getattr(args, "resume", None)
     if not previous:
         if getattr(args, "seed", None) is None:
@@ -181,12 +182,21 @@ def resume_settings(args) -> list[Problem]:
     flown = header.get("mission")
     if flown and os.path.abspath(flown) != os.path.abspath(args.mission):
         return [Problem(where, f"{previous} flew {flown}: resume it with that mission")]
-    if args.seed is None:
-        args.seed = int(header.get("seed") or 0)
+    seed = int(header.get("seed") or 0)
+    if args.seed is not None and args.seed != seed:  # another stock than the one answered
+        return [
+            Problem(
+                where,
+                f"{previous} flew seed {seed}, not {args.seed}: a resumed run keeps its seed "
+                "(in simulation it draws the stock the carried answers were made in); "
+                "leave --seed out",
+            )
+        ]
+    args.seed = seed
     if args.rig is None and header.get("rig_arg"):
         args.rig = header["rig_arg"]
-    if not args.set and header.get("sets"):
-        args.set = list(header["sets"])
+    if isinstance(header.get("sets"), list):  # kept; a key given again takes its new value
+        args.set = [str(item) for item in header["sets"]] + list(args.set or [])
     return []
 
 

@@ -241,6 +241,15 @@ class InventoryLog:
             for row in read_inventory(resume_from):
                 self.rows[row["place"]] = dict(row)
                 self.carried.add(row["place"])
+            foreign = sorted(self.carried - set(self.layout)) if self.layout else []
+            if foreign:  # another world: its answers would be graded against this one's
+                shown = ", ".join(foreign[:4]) + (
+                    f", ... ({len(foreign)} in all)" if len(foreign) > 4 else ""
+                )
+                raise InventoryError(
+                    f"{resume_from} answered places this world does not have ({shown}): "
+                    "resume it on the rig and world it flew (leave --rig and world settings out)"
+                )
 
     @classmethod
     def of(cls, ctx: Any) -> InventoryLog:

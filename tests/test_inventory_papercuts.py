@@ -177,3 +177,67 @@ def test_the_fleet_report_leads_with_the_answer_too(tmp_path) -> None:
     page = open(write_fleet_report(str(tmp_path), summary, {}, {})).read()
     assert page.index("<h2>Answer</h2>") < page.index("<h2>Drones</h2>")
     assert "inventory: 2 places, 2 identified" in page
+
+
+def _fake_solo_run(folder: str, seed: int, rows: list[dict]) -> None:
+    """A solo inventory run folder as an interrupted ``btrun run`` leaves it (flown on the
+    site's rig with ``seed``)."""
+    os.makedirs(folder)
+    header = {
+        "mission": MISSION,
+        "rig": os.path.join(REPO, "rigs", "site.yaml"),
+        "rig_arg": os.path.join(REPO, "rigs", "site.yaml"),
+        "seed": seed,
+        "sets": [],
+    }
+    with open(os.path.join(folder, "ticks.jsonl"), "w", encoding="utf-8") as f:
+        f.write(json.dumps({"header": header}) + "\n")
+    with open(os.path.join(folder, "inventory.json"), "w", encoding="utf-8") as f:
+        json.dump({"format": FORMAT, "planned": [r["place"] for r in rows], "rows": rows}, f)
+
+
+def test_a_resume_keeps_its_seed_and_its_world(tmp_path, capsys) -> None:
+    """A resumed run continues in the world the carried answers were made in: another
+    ``--seed`` (another simulated stock) or a rig whose world lacks the answered places
+    (they were graded against the wrong world: '130 wrong identities accepted') is refused
+    before anything flies, solo and fleet."""
+    row = {"place": "B-07-2", "answer": "1042A", "status": "identified", "drone": "site"}
+    solo = str(tmp_path / "solo")
+    _fake_solo_run(solo, 777, [row])
+    out = str(tmp_path / "new")
+    assert main([MISSION, "--resume", solo, "--seed", "3", "--out", out, "-q"]) == 2
+    err = capsys.readouterr().err
+    assert f"--resume {solo} flew seed 777, not 3: a resumed run keeps its seed" in err
+    assert main([MISSION, "--resume", solo, "--rig", RIG, "--out", out, "-q"]) == 2
+    err = capsys.readouterr().err
+    assert f"--resume {solo} answered places this world does not have (B-07-2)" in err
+    assert not os.path.exists(out)
+    fleet = str(tmp_path / "fleet")
+    _fake_fleet_run(fleet, [row])  # flew fleets/aisle_2.yaml, seed 0
+    assert main(["fleet", FLEET, "--resume", fleet, "--out", out, "--seed", "5"]) == 2
+    assert f"{fleet} flew seed 0, not 5" in capsys.readouterr().err
+    assert main(["fleet", FLEET, "--resume", fleet, "--out", out]) == 2
+    assert "answered places this world does not have (B-07-2)" in capsys.readouterr().err
+    assert not os.path.exists(out)
+
+
+def test_a_resume_keeps_the_runs_settings_and_adds_the_new_ones(tmp_path) -> None:
+    """``--set`` on a resume used to replace every setting of the interrupted run: a run of
+    ``places=B-*`` resumed with ``--set battery_reserve=0.3`` planned the whole site."""
+    import argparse
+
+    from bt_engine.run_cmd import resume_settings
+
+    folder = str(tmp_path / "solo")
+    _fake_solo_run(folder, 777, [])
+    with open(os.path.join(folder, "ticks.jsonl"), encoding="utf-8") as f:
+        record = json.loads(f.readline())
+    record["header"]["sets"] = ["places=B-*", "battery_reserve=0.2"]
+    with open(os.path.join(folder, "ticks.jsonl"), "w", encoding="utf-8") as f:
+        f.write(json.dumps(record) + "\n")
+    args = argparse.Namespace(
+        resume=folder, mission=MISSION, seed=None, rig=None, set=["battery_reserve=0.3"]
+    )
+    assert resume_settings(args) == []
+    assert args.set == ["places=B-*", "battery_reserve=0.2", "battery_reserve=0.3"]
+    assert args.seed == 777 and args.rig == os.path.join(REPO, "rigs", "site.yaml")

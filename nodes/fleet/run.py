@@ -127,7 +127,19 @@ def run(args: Any) -> int:
         print(f"{args.fleet}: ok ({len(lines)} drones; " + ", ".join(lines) + ")")
         return 0
     spec = load_fleet(args.fleet)
-    seed = args.seed if args.seed is not None else _previous_seed(args.resume)
+    previous = _previous_seed(args.resume)
+    if previous is not None and args.seed is not None and args.seed != previous:
+        raise MissionError(
+            [
+                Problem(
+                    Loc("--resume", 0, 0),
+                    f"{args.resume} flew seed {previous}, not {args.seed}: a resumed fleet "
+                    "keeps its seed (the stock the carried answers were made in); leave "
+                    "--seed out",
+                )
+            ]
+        )
+    seed = args.seed if args.seed is not None else previous
     seed = spec.data["seed"] if seed is None else seed
     out = args.out or os.path.join("runs", f"{spec.data['name']}-{time.strftime('%Y%m%d-%H%M%S')}")
     common = common_sets(spec, args.set)
