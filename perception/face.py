@@ -300,7 +300,6 @@ class FaceTracker:
         pts, orig, dirs, depth, central = (a[on_row] for a in (pts, orig, dirs, depth, central))
         if not central.any():
             central = np.ones(len(pts), dtype=bool)
-        prior_xy = np.asarray(prior_centre[:2], dtype=float)
         centre = prior_facing_rad if search_centre_rad is None else search_centre_rad
         span = math.radians(max_turn_deg)
 
@@ -349,6 +348,30 @@ class FaceTracker:
             facing = math.remainder(new, 2 * math.pi)
             if done:
                 break
+        rays = (pts, orig, dirs, depth, central)
+        est = self._place_row(facing, rays, prior_centre, window_m, depth_window_m)
+        if from_blocks and est is not None and est.blocks_seen < 2:
+            # a facing drawn through the blocks must rest on two blocks of the row it
+            # places: through one and something else (a neighbour's block, a glimpse) it
+            # turned a face 21 deg and sent the scan out of the geofence
+            from_blocks = False
+            est = self._place_row(prior_facing_rad, rays, prior_centre, window_m, depth_window_m)
+        if est is not None:
+            est.yaw_from_blocks = from_blocks or prior_from_blocks
+        return est
+
+    def _place_row(
+        self,
+        facing: float,
+        rays: tuple[np.ndarray, ...],
+        prior_centre: Sequence[float],
+        window_m: float,
+        depth_window_m: float | None,
+    ) -> FaceEstimate | None:
+        """The row on the face plane of ``facing`` through the nearest central sightings:
+        every sighting's ray cut with it, the cuts grouped into blocks (:meth:`fit`)."""
+        pts, orig, dirs, depth, central = rays
+        prior_xy = np.asarray(prior_centre[:2], dtype=float)
         normal = np.array([math.cos(facing), math.sin(facing)])
         left = np.array([-math.sin(facing), math.cos(facing)])
         offset, x = _cut(pts, orig, dirs, depth, central, normal)
@@ -366,7 +389,6 @@ class FaceTracker:
         idx = np.concatenate([clusters[i] for i in members])
         z = float(np.median(x[idx, 2]))
         est = FaceEstimate(facing, offset, z, 0.0, 0.0, len(members), len(pts), 0, 0.0)
-        est.yaw_from_blocks = from_blocks or prior_from_blocks
         est.prior = (float(prior_centre[0]), float(prior_centre[1]), float(prior_centre[2]))
         est.window_m = window_m
         est.base_facing_rad = facing

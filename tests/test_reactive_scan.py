@@ -185,6 +185,24 @@ def test_a_block_glimpsed_twice_does_not_turn_a_triangulated_face():
     assert math.degrees(face.facing_rad) == pytest.approx(0.0, abs=1.0)
 
 
+def test_a_facing_through_one_block_and_a_stray_is_not_taken():
+    """The pallet's first block and something else (a neighbour's block, a glimpse 15 cm
+    behind the face) triangulate from a pass: a line through the two turned the face 25 deg
+    although the row keeps only the one block (a SITL flight's scan then left the
+    geofence). A facing from the blocks rests on two blocks of the row; else the map's."""
+    cam, rng = CameraModel(), np.random.default_rng(3)
+    row = _row((9.30, 0.20, 0.255), 0.0)  # blocks at y = -0.3275, 0.20, 0.7275
+    stray = [(9.45, 0.0, 0.255)]
+    tracker = FaceTracker(cam)
+    for y in np.linspace(-0.75, -0.05, 30):  # a pass: the first block and the stray in view
+        pos = (8.80 + 0.25 * (y + 0.75), y, 0.255)
+        tracker.add_frame(pos, _quat(0.0), _boxes(cam, pos, 0.0, row[:1] + stray, rng))
+    face = tracker.fit(0.0, (9.30, 0.20, 0.255), window_m=0.6)
+    assert face is not None and face.blocks_seen == 1
+    assert math.degrees(face.facing_rad) == pytest.approx(0.0, abs=1.0)
+    assert not face.yaw_from_blocks
+
+
 def test_two_blocks_seen_leave_two_placements_unless_the_view_rules_one_out():
     cam = CameraModel()
     row = _row((9.30, 0.30, 0.255), 0.0)  # blocks at y = -0.2275, 0.30, 0.8275
