@@ -7,12 +7,19 @@ from typing import Any
 
 from bt_engine.node import BTNode, NodeRuntimeError
 from bt_engine.ports import EnumType
+from bt_engine.spec import Loc, Problem
 
 #: Aerostack2's yaw modes; names or integers are accepted in mission files.
 YAW_MODE = EnumType("YawMode", {"KEEP_YAW": 0, "PATH_FACING": 1, "FIXED_YAW": 2})
 
 CATEGORY_FLIGHT = "flight"
 CATEGORY_CHECK = "checks"
+
+
+def config_problems(exc: Any) -> list[Problem]:
+    """The located problems of a settings error (a rig, world or fleet file's
+    :class:`drivers.settings.ConfigError`), as the engine's :class:`Problem` s."""
+    return [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
 
 
 def vehicle_of(node: BTNode) -> Any:

@@ -11,12 +11,9 @@ from drivers.rig.schema import RIG_SCHEMA
 from drivers.settings import ConfigError
 from drivers.sim.world import load_world
 from drivers.sim.world_schema import WORLD_SCHEMA
+from nodes.common import config_problems
 from nodes.fleet.check import check_fleet
 from nodes.fleet.spec import FLEET_SCHEMA
-
-
-def _located(exc: ConfigError) -> list[Problem]:
-    return [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
 
 
 def _overrides(sets: list[str]) -> tuple[dict[str, str], list[Problem]]:
@@ -36,7 +33,7 @@ def check_rig(path: str, sets: list[str], seed: int | None) -> list[Problem]:
         if rig.kind == "sim":
             rig.load_world(seed or 0)
     except ConfigError as exc:
-        return _located(exc)
+        return config_problems(exc)
     return []
 
 
@@ -50,7 +47,7 @@ def check_world(path: str, sets: list[str], seed: int | None) -> list[Problem]:
     try:
         load_world(path, keys, seed or 0)
     except ConfigError as exc:
-        return _located(exc)
+        return config_problems(exc)
     return []
 
 

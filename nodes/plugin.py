@@ -31,12 +31,8 @@ from drivers.guard.client import GuardClient
 from drivers.rig.factory import make_platform
 from drivers.rig.loader import Rig, load_rig
 from drivers.settings import ConfigError
+from nodes.common import config_problems
 from nodes.safety_hook import SafetyHook, make_safety_hook
-
-
-def config_problems(exc: ConfigError) -> list[Problem]:
-    """The located problems of a rig or world error, as the engine's :class:`Problem` s."""
-    return [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
 
 
 class RigTarget:
@@ -264,11 +260,11 @@ def _rig_run(args: argparse.Namespace) -> int:
             end="" if args.markdown else "\n",
         )
         return 0
-    overrides = dict(item.split("=", 1) for item in args.set if "=" in item)
-    bad = [item for item in args.set if "=" not in item]
-    if bad:
-        raise MissionError([Problem(Loc("--set", 0, 0), f"expected KEY=VALUE, got {bad[0]!r}")])
-    PLUGIN.load_target(args.rig, overrides)  # raises MissionError with located problems
+    from nodes.file_checks import check_rig  # the same check as btrun validate RIG
+
+    problems = check_rig(args.rig, args.set, None)
+    if problems:
+        raise MissionError(problems)
     print(f"{args.rig}: ok")
     return 0
 

@@ -16,8 +16,9 @@ from typing import Any
 from bt_engine.loading import check_mission
 from bt_engine.preflight import check_before_flight
 from bt_engine.registry import REGISTRY
-from bt_engine.spec import Loc, MissionError, Problem
+from bt_engine.spec import Loc, MissionError
 from drivers.settings import ConfigError
+from nodes.common import config_problems
 from nodes.fleet.plan import split_places
 from nodes.fleet.spec import DroneSpec, FleetSpec, load_fleet
 from nodes.inventory import resolve_places
@@ -49,9 +50,7 @@ def rig_and_world(spec: FleetSpec, common: list[str], seed: int) -> tuple[Any, A
         rig = load_rig(spec.rig, over)
         return rig, rig.load_world(seed)
     except ConfigError as exc:
-        raise MissionError(
-            [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
-        ) from None
+        raise MissionError(config_problems(exc)) from None
 
 
 def planned_places(spec: FleetSpec, world: Any, common: list[str]) -> list[str] | None:

@@ -31,6 +31,7 @@ from bt_engine.files import file_kind
 from bt_engine.mission import UNCHECKED_PREFIX, declared_inputs, undeclared_input
 from bt_engine.spec import Loc, MissionError, Problem
 from drivers.settings import ConfigError, Field, Marks, load_yaml_file, problem_at
+from nodes.common import config_problems
 
 F = Field
 
@@ -176,10 +177,6 @@ def _relative(base: str, path: str | None) -> str | None:
     return here if shown.startswith(os.pardir) else shown
 
 
-def _problems(exc: ConfigError) -> list[Problem]:
-    return [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
-
-
 def _check_inputs(mission: str, data: dict, at: Any) -> None:
     """Every plain (blackboard) key of the fleet's ``set`` and of each drone's ``set`` that
     the mission does not declare (``bb.NAME`` passes unchecked), located where it is
@@ -208,7 +205,7 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
     try:
         data = load_yaml_file(path, FLEET_SCHEMA, marks=marks, what="fleet files")
     except ConfigError as exc:
-        raise MissionError(_problems(exc)) from None
+        raise MissionError(config_problems(exc)) from None
     problems: list[Problem] = []
 
     def at(key: str, message: str) -> None:
@@ -239,7 +236,7 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
         )
         world = rig.load_world(data["seed"])
     except ConfigError as exc:
-        problems += _problems(exc)
+        problems += config_problems(exc)
         rig = None
     n = len(data["drones"])
     if not 1 <= n <= MAX_DRONES:
