@@ -121,15 +121,13 @@ def build_gallery(
     os.unlink(tmp)
     n, start = len(identities), time.perf_counter()
     every = 1 if n <= 50 else PROGRESS_EVERY
-    sides: Any = (side for side in ())  # closed in the end, whatever happens
+    # a generator: nothing starts before the loop below; closed in the end, whatever happens
+    sides = _enrolled_sides(world_path, identities, detector, embedder, camera, overrides, workers)
     try:
         with Gallery.create(tmp, embedder.model_version, embedder.dim) as g:
             g.set_thresholds(embedder.thresholds)
             # A temporary file, renamed only once complete: no need to sync every side.
             g.conn.execute("PRAGMA synchronous = OFF")
-            sides = _enrolled_sides(
-                world_path, identities, detector, embedder, camera, overrides, workers
-            )
             for i, (identity, found, vectors, vis, pngs) in enumerate(sides):
                 if interrupt_pending():  # btrun run defers a Ctrl-C to its first tick
                     raise KeyboardInterrupt
