@@ -23,7 +23,7 @@ from bt_engine.ticklog import read_log
 from drivers.rig.loader import load_rig
 from drivers.settings import MAX_SETTINGS_BYTES, ConfigError
 from drivers.sim.world import load_world
-from nodes.fleet.run import _previous_seed
+from nodes.fleet.check import previous_run
 from nodes.fleet.spec import load_fleet
 from nodes.inventory import resolve_places
 from nodes.inventory_log import MAX_INVENTORY_ROWS, InventoryError, read_inventory
@@ -236,11 +236,11 @@ def test_a_fleet_resume_record_that_is_a_fifo_or_not_a_record_is_refused(
     folder.mkdir()
     make_fifo(str(folder / "fleet.json"))
     with pytest.raises(MissionError, match=r"fleet.json:1:1: .* is a named pipe \(FIFO\)"):
-        _previous_seed(str(folder))
+        previous_run(str(folder))
     os.remove(folder / "fleet.json")
     (folder / "fleet.json").write_text('{"seed": "x"}')
     with pytest.raises(MissionError, match="fleet.json:1:1: not a fleet record"):
-        _previous_seed(str(folder))
+        previous_run(str(folder))
 
 
 # --- a mission's include and place list -----------------------------------------------------

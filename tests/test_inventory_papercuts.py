@@ -241,3 +241,61 @@ def test_a_resume_keeps_the_runs_settings_and_adds_the_new_ones(tmp_path) -> Non
     assert resume_settings(args) == []
     assert args.set == ["places=B-*", "battery_reserve=0.2", "battery_reserve=0.3"]
     assert args.seed == 777 and args.rig == os.path.join(REPO, "rigs", "site.yaml")
+
+
+def test_a_fleet_resume_flies_with_the_runs_settings_and_places(tmp_path, capsys) -> None:
+    """A resumed fleet used to keep only its seed: a run of ``--set places=A-01-1;A-02-1``
+    with an emptier stock, resumed, planned all 16 places in another stock. It now flies
+    the settings and places in ``fleet.json``, with the new ``--set`` after them; and
+    ``--check --resume`` checks what the resume would fly (it used to ignore ``--resume``)."""
+    row = {"place": "A-01-1", "answer": "109B", "status": "identified", "drone": "cf1"}
+    old = str(tmp_path / "old")
+    _fake_fleet_run(old, [row])
+    record = {
+        "fleet": FLEET,
+        "seed": 0,
+        "set": ["world.stock.empty_places=3"],
+        "places": ["A-01-1", "A-02-1"],
+    }
+    with open(os.path.join(old, "fleet.json"), "w", encoding="utf-8") as f:
+        json.dump(record, f)
+    assert main(["fleet", FLEET, "--check", "--resume", old]) == 0
+    said = capsys.readouterr().out
+    # one place left: one drone flies it, the other stays on its pad
+    assert "1 places" in said and "no place to fly" in said, said
+    # the run's settings are checked again: a bad one stored there is refused
+    record["set"].append("world.stock.empty_places=-2")
+    with open(os.path.join(old, "fleet.json"), "w", encoding="utf-8") as f:
+        json.dump(record, f)
+    assert main(["fleet", FLEET, "--check", "--resume", old]) == 2
+    assert "empty_places" in capsys.readouterr().err
+    # ... and a new --set comes after them
+    record["set"].pop()
+    with open(os.path.join(old, "fleet.json"), "w", encoding="utf-8") as f:
+        json.dump(record, f)
+    assert main(["fleet", FLEET, "--check", "--resume", old, "--set", "places=all"]) == 0
+    assert "1 places" not in capsys.readouterr().out
+    # the checks of a resume are made by --check too
+    assert main(["fleet", FLEET, "--check", "--resume", old, "--seed", "5"]) == 2
+    assert f"{old} flew seed 0, not 5" in capsys.readouterr().err
+    assert main(["fleet", FLEET, "--check", "--resume", str(tmp_path)]) == 2
+    assert "is not a fleet run folder" in capsys.readouterr().err
+    with open(os.path.join(old, "fleet.json"), "w", encoding="utf-8") as f:
+        json.dump({"seed": 0, "set": "places=all"}, f)
+    assert main(["fleet", FLEET, "--check", "--resume", old]) == 2
+    assert "'set' is not a list of KEY=VALUE" in capsys.readouterr().err
+
+
+def test_a_fleet_run_records_its_places_for_the_resume(tmp_path) -> None:
+    """``fleet.json`` holds the settings and the planned places a resume flies with."""
+    out = str(tmp_path / "run")
+    code = main(
+        ["fleet", FLEET, "--set", "places=A-01-1;A-02-1", "--set", "world.stock.empty_places=1"]
+        + ["--out", out, "-q", "--no-report", "--no-mcap"]
+    )
+    assert code == 0
+    with open(os.path.join(out, "fleet.json"), encoding="utf-8") as f:
+        record = json.load(f)
+    assert record["places"] == ["A-01-1", "A-02-1"]
+    assert "world.stock.empty_places=1" in record["set"]
+    assert not any(item.startswith("places=") for item in record["set"])

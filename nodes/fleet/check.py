@@ -13,15 +13,17 @@ import json
 import os
 from typing import Any
 
+from bt_engine.files import read_text
 from bt_engine.loading import check_mission
 from bt_engine.preflight import check_before_flight
 from bt_engine.registry import REGISTRY
-from bt_engine.spec import Loc, MissionError
+from bt_engine.spec import Loc, MissionError, Problem
 from drivers.settings import ConfigError
 from nodes.common import config_problems
 from nodes.fleet.plan import split_places
 from nodes.fleet.spec import DroneSpec, FleetSpec, load_fleet
 from nodes.inventory import resolve_places
+from nodes.inventory_log import InventoryError, InventoryLog
 
 
 def text(value: Any) -> str:
@@ -31,9 +33,16 @@ def text(value: Any) -> str:
     )
 
 
-def common_sets(spec: FleetSpec, sets: list[str]) -> list[str]:
-    """The settings of every drone: the fleet file's ``set:``, then the command's ``--set``."""
-    return [f"{k}={text(v)}" for k, v in spec.data["set"].items()] + list(sets)
+def common_sets(spec: FleetSpec, sets: list[str], previous: dict | None = None) -> list[str]:
+    """The settings of every drone: the fleet file's ``set:`` (resuming, the settings the
+    ``previous`` run flew with, its places among them), then the command's ``--set``."""
+    if previous is None:
+        base = [f"{k}={text(v)}" for k, v in spec.data["set"].items()]
+    else:
+        base = list(previous["set"])
+        if previous["places"] is not None:
+            base.append("places=" + ";".join(previous["places"]))
+    return base + list(sets)
 
 
 def rig_and_world(spec: FleetSpec, common: list[str], seed: int) -> tuple[Any, Any]:
@@ -51,6 +60,84 @@ def rig_and_world(spec: FleetSpec, common: list[str], seed: int) -> tuple[Any, A
         return rig, rig.load_world(seed)
     except ConfigError as exc:
         raise MissionError(config_problems(exc)) from None
+
+
+def previous_run(resume: str | None) -> dict | None:
+    """What fleet run folder ``resume`` (``--resume RUN``) flew, from its ``fleet.json``:
+    ``seed``, ``set`` (its settings but places) and ``places`` (its planned places, None:
+    each drone's mission had its own). None without ``resume``; raises
+    :class:`MissionError` when RUN is not a fleet run folder."""
+    if not resume:
+        return None
+    path = os.path.join(resume, "fleet.json")
+    if not os.path.lexists(path):
+        raise MissionError(
+            [Problem(Loc("--resume", 0, 0), f"{resume} is not a fleet run folder (no fleet.json)")]
+        )
+    problems: list[Problem] = []
+    text = read_text(path, problems, what="fleet records")  # regular and bounded
+    if text is None:
+        raise MissionError(problems)
+    try:
+        record = json.loads(text)
+    except (ValueError, RecursionError):
+        record = None
+    if not isinstance(record, dict) or type(record.get("seed")) is not int:
+        raise MissionError([Problem(Loc(path, 1, 1), "not a fleet record: no integer 'seed'")])
+    sets, places = record.get("set", []), record.get("places")
+    if not (isinstance(sets, list) and all(isinstance(x, str) and "=" in x for x in sets)):
+        raise MissionError(
+            [Problem(Loc(path, 1, 1), "not a fleet record: 'set' is not a list of KEY=VALUE")]
+        )
+    if places is not None and not (
+        isinstance(places, list) and all(isinstance(x, str) for x in places)
+    ):
+        raise MissionError(
+            [Problem(Loc(path, 1, 1), "not a fleet record: 'places' is not a list of places")]
+        )
+    return {"seed": record["seed"], "set": sets, "places": places}
+
+
+def resumed_seed(previous: dict | None, seed: int | None, resume: str | None) -> int | None:
+    """The seed a fleet run flies: ``seed`` (``--seed``), else the one the ``previous`` run
+    (:func:`previous_run` of ``resume``) flew; None: neither (the fleet file's then).
+    Raises :class:`MissionError` when ``seed`` is not the one the previous run flew."""
+    if previous is None:
+        return seed
+    if seed is not None and seed != previous["seed"]:
+        raise MissionError(
+            [
+                Problem(
+                    Loc("--resume", 0, 0),
+                    f"{resume} flew seed {previous['seed']}, not {seed}: a resumed fleet keeps "
+                    "its seed (the stock the carried answers were made in); leave --seed out",
+                )
+            ]
+        )
+    return previous["seed"]
+
+
+def truth(rig: Any, world: Any) -> Any:
+    """The merged inventory's ground truth (simulation only; None on hardware)."""
+    if rig.kind != "sim" or world is None:
+        return None
+    return lambda: (world.places_truth(), set(world.not_enrolled()))
+
+
+def layout(world: Any) -> dict[str, list]:
+    """Place -> [rack, bay, level] of ``world`` (empty without places)."""
+    return {n: [p.rack, p.bay, p.level] for n, p in (getattr(world, "places", None) or {}).items()}
+
+
+def carried(resume: str | None, world: Any) -> set[str]:
+    """The places run folder ``resume`` answered (empty without one); raises
+    :class:`MissionError` when its inventory cannot be read or names places ``world`` lacks."""
+    if not resume:
+        return set()
+    try:
+        return InventoryLog(None, resume, "fleet", None, None, layout(world)).finished()
+    except InventoryError as exc:
+        raise MissionError([exc.problem()]) from None
 
 
 def planned_places(spec: FleetSpec, world: Any, common: list[str]) -> list[str] | None:
@@ -90,16 +177,23 @@ def drone_sets(d: DroneSpec, common: list[str], places: list[str] | None) -> lis
     return sets
 
 
-def check_fleet(path: str, sets: list[str] | None = None, seed: int | None = None) -> list[str]:
-    """Check fleet file ``path`` with ``--set`` items ``sets`` and ``seed`` (None: the
-    file's) as ``btrun fleet`` does before take-off, flying nothing. Returns one line per
-    drone that flies (``cf1: 36 places``); raises :class:`MissionError` with every located
-    problem."""
+def check_fleet(
+    path: str, sets: list[str] | None = None, seed: int | None = None, resume: str | None = None
+) -> list[str]:
+    """Check fleet file ``path`` with ``--set`` items ``sets``, ``seed`` (None: the file's)
+    and ``resume`` (``--resume RUN``: its seed, its inventory, the places it left) as
+    ``btrun fleet`` does before take-off, flying nothing. Returns one line per drone
+    (``cf1: 36 places``); raises :class:`MissionError` with every located problem."""
     spec = load_fleet(path)
+    previous = previous_run(resume)
+    seed = resumed_seed(previous, seed, resume)
     seed = spec.data["seed"] if seed is None else seed
-    common = common_sets(spec, list(sets or []))
+    common = common_sets(spec, list(sets or []), previous)
     _, world = rig_and_world(spec, common, seed)
+    done = carried(resume, world)
     places = planned_places(spec, world, common)
+    if places is not None:
+        places = [p for p in places if p not in done]
     shares = split(spec, world, places) if places is not None else None
     mission, problems = check_mission(spec.mission, REGISTRY)
     if problems:

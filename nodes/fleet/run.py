@@ -20,7 +20,7 @@ import time
 from typing import Any
 
 from bt_engine.clock import SimClock, WallClock
-from bt_engine.files import atomic_write_text, read_text
+from bt_engine.files import atomic_write_text
 from bt_engine.fleet import FleetRunner
 from bt_engine.run_cmd import PreparedRun, finish, make_runner, prepare, release
 from bt_engine.spec import Loc, MissionError, Problem
@@ -30,9 +30,13 @@ from nodes.fleet.check import (
     check_fleet,
     common_sets,
     drone_sets,
+    layout,
     planned_places,
+    previous_run,
+    resumed_seed,
     rig_and_world,
     split,
+    truth,
 )
 from nodes.fleet.spec import FleetSpec, load_fleet
 from nodes.inventory_log import InventoryError, InventoryLog, discrepancy_lines, pace, pace_line
@@ -98,54 +102,22 @@ def _drone_args(spec: FleetSpec, args: Any, sets: list[str], seed: int, out: str
     )
 
 
-def _previous_seed(resume: str | None) -> int | None:
-    if not resume:
-        return None
-    path = os.path.join(resume, "fleet.json")
-    if not os.path.lexists(path):
-        raise MissionError(
-            [Problem(Loc("--resume", 0, 0), f"{resume} is not a fleet run folder (no fleet.json)")]
-        )
-    problems: list[Problem] = []
-    text = read_text(path, problems, what="fleet records")  # regular and bounded
-    if text is None:
-        raise MissionError(problems)
-    try:
-        seed = json.loads(text)["seed"]
-    except (ValueError, KeyError, TypeError, RecursionError):
-        seed = None
-    if type(seed) is not int:
-        raise MissionError([Problem(Loc(path, 1, 1), "not a fleet record: no integer 'seed'")])
-    return seed
-
-
 def run(args: Any) -> int:
     """``btrun fleet``: check, fly, merge, report; the exit code (0: every drone SUCCESS).
     With ``--check``: the checks alone (exit 0: every input is fit to fly)."""
     if getattr(args, "check", False):
-        lines = check_fleet(args.fleet, args.set, args.seed)
+        lines = check_fleet(args.fleet, args.set, args.seed, args.resume)
         print(f"{args.fleet}: ok ({len(lines)} drones; " + ", ".join(lines) + ")")
         return 0
     spec = load_fleet(args.fleet)
-    previous = _previous_seed(args.resume)
-    if previous is not None and args.seed is not None and args.seed != previous:
-        raise MissionError(
-            [
-                Problem(
-                    Loc("--resume", 0, 0),
-                    f"{args.resume} flew seed {previous}, not {args.seed}: a resumed fleet "
-                    "keeps its seed (the stock the carried answers were made in); leave "
-                    "--seed out",
-                )
-            ]
-        )
-    seed = args.seed if args.seed is not None else previous
+    previous = previous_run(args.resume)
+    seed = resumed_seed(previous, args.seed, args.resume)
     seed = spec.data["seed"] if seed is None else seed
     out = args.out or os.path.join("runs", f"{spec.data['name']}-{time.strftime('%Y%m%d-%H%M%S')}")
-    common = common_sets(spec, args.set)
+    common = common_sets(spec, args.set, previous)
     rig, world = rig_and_world(spec, common, seed)
     try:
-        merged = InventoryLog(out, args.resume, "fleet", _truth(rig, world), None, _layout(world))
+        merged = InventoryLog(out, args.resume, "fleet", truth(rig, world), None, layout(world))
     except InventoryError as exc:
         raise MissionError([exc.problem()]) from None
     merged.recorder = _recorder(args, out, spec)
@@ -158,6 +130,7 @@ def run(args: Any) -> int:
                 "fleet": os.path.abspath(spec.path),
                 "seed": seed,
                 "set": [item for item in common if item.partition("=")[0] != "places"],
+                "places": merged.planned if shares is not None else None,
             },
             indent=1,
         ),
@@ -203,16 +176,6 @@ def _recorder(args: Any, out: str, spec: FleetSpec) -> Any:
         return open_recorder(getattr(args, "store", None), out, extra=extra)
     except StoreError as exc:
         raise MissionError([Problem(Loc("--store", 0, 0), str(exc))]) from None
-
-
-def _truth(rig: Any, world: Any) -> Any:
-    if rig.kind != "sim" or world is None:
-        return None
-    return lambda: (world.places_truth(), set(world.not_enrolled()))
-
-
-def _layout(world: Any) -> dict[str, list]:
-    return {n: [p.rack, p.bay, p.level] for n, p in (getattr(world, "places", None) or {}).items()}
 
 
 def _split(
