@@ -189,14 +189,59 @@ def _load(spec: str, source: str = "") -> Plugin:
             f"{named} could not be loaded: {type(exc).__name__}: {exc}{_where_raised(exc)}"
         ) from exc
     if not isinstance(obj, Plugin):
-        needs = ("name", "load_target", "write_report", "commands")
-        missing = [m for m in needs if not hasattr(obj, m)]
-        raise PluginError(
-            f"{named} is not a plug-in object: it lacks {', '.join(missing) or 'nothing'} "
-            "(a plug-in has name, load_target, write_report and commands: "
-            "bt_engine.plugins.Plugin)"
-        )
+        obj = _adapted(obj, named)
     return obj
+
+
+class _Constant:
+    """A plug-in whose ``load_target`` / ``write_report`` are None or whose ``commands`` is a
+    dict (what their methods would return), given the methods the engine calls."""
+
+    def __init__(self, obj: Any) -> None:
+        self._obj = obj
+        self.name = obj.name
+
+    def __getattr__(self, attr: str) -> Any:  # optional members (run_sections, file_kinds)
+        return getattr(self._obj, attr)
+
+    def load_target(self, rig_path: str | None, overrides: dict[str, str]) -> Any:
+        member = self._obj.load_target
+        return None if member is None else member(rig_path, overrides)
+
+    def write_report(self, run_dir: str, trace: Any, summary: dict, mission: Any) -> Any:
+        member = self._obj.write_report
+        return None if member is None else member(run_dir, trace, summary, mission)
+
+    def commands(self) -> dict[str, Command]:
+        member = self._obj.commands
+        return dict(member) if isinstance(member, dict) else member()
+
+
+def _adapted(obj: Any, named: str) -> Plugin:
+    """``obj`` as a plug-in when its members are there and are methods, None (for
+    ``load_target`` and ``write_report``: the plug-in flies nothing, writes no report) or a
+    dict (``commands``); else :class:`PluginError` naming each member that is wrong."""
+    needs = ("name", "load_target", "write_report", "commands")
+    missing = [m for m in needs if not hasattr(obj, m)]
+    if missing:
+        raise PluginError(
+            f"{named} is not a plug-in object: it lacks {', '.join(missing)} (a plug-in has "
+            "name, load_target, write_report and commands: bt_engine.plugins.Plugin)"
+        )
+    wrong = []
+    if not isinstance(obj.name, str):
+        wrong.append(f"name is {type(obj.name).__name__}, not a string")
+    for member in ("load_target", "write_report"):
+        value = getattr(obj, member)
+        if value is not None and not callable(value):
+            wrong.append(f"{member} is {type(value).__name__}, not a method or None")
+    if not (callable(obj.commands) or isinstance(obj.commands, dict)):
+        wrong.append(f"commands is {type(obj.commands).__name__}, not a method or a dict")
+    if wrong:
+        raise PluginError(
+            f"{named} is not a plug-in object: {'; '.join(wrong)} (bt_engine.plugins.Plugin)"
+        )
+    return _Constant(obj)  # type: ignore[return-value]
 
 
 def load_plugins() -> list[Plugin]:

@@ -4,7 +4,12 @@ runs (exit 2)."""
 
 from __future__ import annotations
 
+import json
+import os
+import re
+
 import pytest
+from helpers import REPO
 
 from bt_engine import plugins
 from bt_engine.cli import main
@@ -51,6 +56,14 @@ def plugin_env(tmp_path, monkeypatch):
             "class P:\n    name = 'half'\n\nPLUGIN = P()\n",
             "btrun: plug-in 'half_plugin:PLUGIN' (BTRUN_PLUGINS) is not a plug-in object: it "
             "lacks load_target, write_report, commands",
+        ),
+        (
+            "wrong_plugin:PLUGIN",
+            "class P:\n    name = 3\n    load_target = 'sim'\n    write_report = None\n"
+            "    commands = []\n\nPLUGIN = P()\n",
+            "btrun: plug-in 'wrong_plugin:PLUGIN' (BTRUN_PLUGINS) is not a plug-in object: "
+            "name is int, not a string; load_target is str, not a method or None; commands "
+            "is list, not a method or a dict",
         ),
         (
             "typo_plugin:PLUGN",
@@ -140,3 +153,67 @@ def test_a_good_plugin_leaf_loads_and_validates(plugin_env, tmp_path, capsys):
         '<root BTCPP_format="4"><BehaviorTree ID="Main"><Snap count="2"/></BehaviorTree></root>'
     )
     assert main(["validate", str(mission)]) == 0, capsys.readouterr().err
+
+
+def test_a_leaf_only_plugin_may_give_none_and_a_dict_for_its_members(plugin_env, tmp_path, capsys):
+    """``load_target = None``, ``write_report = None``, ``commands = {}`` (what the docs'
+    "None: it flies nothing" reads as) is a plug-in that flies nothing: it was refused with
+    "it lacks nothing"; its leaves now fly on btrun's own simulator."""
+    source = _LEAF_ONLY.replace(
+        "CLASS_BODY", "load_target = None\n    write_report = None\n    commands = {}"
+    )
+    plugin_env("leafonly_plugin:PLUGIN", source)
+    assert _fly(tmp_path, '<Count2 n="{n}"/>')["n"] == 2
+    assert [p.name for p in plugins.load_plugins()][-1] == "leaf-only"
+    assert "fleet" in plugins.plugin_commands()  # its {} beside btrun's own commands
+
+
+_LEAF_ONLY = """
+from bt_engine import StatefulActionNode, register, RUNNING, SUCCESS
+from bt_engine.ports import INT, output_port
+
+
+@register
+class Count2(StatefulActionNode):
+    \"\"\"Count to two.\"\"\"
+
+    bt_id = "Count2"
+    ports = (output_port("n", INT, "the count"),)
+
+    def on_start(self):
+        self.k = 0
+        return RUNNING
+
+    def on_running(self):
+        self.k += 1
+        self.set_output("n", self.k)
+        return SUCCESS if self.k == 2 else RUNNING
+
+
+class _P:
+    name = "leaf-only"
+    CLASS_BODY
+
+
+PLUGIN = _P()
+"""
+
+
+def test_the_docs_plugin_example_flies_as_written(plugin_env, tmp_path):
+    """docs/engine.md's leaf and smallest plug-in, copied as a user would, fly a mission."""
+    with open(os.path.join(REPO, "docs", "engine.md"), encoding="utf-8") as f:
+        blocks = re.findall(r"```python\n(.*?)```", f.read(), re.S)
+    plugin_env("photography:PLUGIN", blocks[0] + "\n\n" + blocks[1])
+    assert _fly(tmp_path, '<Photograph count="4" taken="{taken}"/>')["taken"] == 4
+
+
+def _fly(tmp_path, leaf: str) -> dict:
+    """Fly take-off, ``leaf``, land on the default rig; the run's final blackboard."""
+    mission = tmp_path / "my_mission.xml"
+    mission.write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main">'
+        f'<Sequence><TakeOff height="0.5"/>{leaf}<Land/></Sequence></BehaviorTree></root>'
+    )
+    out = tmp_path / "run"
+    assert main([str(mission), "--out", str(out), "--quiet", "--no-report"]) == 0
+    return json.loads((out / "summary.json").read_text())["blackboard"]
