@@ -74,20 +74,54 @@ class ExpectedStock:
 DELIMITERS = (",", ";", "\t")
 
 
-def csv_rows(text: str) -> tuple[list[list[str]], str]:
-    """The rows of CSV ``text`` and the delimiter they were split at: the one of
-    :data:`DELIMITERS` found most often in the first line (a comma if none is), so that
-    ``place;pallet`` and tab-separated exports read as ``place,pallet`` does. Raises
-    :class:`csv.Error` for a file the csv module cannot read."""
-    first = text.split("\n", 1)[0]
+#: Excel's first line naming the delimiter (``sep=;``), which it writes for a reader whose
+#: locale would split at another
+_SEP_LINE = re.compile(r'"?sep=(.)"?\r?')
+
+
+def csv_rows(text: str) -> tuple[list[list[str]], str, int]:
+    """The rows of CSV ``text``, the delimiter they were split at and the line number of the
+    first row. The delimiter is the one of :data:`DELIMITERS` found most often in the first
+    line (a comma if none is), so that ``place;pallet`` and tab-separated exports read as
+    ``place,pallet`` does, or the one a ``sep=;`` first line names (that line is not a row:
+    the first row is then line 2). Raises :class:`csv.Error` for a file the csv module
+    cannot read."""
+    first, _, rest = text.partition("\n")
+    named = _SEP_LINE.fullmatch(first)
+    if named:
+        return csv_rows_at(rest, named.group(1)), named.group(1), 2
     delimiter = max(DELIMITERS, key=lambda d: (first.count(d), d == ","))
-    return list(csv.reader(io.StringIO(text, newline=""), delimiter=delimiter)), delimiter
+    return csv_rows_at(text, delimiter), delimiter, 1
+
+
+def csv_rows_at(text: str, delimiter: str) -> list[list[str]]:
+    """The rows of CSV ``text`` split at ``delimiter``."""
+    return list(csv.reader(io.StringIO(text, newline=""), delimiter=delimiter))
+
+
+def export_text(data: bytes) -> str:
+    """The text of a WMS's or a spreadsheet's text export: UTF-8 (with or without a byte
+    order mark), UTF-16 with one (Excel's "Unicode Text"), else Windows-1252 (Excel's "CSV"
+    on Windows: a ``Kühlregal`` in a column btrun does not read must not refuse the file).
+    Raises :class:`UnicodeDecodeError` (UTF-8's) for bytes none of them reads."""
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        try:
+            return data.decode("utf-16")
+        except UnicodeDecodeError:
+            pass
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        try:
+            return data.decode("cp1252")
+        except UnicodeDecodeError:
+            raise exc from None
 
 
 def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
     """(place, pallet, where the place is, where the pallet is) per CSV row."""
     try:
-        rows, delimiter = csv_rows(text)
+        rows, delimiter, first = csv_rows(text)
     except csv.Error as exc:
         return [], [Problem(Loc(path, 1, 1), f"not a readable CSV file: {exc}")]
     if not rows:
@@ -97,7 +131,7 @@ def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]],
         got = delimiter.join(rows[0])[:80].replace("\t", "\\t")
         return [], [
             Problem(
-                Loc(path, 1, 1),
+                Loc(path, first, 1),
                 f"expected a header 'place,pallet' (as a WMS exports; a ';' or a tab between "
                 f"the columns reads too), got '{got}'",
             )
@@ -105,7 +139,7 @@ def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]],
     pc, qc = header.index("place"), header.index("pallet")
     out = []
     problems = []
-    for i, row in enumerate(rows[1:], start=2):
+    for i, row in enumerate(rows[1:], start=first + 1):
         if not any(c.strip() for c in row):
             continue  # a blank line
         place = row[pc].strip() if pc < len(row) else ""
@@ -309,13 +343,13 @@ def read_expected(
         entries, problems = _entries_xlsx(path, data)
     else:
         try:
-            text = data.decode("utf-8-sig")
+            text = export_text(data)
         except UnicodeDecodeError as exc:
             return None, [
                 Problem(
                     where,
-                    f"expected stock: {path} is not UTF-8 text (byte {exc.start}): "
-                    "expected CSV, JSON or an XLSX workbook",
+                    f"expected stock: {path} is not UTF-8, UTF-16 or Windows-1252 text (byte "
+                    f"{exc.start}): expected CSV, JSON or an XLSX workbook",
                 )
             ]
         if path.lower().endswith(".json") or text.lstrip()[:1] in ("[", "{"):
@@ -367,4 +401,11 @@ def read_expected(
     return stock, problems
 
 
-__all__ = ["EMPTY_SPELLINGS", "ExpectedStock", "read_expected", "xlsx_table"]
+__all__ = [
+    "EMPTY_SPELLINGS",
+    "ExpectedStock",
+    "csv_rows",
+    "export_text",
+    "read_expected",
+    "xlsx_table",
+]

@@ -23,13 +23,19 @@ import os
 import re
 from typing import Any
 
-from bt_engine.files import read_bytes, read_text
+from bt_engine.files import read_bytes
 from bt_engine.node import FAILURE, SUCCESS, NodeStatus, SyncActionNode
 from bt_engine.ports import ANY, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from bt_engine.spec import Loc, Problem
 from drivers.settings import ConfigError, did_you_mean
-from nodes.expected_stock import ExpectedStock, csv_rows, read_expected, xlsx_table
+from nodes.expected_stock import (
+    ExpectedStock,
+    csv_rows,
+    export_text,
+    read_expected,
+    xlsx_table,
+)
 from nodes.inventory_log import (
     EMPTY,
     IDENTIFIED,
@@ -133,11 +139,20 @@ def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Prob
         return [
             (r[col], Loc(path, i, col + 1)) for i, r in rows if col < len(r) and r[col]
         ], problems
-    text = read_text(path, read, where, what="place lists")
-    if text is None:
+    data = read_bytes(path, read, where, what="place lists")
+    if data is None:
         return [], [Problem(where, f"place list: {read[0].message}")]
     try:
-        rows, _ = csv_rows(text)  # a comma, a semicolon or a tab between the columns
+        text = export_text(data)  # UTF-8, UTF-16 with its mark or Windows-1252
+        rows, _, first = csv_rows(text)  # a comma, a semicolon or a tab between the columns
+    except UnicodeDecodeError as exc:
+        return [], [
+            Problem(
+                Loc(path, 1, 1),
+                f"not UTF-8, UTF-16 or Windows-1252 text (byte {exc.start}): expected a CSV "
+                "file with a 'place' column or an XLSX workbook",
+            )
+        ]
     except csv.Error as exc:
         return [], [Problem(where, f"cannot read the place list {path}: {exc}")]
     if not rows:
@@ -145,7 +160,7 @@ def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Prob
     header = [c.strip().lower() for c in rows[0]]
     col, start = (header.index("place"), 1) if "place" in header else (0, 0)
     out = []
-    for i, row in enumerate(rows[start:], start=start + 1):
+    for i, row in enumerate(rows[start:], start=start + first):
         if col < len(row) and row[col].strip():
             column = sum(len(c) + 1 for c in row[:col]) + 1
             out.append((row[col].strip(), Loc(path, i, column)))

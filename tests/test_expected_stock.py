@@ -64,6 +64,29 @@ def test_a_csv_with_semicolons_or_tabs_reads_as_with_commas(tmp_path, world, del
     assert problems == [] and stock.places == {"A-01-1": "109", "A-01-2": None}
 
 
+@pytest.mark.parametrize(
+    "encoding, text",
+    [
+        ("utf-16", "Place\tPallet\tNote\nA-01-1\t109\tK\u00fchlregal\nA-1-3\t5\t\n"),
+        ("cp1252", "Place;Pallet;Note\r\nA-01-1;109;K\u00fchlregal\r\nA-1-3;5;\r\n"),
+        ("utf-8", "sep=;\nPlace;Pallet\nA-01-1;109\nA-1-3;5\n"),
+    ],
+)
+def test_what_excel_saves_reads_as_a_utf8_csv(tmp_path, world, encoding, text):
+    """Excel's "Unicode Text" (UTF-16 with its byte order mark, tabs), its "CSV" on Windows
+    (Windows-1252: a 'Kühlregal' in a column btrun does not read refused the file as "not
+    UTF-8") and its ``sep=;`` first line read as the UTF-8 CSV does, located alike."""
+    (tmp_path / "s.csv").write_bytes(text.encode(encoding))
+    stock, problems = read_expected(str(tmp_path / "s.csv"), world, WHERE)
+    line = 4 if text.startswith("sep=") else 3
+    assert [(p.loc.line, p.loc.col) for p in problems] == [(line, 1)], problems
+    assert "unknown place 'A-1-3'" in problems[0].message
+    good = text.rsplit("A-1-3", 1)[0]
+    (tmp_path / "s.csv").write_bytes(good.encode(encoding))
+    stock, problems = read_expected(str(tmp_path / "s.csv"), world, WHERE)
+    assert problems == [] and stock.places == {"A-01-1": "109"}
+
+
 def test_the_same_as_json_in_three_shapes(tmp_path, world):
     rows = '[{"place": "A-01-1", "pallet": "109"}, {"place": "A-01-2", "pallet": null}]'
     for text in (rows, '{"rows": ' + rows + "}", '{"A-01-1": "109", "A-01-2": null}'):
@@ -139,7 +162,11 @@ def test_an_xlsx_report_with_a_title_above_its_header(tmp_path, world):
     [
         ("s.xlsx", b"place,pallet\nA-01-1,1\n", "not a readable XLSX workbook"),
         ("s.csv", b"PK\x03\x04 a zip", "not a readable XLSX workbook"),
-        ("s.csv", b"\xff\xfeA-01-1", "is not UTF-8 text (byte 0): expected CSV, JSON or an XLSX"),
+        (
+            "s.csv",
+            b"place,pallet\nA-01-1,\x81\x8d\n",  # no UTF-8, and bytes Windows-1252 lacks
+            "is not UTF-8, UTF-16 or Windows-1252 text (byte 20): expected CSV, JSON or an XLSX",
+        ),
     ],
 )
 def test_a_file_that_is_no_stock_says_what_was_expected(tmp_path, world, name, content, message):

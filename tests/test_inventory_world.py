@@ -178,6 +178,27 @@ def test_a_place_list_with_semicolons_or_tabs_reads_as_with_commas(tmp_path, del
     ]
 
 
+@pytest.mark.parametrize(
+    "encoding, text",
+    [
+        ("utf-16", "Aisle\tPlace\nK\u00fchl\tA-03-2\nK\u00fchl\tB-03-2\n"),
+        ("cp1252", "Aisle;Place\r\nK\u00fchl;A-03-2\r\nK\u00fchl;B-03-2\r\n"),
+        ("utf-8", "sep=;\nAisle;Place\nA;A-03-2\nA;B-03-2\n"),
+    ],
+)
+def test_a_place_list_excel_saved_reads_as_a_utf8_one(tmp_path, encoding, text):
+    """Excel's "Unicode Text" (UTF-16), its Windows "CSV" (Windows-1252) and its ``sep=;``
+    first line: the place column found, problems located at the file's own lines."""
+    w = load_world(AISLE)
+    csv = tmp_path / "places.csv"
+    csv.write_bytes(text.encode(encoding))
+    names, problems = resolve_places(str(csv), w, Loc("m.xml", 1, 1))
+    assert names == ["A-03-2"]
+    line = 4 if text.startswith("sep=") else 3
+    assert [(p.loc.line, p.loc.col) for p in problems] == [(line, 3 if encoding == "utf-8" else 6)]
+    assert "unknown place 'B-03-2'" in problems[0].message
+
+
 def test_an_xlsx_place_list_with_or_without_a_header(tmp_path):
     """A workbook's first sheet lists places as the CSV does: its ``Place`` column (any
     case) or, without that header, its first column from the first row; problems located
