@@ -79,24 +79,55 @@ DELIMITERS = (",", ";", "\t")
 _SEP_LINE = re.compile(r'"?sep=(.)"?\r?')
 
 
-def csv_rows(text: str) -> tuple[list[list[str]], str, int]:
-    """The rows of CSV ``text``, the delimiter they were split at and the line number of the
-    first row. The delimiter is the one of :data:`DELIMITERS` found most often in the first
-    line (a comma if none is), so that ``place;pallet`` and tab-separated exports read as
-    ``place,pallet`` does, or the one a ``sep=;`` first line names (that line is not a row:
-    the first row is then line 2). Raises :class:`csv.Error` for a file the csv module
-    cannot read."""
+@dataclass
+class CsvRow:
+    """A row of a CSV file: the line it starts on, its cells, and the column each cell
+    starts at on that line (1-based, quotes and all: what an editor shows)."""
+
+    line: int
+    cells: list[str]
+    cols: list[int]
+
+    def col(self, index: int) -> int:
+        """The column of cell ``index`` (the end of the line for a cell the row lacks)."""
+        return self.cols[min(index, len(self.cols) - 1)]
+
+
+def csv_rows(text: str) -> tuple[list[CsvRow], str]:
+    """The rows of CSV ``text`` and the delimiter they were split at: the one of
+    :data:`DELIMITERS` found most often in the first line (a comma if none is), so that
+    ``place;pallet`` and tab-separated exports read as ``place,pallet`` does, or the one a
+    ``sep=;`` first line names (that line is not a row). Each row knows its line and its
+    cells' columns, so problems are located where they are, quoted cells, quoted line
+    breaks and all. Raises :class:`csv.Error` for a file the csv module cannot read."""
     first, _, rest = text.partition("\n")
     named = _SEP_LINE.fullmatch(first)
     if named:
-        return csv_rows_at(rest, named.group(1)), named.group(1), 2
-    delimiter = max(DELIMITERS, key=lambda d: (first.count(d), d == ","))
-    return csv_rows_at(text, delimiter), delimiter, 1
+        delimiter, body, skipped = named.group(1), rest, 1
+    else:
+        delimiter = max(DELIMITERS, key=lambda d: (first.count(d), d == ","))
+        body, skipped = text, 0
+    lines = io.StringIO(body, newline="").readlines()  # as the reader splits them
+    reader = csv.reader(io.StringIO(body, newline=""), delimiter=delimiter)
+    rows: list[CsvRow] = []
+    start = 1
+    for cells in reader:
+        raw = lines[start - 1] if start <= len(lines) else ""
+        rows.append(CsvRow(start + skipped, cells, _columns(raw, delimiter)))
+        start = reader.line_num + 1
+    return rows, delimiter
 
 
-def csv_rows_at(text: str, delimiter: str) -> list[list[str]]:
-    """The rows of CSV ``text`` split at ``delimiter``."""
-    return list(csv.reader(io.StringIO(text, newline=""), delimiter=delimiter))
+def _columns(line: str, delimiter: str) -> list[int]:
+    """Where each cell of CSV ``line`` starts (1-based); a delimiter inside quotes does not
+    end a cell."""
+    cols, quoted = [1], False
+    for i, ch in enumerate(line):
+        if ch == '"':
+            quoted = not quoted
+        elif ch == delimiter and not quoted:
+            cols.append(i + 2)
+    return cols
 
 
 def export_text(data: bytes) -> str:
@@ -121,17 +152,17 @@ def export_text(data: bytes) -> str:
 def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
     """(place, pallet, where the place is, where the pallet is) per CSV row."""
     try:
-        rows, delimiter, first = csv_rows(text)
+        rows, delimiter = csv_rows(text)
     except csv.Error as exc:
         return [], [Problem(Loc(path, 1, 1), f"not a readable CSV file: {exc}")]
     if not rows:
         return [], [Problem(Loc(path, 1, 1), "the expected stock is empty: a header place,pallet")]
-    header = [c.strip().lower() for c in rows[0]]
+    header = [c.strip().lower() for c in rows[0].cells]
     if "place" not in header or "pallet" not in header:
-        got = delimiter.join(rows[0])[:80].replace("\t", "\\t")
+        got = delimiter.join(rows[0].cells)[:80].replace("\t", "\\t")
         return [], [
             Problem(
-                Loc(path, first, 1),
+                Loc(path, rows[0].line, 1),
                 f"expected a header 'place,pallet' (as a WMS exports; a ';' or a tab between "
                 f"the columns reads too), got '{got}'",
             )
@@ -139,13 +170,14 @@ def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]],
     pc, qc = header.index("place"), header.index("pallet")
     out = []
     problems = []
-    for i, row in enumerate(rows[1:], start=first + 1):
-        if not any(c.strip() for c in row):
+    for row in rows[1:]:
+        cells = row.cells
+        if not any(c.strip() for c in cells):
             continue  # a blank line
-        place = row[pc].strip() if pc < len(row) else ""
-        pallet = row[qc].strip() if qc < len(row) else ""
-        where_place = Loc(path, i, sum(len(c) + 1 for c in row[:pc]) + 1)
-        where_pallet = Loc(path, i, sum(len(c) + 1 for c in row[:qc]) + 1)
+        place = cells[pc].strip() if pc < len(cells) else ""
+        pallet = cells[qc].strip() if qc < len(cells) else ""
+        where_place = Loc(path, row.line, row.col(pc))
+        where_pallet = Loc(path, row.line, row.col(qc))
         if not place:
             problems.append(Problem(where_place, "a row without a place (expected place,pallet)"))
             continue
@@ -404,6 +436,7 @@ def read_expected(
 __all__ = [
     "EMPTY_SPELLINGS",
     "ExpectedStock",
+    "CsvRow",
     "csv_rows",
     "export_text",
     "read_expected",

@@ -144,7 +144,7 @@ def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Prob
         return [], [Problem(where, f"place list: {read[0].message}")]
     try:
         text = export_text(data)  # UTF-8, UTF-16 with its mark or Windows-1252
-        rows, _, first = csv_rows(text)  # a comma, a semicolon or a tab between the columns
+        rows, _ = csv_rows(text)  # a comma, a semicolon or a tab between the columns
     except UnicodeDecodeError as exc:
         return [], [
             Problem(
@@ -157,14 +157,13 @@ def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Prob
         return [], [Problem(where, f"cannot read the place list {path}: {exc}")]
     if not rows:
         return [], [Problem(Loc(path, 1, 1), "the place list is empty")]
-    header = [c.strip().lower() for c in rows[0]]
+    header = [c.strip().lower() for c in rows[0].cells]
     col, start = (header.index("place"), 1) if "place" in header else (0, 0)
-    out = []
-    for i, row in enumerate(rows[start:], start=start + first):
-        if col < len(row) and row[col].strip():
-            column = sum(len(c) + 1 for c in row[:col]) + 1
-            out.append((row[col].strip(), Loc(path, i, column)))
-    return out, []
+    return [
+        (row.cells[col].strip(), Loc(path, row.line, row.col(col)))
+        for row in rows[start:]
+        if col < len(row.cells) and row.cells[col].strip()
+    ], []
 
 
 @register

@@ -87,6 +87,22 @@ def test_what_excel_saves_reads_as_a_utf8_csv(tmp_path, world, encoding, text):
     assert problems == [] and stock.places == {"A-01-1": "109"}
 
 
+def test_problems_in_quoted_cells_are_located_where_an_editor_shows_them(tmp_path, world):
+    """A WMS that quotes every cell, or a note with a comma or a line break in it: the
+    column and line are the file's (they were counted from the cells' unquoted text and
+    one line per row: col 8 for the pallet of '"A-01-1","109"')."""
+    text = (
+        '"place","pallet","note"\n'
+        '"A-01-1","109","two lines:\nsecond"\n'
+        '"A-01-2","109",""\n'
+        '"note, with a comma","x",""\n'
+    )
+    _, problems = _read(tmp_path, "s.csv", text, world)
+    assert [(p.loc.line, p.loc.col) for p in problems] == [(4, 10), (5, 1)], problems
+    assert "pallet '109' expected at two places" in problems[0].message
+    assert "unknown place 'note, with a comma'" in problems[1].message
+
+
 def test_the_same_as_json_in_three_shapes(tmp_path, world):
     rows = '[{"place": "A-01-1", "pallet": "109"}, {"place": "A-01-2", "pallet": null}]'
     for text in (rows, '{"rows": ' + rows + "}", '{"A-01-1": "109", "A-01-2": null}'):
