@@ -202,6 +202,8 @@ class _Constant:
         self.name = obj.name
 
     def __getattr__(self, attr: str) -> Any:  # optional members (run_sections, file_kinds)
+        if attr == "_obj":  # not set yet (a copy being made): no recursion
+            raise AttributeError(attr)
         return getattr(self._obj, attr)
 
     def load_target(self, rig_path: str | None, overrides: dict[str, str]) -> Any:
