@@ -125,8 +125,12 @@ function mapView() {
   const turned = maxY - minY > maxX - minX;
   const across = turned ? maxY - minY : maxX - minX, down = turned ? maxX - minX : maxY - minY;
   const S = Math.min(860 / across, 360 / down);
-  const W = across * S, H = down * S;
-  state.toMap = turned ? (x, y) => [(maxY - y) * S, (maxX - x) * S] : (x, y) => [(x - minX) * S, (maxY - y) * S];
+  // room in pixels around the world's extent for the names written beside pads and drones
+  const PX = 44, PY = 16;
+  const W = across * S + 2 * PX, H = down * S + 2 * PY;
+  state.toMap = turned
+    ? (x, y) => [PX + (maxY - y) * S, PY + (maxX - x) * S]
+    : (x, y) => [PX + (x - minX) * S, PY + (maxY - y) * S];
   const m = svg("svg", { id: "map", viewBox: `0 0 ${W} ${H}`, width: W, height: H });
   for (const [place, p] of Object.entries(state.info.positions)) {
     const [x, y] = state.toMap(p[0], p[1]);
