@@ -317,6 +317,7 @@ class _Validator:
             for port in model.ports.values():
                 known.update(getattr(port.type, "members", None) or ())
         reads: list[tuple[Any, str]] = []
+        port_reads: list[tuple[Any, str, str]] = []  # (attribute, entry, port)
         for node in self.nodes():
             model = self.registry.get(node.type)
             for attr, script in self.scripts(node):
@@ -335,6 +336,8 @@ class _Validator:
                     known.update((name, key))
                 elif key in model.ports and model.ports[key].writes:
                     known.add(name)
+                elif key in model.ports:
+                    port_reads.append((attr, name, key))
         known = {k.lstrip("@") for k in known}
         for attr, name in reads:
             if name.lstrip("@") not in known:
@@ -344,6 +347,17 @@ class _Validator:
                     "writes (no script assignment, output port or SetBlackboard) or declares "
                     "(<TreeNodesModel> port); unless it is set from outside (--set), the "
                     "script fails when it runs",
+                )
+        for attr, name, key in port_reads:
+            if name.lstrip("@") not in known:
+                close = suggest_name(name.lstrip("@"), sorted(known))
+                hint = f" (did you mean {{{close}}}?)" if close else ""
+                self.warn(
+                    attr.loc,
+                    f"input port '{key}' reads blackboard entry {{{name}}}, which nothing in "
+                    "this mission writes (no output port, script assignment or SetBlackboard) "
+                    f"or declares (<TreeNodesModel> port){hint}; unless it is set from outside "
+                    "(--set), the node fails when it runs",
                 )
 
     def instant(self, root: NodeSpec) -> bool:

@@ -470,6 +470,30 @@ def test_entry_written_by_an_output_port_is_known():
     assert warnings_of(spec)[1] == []
 
 
+def test_an_input_port_reading_an_entry_nothing_writes_is_a_located_warning():
+    """A typo in a ``{reference}`` (``{passs}`` for the loop's ``{pass}``) was found only in
+    flight, after take-off ("reads blackboard entry {passs}, which is not set"): validate
+    now warns at the attribute, with the closest entry the mission does write."""
+    body = (
+        "<Sequence>"
+        '<Script code="target := &apos;1;0;1&apos;"/>'
+        '<GoTo pose="{targte}"/>'
+        '<GoTo pose="{target}"/>'
+        '<GoTo pose="{home}"/>'
+        "</Sequence>"
+    )
+    extra = (
+        '<TreeNodesModel><SubTree ID="Main"><input_port name="home"/></SubTree></TreeNodesModel>'
+    )
+    errs, warns = warnings_of(load_xml("m.xml", text=wrap(body, extra)))
+    assert errs == []  # still valid: --set may supply it
+    assert len(warns) == 1, warns
+    assert warns[0].startswith(
+        "m.xml:3:61: warning: input port 'pose' reads blackboard entry {targte}, which nothing "
+    ), warns
+    assert "(did you mean {target}?)" in warns[0]
+
+
 def _attr(value):
     from bt_engine.spec import AttrSpec
 
