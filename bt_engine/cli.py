@@ -166,8 +166,8 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     _include_path(s)
 
     c = sub.add_parser("convert", help="convert a mission between XML and YAML")
-    c.add_argument("source")
-    c.add_argument("dest")
+    c.add_argument("source", help="the mission file (.xml or .yaml)")
+    c.add_argument("dest", help="the file to write, in the other format (.yaml or .xml)")
     _include_path(c)
 
     n = sub.add_parser("nodes", help="list the nodes missions can use")
