@@ -136,7 +136,9 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         "rig and its world, as btrun run checks before take-off, flying nothing); rig, "
         "world, fleet and campaign files are checked as their commands would",
     )
-    v.add_argument("files", nargs="+")
+    v.add_argument(
+        "files", nargs="+", help="missions (.xml, .yaml), or rig, world, fleet and campaign files"
+    )
     v.add_argument(
         "--rig",
         help="also check each mission against this rig and its world: the --set items, the "
@@ -160,7 +162,7 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     _include_path(v)
 
     s = sub.add_parser("show", help="print a mission's tree")
-    s.add_argument("mission")
+    s.add_argument("mission", help="mission file (.xml, .yaml)")
     s.add_argument("--format", choices=("text", "dot", "svg", "png"), default="text")
     s.add_argument("--output", "-o", help="output file (for dot/svg/png)")
     _include_path(s)
