@@ -101,6 +101,12 @@ def test_a_bad_rack_in_a_file_is_located(tmp_path):
             "stock.placement_error.height_m",
             "into the beam of the level above in rack A: at most 0.556 m",
         ),
+        (  # a pallet turned 90 deg was accepted: its side faced the aisle, half in the next bay
+            {"stock.placement_error.yaw_deg": "90"},
+            "stock.placement_error.yaw_deg",
+            "90 deg turns a 1.2 x 0.8 m pallet into the next bay or through the rack's back: "
+            "at most 16.2 deg there",
+        ),
     ],
 )
 def test_a_rack_that_cannot_hold_its_pallets_is_refused(overrides, key, fragment):
@@ -112,6 +118,7 @@ def test_a_rack_that_cannot_hold_its_pallets_is_refused(overrides, key, fragment
     (problem,) = exc.value.problems
     assert problem.message.startswith(f"world.{key}: ") and fragment in problem.message
     load_world(AISLE, {"stock.placement_error.lateral_m": "0.1", "stock.placement_error.depth_m": "0.15"})  # fmt: skip
+    load_world(AISLE, {"stock.placement_error.yaw_deg": "16"})
 
 
 def test_a_rack_too_shallow_in_a_file_is_located(tmp_path):

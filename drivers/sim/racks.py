@@ -405,7 +405,35 @@ def _fit_problems(data: dict) -> list[tuple[str, str]]:
                     f"{', '.join(over)}: at most {most:.3f} m there",
                 )
             )
+    yaw = float(err.get("yaw_deg") or 0.0)
+    # the whole gap to a neighbour standing on its place (lateral errors get half of it)
+    gap = 2 * min(lat_room.values(), default=math.inf)
+    rooms = (gap, min(dep_room.values(), default=math.inf))
+    if yaw > 0 and not _turn_fits(yaw, length, width, rooms):
+        # turned about its face centre, a pallet's back corners swing sideways and the far
+        # side of its front edge goes deeper: alone (no other error, its neighbour on its
+        # place) neither may reach the neighbouring bay's pallet or the rack's back
+        most = max(t / 10 for t in range(901) if _turn_fits(t / 10, length, width, rooms))
+        out.append(
+            (
+                "stock.placement_error.yaw_deg",
+                f"{yaw:g} deg turns a {length:g} x {width:g} m pallet into the next bay or "
+                f"through the rack's back: at most {most:g} deg there",
+            )
+        )
     return out
+
+
+def _turn_fits(deg: float, length: float, width: float, rooms: tuple[float, float]) -> bool:
+    """Whether a pallet turned by up to ``deg`` about its face centre stays within
+    ``rooms`` (sideways, backwards, m) of its footprint."""
+    for t in (deg * i / 50 for i in range(51)):
+        a = math.radians(min(t, 90.0))
+        side = (length / 2) * math.cos(a) + width * math.sin(a) - length / 2
+        back = (length / 2) * math.sin(a) + width * math.cos(a) - width
+        if side > rooms[0] + 1e-9 or back > rooms[1] + 1e-9:
+            return False
+    return True
 
 
 def stock_problems(data: dict, places: list[Place]) -> list[tuple[str, str]]:
