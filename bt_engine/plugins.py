@@ -193,7 +193,7 @@ def _load(spec: str, source: str = "") -> Plugin:
     return obj
 
 
-class _Constant:
+class _LeafOnlyPlugin:
     """A plug-in whose ``load_target`` / ``write_report`` are None or whose ``commands`` is a
     dict (what their methods would return), given the methods the engine calls."""
 
@@ -243,7 +243,7 @@ def _adapted(obj: Any, named: str) -> Plugin:
         raise PluginError(
             f"{named} is not a plug-in object: {'; '.join(wrong)} (bt_engine.plugins.Plugin)"
         )
-    return _Constant(obj)  # type: ignore[return-value]
+    return _LeafOnlyPlugin(obj)  # type: ignore[return-value]
 
 
 def load_plugins() -> list[Plugin]:

@@ -75,11 +75,11 @@ def previous_run(resume: str | None) -> dict | None:
             [Problem(Loc("--resume", 0, 0), f"{resume} is not a fleet run folder (no fleet.json)")]
         )
     problems: list[Problem] = []
-    text = read_text(path, problems, what="fleet records")  # regular and bounded
-    if text is None:
+    raw = read_text(path, problems, what="fleet records")  # regular and bounded
+    if raw is None:
         raise MissionError(problems)
     try:
-        record = json.loads(text)
+        record = json.loads(raw)
     except (ValueError, RecursionError):
         record = None
     if not isinstance(record, dict) or type(record.get("seed")) is not int:
