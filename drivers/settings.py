@@ -413,6 +413,12 @@ def load_yaml_file(
 _INDEX = re.compile(r"\[\s*([^\]]*?)\s*\]")
 
 
+def key_parts(dotted: str) -> list[str]:
+    """The parts of a ``--set`` style key, list indexes dotted or in brackets alike
+    (``row_slots[0].x_m`` and ``row_slots.0.x_m``: ``["row_slots", "0", "x_m"]``)."""
+    return _INDEX.sub(r".\1", dotted).split(".")
+
+
 def _index_problem(part: str, length: int, name: str) -> str | None:
     """Why ``part`` is no index of the list ``name`` of ``length`` items (None: it is)."""
     items = f"{name} has {length} item{'s' if length != 1 else ''}" + (
@@ -442,7 +448,7 @@ def apply_overrides(
     problems: list[SettingProblem] = []
     for dotted, raw in (overrides or {}).items():
         where = f"{prefix}{dotted}={raw}"
-        parts = _INDEX.sub(r".\1", dotted).split(".")
+        parts = key_parts(dotted)
         node_spec, target = spec, out
         ok = True
         for i, part in enumerate(parts):

@@ -69,6 +69,30 @@ def test_a_stock_the_world_cannot_fill_is_refused(overrides, message):
     assert any(message in p for p in exc.value.problems), exc.value.problems
 
 
+def test_what_an_override_broke_elsewhere_is_located_in_the_file():
+    """A smaller pool leaves the file's not-enrolled list naming pallets it no longer has:
+    said once for the list, at the file's line, with the override that broke it (it was
+    ten lines, each blamed on a --set the user never wrote)."""
+    site = os.path.join(REPO, "worlds", "site.yaml")
+    with pytest.raises(ConfigError) as exc:
+        load_world(site, {"pallet_pool.count": "100"})
+    text = open(site).read()
+    line = text[: text.index("not_enrolled: [")].count("\n") + 1
+    bad = [p for p in exc.value.problems if "not pallet ids" in p.message]
+    assert len(bad) == 1, exc.value.problems
+    assert (bad[0].file, bad[0].line) == (site, line)
+    assert "(10 ids)" in bad[0].message and "its 100 pallets: 1001 .. 1100" in bad[0].message
+    assert bad[0].message.endswith("(with --set world.pallet_pool.count=100)")
+    # a key the override wrote is still said as the --set
+    with pytest.raises(ConfigError) as exc:
+        load_world(site, {"stock.not_enrolled": "[1131, 9999]"})
+    said = [p for p in exc.value.problems if p.file == "--set"]
+    assert [p.message for p in said] == [
+        "world.stock.not_enrolled[1]: '9999' is not a pallet id of this world "
+        "(its 140 pallets: 1001 .. 1140)"
+    ]
+
+
 def test_a_bad_rack_in_a_file_is_located(tmp_path):
     text = open(AISLE).read().replace("levels_m: [0.20, 1.00]", "levels_m: [1.00, 0.20]")
     bad = tmp_path / "aisle.yaml"

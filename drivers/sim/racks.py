@@ -436,6 +436,16 @@ def _turn_fits(deg: float, length: float, width: float, rooms: tuple[float, floa
     return True
 
 
+def _id_span(ids: set[str]) -> str:
+    """The pallet ids of a world, said briefly: ``its pallets: 1001 .. 1100`` (or a few)."""
+    if not ids:
+        return "it has no pallets"
+    order = sorted(ids, key=lambda i: (len(i), i))
+    if len(order) <= 4:
+        return "its pallets: " + ", ".join(order)
+    return f"its {len(order)} pallets: {order[0]} .. {order[-1]}"
+
+
 def stock_problems(data: dict, places: list[Place]) -> list[tuple[str, str]]:
     """(key, message) for every inconsistency of racks, stock and pads (located by the
     caller): duplicate names, fixed entries naming unknown places or identities, a pallet
@@ -461,10 +471,14 @@ def stock_problems(data: dict, places: list[Place]) -> list[tuple[str, str]]:
         return problems
     ids = {p["id"] for p in data["pallets"]}
     stock = data["stock"]
-    for key in ("pallets", "not_enrolled"):
-        for j, pid in enumerate(stock[key] or []):
-            if str(pid) not in ids:
-                problems.append((f"stock.{key}[{j}]", f"'{pid}' is not a pallet id of this world"))
+    for key in ("pallets", "not_enrolled"):  # one problem per list, at its first bad id
+        bad = [(j, str(pid)) for j, pid in enumerate(stock[key] or []) if str(pid) not in ids]
+        if bad:
+            names = ", ".join(f"'{pid}'" for _, pid in bad[:4]) + (", ..." if len(bad) > 4 else "")
+            what = "is not a pallet id" if len(bad) == 1 else f"({len(bad)} ids) are not pallet ids"
+            problems.append(
+                (f"stock.{key}[{bad[0][0]}]", f"{names} {what} of this world ({_id_span(ids)})")
+            )
     known_places = {p.name for p in places}
     used: dict[str, str] = {}
     for name, identity in stock["fixed"].items():

@@ -20,6 +20,7 @@ from drivers.settings import (
     Marks,
     SettingProblem,
     apply_overrides,
+    key_parts,
     load_yaml_file,
     problem_at,
 )
@@ -390,6 +391,18 @@ def _world_problems(data: dict) -> list[tuple[str, str]]:
     return problems
 
 
+def _written_by(key: str, overrides: dict[str, str]) -> bool:
+    """True if a ``--set`` key wrote ``key`` or a part of it (``stock.empty_places`` wrote
+    ``stock``; ``stock`` wrote ``stock.not_enrolled[0]``)."""
+    mine = key_parts(key)
+    for k in overrides:
+        theirs = key_parts(k)
+        n = min(len(mine), len(theirs))
+        if mine[:n] == theirs[:n]:
+            return True
+    return False
+
+
 def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0) -> World:
     """Load, validate and build the world at ``path``; ``overrides`` are ``--set`` style
     keys of the world file (``scan_slot.y_m``), reported as ``world.KEY``; ``seed`` draws
@@ -411,11 +424,17 @@ def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0
                     "the slot empty)",
                 )
             )
-        # what the overrides broke (a stock the pool cannot fill, ...), said as --set
+        # what the overrides broke (a stock the pool cannot fill, ...): said as --set when
+        # an override wrote that key, else located in the file with the overrides named
         before = {p.message for p in problems}
         for key, message in _world_problems(data):
-            if message not in before:
+            if message in before:
+                continue
+            if _written_by(key, overrides):
                 problems.append(SettingProblem("--set", 0, 0, f"world.{key}: {message}"))
+            else:
+                given = ", ".join(f"--set world.{k}={v}" for k, v in overrides.items())
+                problems.append(problem_at(marks, key, path, f"{message} (with {given})"))
     if problems:
         raise ConfigError(problems)
     return World(data, path, seed)
