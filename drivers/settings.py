@@ -23,6 +23,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import difflib
+import math
 import os
 import re
 import stat
@@ -126,6 +127,8 @@ def check_value(value: Any, spec: Field, path: str) -> tuple[Any, list[str]]:
         if not ok:
             want = "an integer" if kind == "int" else "a number"
             return value, [f"{path}: expected {want}, got {value!r}"]
+        if not math.isfinite(value):  # YAML's .nan and .inf: no setting means either
+            return value, [f"{path}: expected a finite number, got {value!r}"]
         value = int(value) if kind == "int" else float(value)
         if spec.min is not None and value < spec.min:
             return value, [f"{path}: {value} is below the minimum {spec.min}"]
@@ -152,6 +155,8 @@ def check_value(value: Any, spec: Field, path: str) -> tuple[Any, list[str]]:
             return value, [f"{path}: expected a list of {spec.length} numbers, got {value!r}"]
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
             return value, [f"{path}: expected numbers, got {value!r}"]
+        if not all(math.isfinite(v) for v in value):
+            return value, [f"{path}: expected finite numbers, got {value!r}"]
         return [float(v) for v in value], []
     if kind in ("map", "dict"):
         if not isinstance(value, dict):

@@ -114,6 +114,24 @@ def test_world_problems_are_located(tmp_path):
     assert any("duplicate pallet id '1'" in p for p in problems)
 
 
+@pytest.mark.parametrize("value", [".nan", ".inf", "-.inf"])
+def test_a_number_that_is_not_finite_is_refused_where_it_is_written(tmp_path, value):
+    """YAML's .nan passed every bound (NaN compares false) and crashed the world's build
+    with a traceback; .inf passed where a setting has no maximum."""
+    text = open(WORLD).read().replace("length_m: 1.2", f"length_m: {value}", 1)
+    assert value in text
+    path = write(tmp_path, "world.yaml", text)
+    with pytest.raises(ConfigError) as exc:
+        load_world(path)
+    line = next(i for i, s in enumerate(text.splitlines()) if f"length_m: {value}" in s) + 1
+    (problem,) = exc.value.problems
+    assert problem.startswith(f"{path}:{line}:")
+    assert "pallet_geometry.length_m: expected a finite number" in problem
+    with pytest.raises(ConfigError) as exc:  # in a list of numbers, and as a --set
+        load_world(WORLD, {"floor.size_m": f"[{value}, 2.0]"})
+    assert "floor.size_m: expected finite numbers" in str(exc.value.problems)
+
+
 def test_rig_with_a_bad_world_reports_the_world_file(tmp_path):
     world = write(tmp_path, "w.yaml", "name: w\nflor: {}\n")
     rig = write(tmp_path, "r.yaml", f"link: sim\nworld: {{path: {world}}}\n")
