@@ -234,12 +234,8 @@ class Guard:
     def run(self) -> int:
         """Serve until the mission process says goodbye (or the guard took over); exit code."""
         while True:
-            # a link to pump (a Crazyflie's telemetry) is looked at every 5 ms; a simulated
-            # drone's guard only watches, and wakes for each message or every 50 ms (at 5 ms,
-            # four such guards of a fleet cost the lock-step run about 3 s of CPU)
-            wait = 0.005 if self.link is not None and not self.link_closed else 0.05
             try:
-                select.select([self.sock], [], [], wait)
+                select.select([self.sock], [], [], 0.005)
             except (OSError, ValueError):
                 self.mission_gone = True
             now = time.monotonic()
