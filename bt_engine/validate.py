@@ -14,19 +14,20 @@ nest at most :data:`~bt_engine.spec.MAX_SUBTREE_DEPTH` deep, nodes at most
 :data:`~bt_engine.spec.MAX_NESTING_DEPTH` deep and the expanded tree has at most
 :data:`~bt_engine.spec.MAX_TREE_NODES` nodes. Every walk here is iterative and linear in
 the size of the spec (a tree used many times is analysed once).
+
+The expanded-tree checks are in :mod:`bt_engine.validate_expansion`, the warnings in
+:mod:`bt_engine.validate_warnings` (mixed into the validator here).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from bt_engine.node import ConditionNode, SyncActionNode
-from bt_engine.ports import INT, NO_DEFAULT, PortValueError, blackboard_ref
+from bt_engine.ports import NO_DEFAULT, PortValueError, blackboard_ref
 from bt_engine.registry import CONTROL, DECORATOR, SUBTREE, Registry, suggest_name
 from bt_engine.spec import (
     MAX_NESTING_DEPTH,
     MAX_SUBTREE_DEPTH,
-    MAX_TREE_NODES,
     WARNING,
     Loc,
     MissionSpec,
@@ -34,6 +35,8 @@ from bt_engine.spec import (
     Problem,
     nesting_message,
 )
+from bt_engine.validate_expansion import _ExpansionChecks
+from bt_engine.validate_warnings import KNOWN_ENTRIES, _WarningChecks
 
 CONDITION_ATTRS = (
     "_failureIf",
@@ -46,35 +49,6 @@ CONDITION_ATTRS = (
     "_post",
 )
 SPECIAL_ATTRS = ("name", "_description", "_uid", "_fullpath")
-
-#: Blackboard entries written from outside the tree (by runner hooks of plug-ins, such as
-#: the safety supervisor's ``safety_state``): scripts may read them without a warning. A
-#: plug-in adds the entries it writes here.
-KNOWN_ENTRIES: set[str] = set()
-
-#: Built-in controls and decorators that never return RUNNING unless a child does (or only
-#: with a wake-up, which ticks the tree again at once): a loop around them never waits.
-#: (Not RunOnce: it returns SKIPPED after its first run, which ends the loop.)
-_PASS_THROUGH = frozenset(
-    (
-        "Sequence",
-        "SequenceWithMemory",
-        "ReactiveSequence",
-        "Fallback",
-        "ReactiveFallback",
-        "IfThenElse",
-        "WhileDoElse",
-        "Inverter",
-        "ForceSuccess",
-        "ForceFailure",
-        "Repeat",
-        "RetryUntilSuccessful",
-        "Timeout",
-        "SubTree",
-    )
-)
-#: Loop decorators and the port whose ``-1`` means forever.
-_LOOPS = {"Repeat": "num_cycles", "RetryUntilSuccessful": "num_attempts"}
 
 
 def check_script(code: str) -> str | None:
@@ -109,14 +83,7 @@ def _order(p: Problem) -> tuple:
     return (p.loc.file, p.loc.line, p.loc.col, p.message)
 
 
-def _chain(names: list[str]) -> str:
-    """``A -> B -> C``, shortened in the middle when long."""
-    if len(names) > 8:
-        names = names[:3] + [f"... {len(names) - 6} more ..."] + names[-3:]
-    return " -> ".join(names)
-
-
-class _Validator:
+class _Validator(_ExpansionChecks, _WarningChecks):
     def __init__(self, spec: MissionSpec, registry: Registry) -> None:
         self.spec = spec
         self.registry = registry
@@ -173,117 +140,7 @@ class _Validator:
         self.warnings = sorted(set(self.warnings), key=_order)
         return sorted(set(self.problems), key=_order)
 
-    # -- the main tree with SubTrees expanded ---------------------------------------------
-    def subtree_refs(self, tree_id: str) -> list[tuple[NodeSpec, int, str]]:
-        """``(SubTree node, its depth, target tree)`` of every SubTree of a defined tree."""
-        root = self.spec.trees[tree_id].root
-        if root is None:
-            return []
-        return [
-            (node, depth, str(node.attrs["ID"].value))
-            for node, depth in root.walk_depth()
-            if node.type == "SubTree"
-            and "ID" in node.attrs
-            and str(node.attrs["ID"].value) in self.spec.trees
-        ]
-
-    def expansion(self, main: str) -> None:
-        """Recursive SubTrees, and the depth and size of the main tree once expanded.
-
-        One depth-first pass over the trees reachable from ``main`` (each tree once, with an
-        explicit stack: a chain of thousands of SubTrees is fine), then the longest SubTree
-        chain, the deepest node and the node count of every tree, children first.
-        """
-        trees = self.spec.trees
-        refs: dict[str, list[tuple[NodeSpec, int, str]]] = {}
-        state: dict[str, int] = {main: 1}  # 1: on the current path, 2: done
-        order: list[str] = []  # trees in post-order: every tree after the trees it uses
-        loops: set[int] = set()  # SubTree nodes that close a loop (left out below)
-        refs[main] = self.subtree_refs(main)
-        path, stack = [main], [iter(refs[main])]
-        while stack:
-            for node, _depth, target in stack[-1]:
-                seen = state.get(target)
-                if seen == 1:
-                    loops.add(id(node))
-                    self.add(
-                        node.attrs["ID"].loc, "recursive SubTree: " + " -> ".join(path + [target])
-                    )
-                elif seen is None:
-                    state[target] = 1
-                    refs[target] = self.subtree_refs(target)
-                    path.append(target)
-                    stack.append(iter(refs[target]))
-                    break
-            else:
-                stack.pop()
-                done = path.pop()
-                state[done] = 2
-                order.append(done)
-        chain: dict[str, int] = {}  # longest SubTree chain below a tree
-        deep: dict[str, int] = {}  # deepest node once expanded (a tree's root is level 1)
-        size: dict[str, int] = {}  # nodes once expanded (capped just above the limit)
-        for tid in order:
-            root = trees[tid].root
-            local = list(root.walk_depth()) if root is not None else []
-            used = [(n, d, t) for n, d, t in refs[tid] if id(n) not in loops]
-            chain[tid] = max((1 + chain[t] for _, _, t in used), default=0)
-            deep[tid] = max([d for _, d in local] + [d + deep[t] for _, d, t in used], default=0)
-            size[tid] = min(len(local) + sum(size[t] for _, _, t in used), MAX_TREE_NODES + 1)
-        if chain[main] > MAX_SUBTREE_DEPTH:
-            self.too_many_subtrees(main, refs, loops, chain)
-        elif deep[main] > MAX_NESTING_DEPTH:
-            self.too_deep(main, refs, loops, deep)
-        if size[main] > MAX_TREE_NODES:
-            root = trees[main].root
-            self.add(
-                root.loc if root is not None else trees[main].loc,
-                f"tree '{main}' has more than {MAX_TREE_NODES} nodes once its SubTrees are "
-                f"expanded (each use of a SubTree is a copy); the limit is {MAX_TREE_NODES} "
-                "(MAX_TREE_NODES)",
-            )
-
-    def too_many_subtrees(self, main: str, refs, loops: set[int], chain: dict[str, int]) -> None:
-        """Report the SubTree where the longest chain passes MAX_SUBTREE_DEPTH."""
-        names, tid = [main], main
-        while True:
-            node, _, target = max(
-                ((n, d, t) for n, d, t in refs[tid] if id(n) not in loops),
-                key=lambda r: chain[r[2]],
-            )
-            names.append(target)
-            if len(names) - 1 > MAX_SUBTREE_DEPTH:
-                self.add(
-                    node.attrs["ID"].loc,
-                    f"SubTree '{target}' is expanded {len(names) - 1} SubTrees deep "
-                    f"({_chain(names)}, with {chain[target]} more below); SubTrees may nest "
-                    f"at most {MAX_SUBTREE_DEPTH} deep (MAX_SUBTREE_DEPTH)",
-                )
-                return
-            tid = target
-
-    def too_deep(self, main: str, refs, loops: set[int], deep: dict[str, int]) -> None:
-        """Report the first node nested deeper than MAX_NESTING_DEPTH once expanded."""
-        names, tid, base = [main], main, 0
-        while True:
-            root = self.spec.trees[tid].root
-            if root is None:
-                return
-            for node, depth in root.walk_depth():
-                if base + depth > MAX_NESTING_DEPTH:
-                    if base == 0 or any(d > MAX_NESTING_DEPTH for _, d in root.walk_depth()):
-                        return  # too deep in this tree alone: reported with the tree
-                    how = f" once SubTrees are expanded ({_chain(names)})"
-                    self.add(node.loc, nesting_message(base + depth, how))
-                    return
-            _, d, tid = max(
-                ((n, d, t) for n, d, t in refs[tid] if id(n) not in loops),
-                key=lambda r: r[1] + deep[r[2]],
-            )
-            names.append(tid)
-            base += d
-
-    # -- warnings ---------------------------------------------------------------------------
+    # -- walks used by the warnings and by referenced_entries ------------------------------
     def nodes(self):
         """Every node of every tree."""
         for tree in self.spec.trees.values():
@@ -299,117 +156,6 @@ class _Validator:
             script = _parsed(attr.value) if code else None
             if script is not None:
                 yield attr, script
-
-    def unknown_entries(self) -> None:
-        """Warn about entries scripts read that nothing in the mission writes or declares.
-
-        Written: script assignments, blackboard references on output/inout ports, on
-        SubTrees (either way) and on unknown nodes, SetBlackboard's ``output_key``;
-        declared: ports of every ``<TreeNodesModel>`` entry (the mission's inputs, SubTree
-        ports), enum names and :data:`KNOWN_ENTRIES`. Scopes are ignored (an entry written
-        anywhere counts), so a warning means the entry can only come from outside the
-        tree: ``--set``, ``Mission(blackboard=...)`` or a plug-in.
-        """
-        known = set(KNOWN_ENTRIES)
-        for m in self.spec.models.values():
-            known.update(m.ports)
-        for model in self.registry.models():
-            for port in model.ports.values():
-                known.update(getattr(port.type, "members", None) or ())
-        reads: list[tuple[Any, str]] = []
-        port_reads: list[tuple[Any, str, str]] = []  # (attribute, entry, port)
-        for node in self.nodes():
-            model = self.registry.get(node.type)
-            for attr, script in self.scripts(node):
-                known.update(script.writes)
-                reads.extend((attr, name) for name in sorted(script.reads))
-            for key, attr in node.attrs.items():
-                ref = blackboard_ref(attr.value)
-                if model is not None and model.id == "SetBlackboard" and key == "output_key":
-                    if ref is not None:
-                        return  # the entry written is chosen at run time: anything may be
-                    known.add(str(attr.value).strip())
-                if ref is None:
-                    continue
-                name = key if ref == "=" else ref
-                if model is None or model.kind == SUBTREE:
-                    known.update((name, key))
-                elif key in model.ports and model.ports[key].writes:
-                    known.add(name)
-                elif key in model.ports:
-                    port_reads.append((attr, name, key))
-        known = {k.lstrip("@") for k in known}
-        for attr, name in reads:
-            if name.lstrip("@") not in known:
-                self.warn(
-                    attr.loc,
-                    f"script reads blackboard entry '{name}', which nothing in this mission "
-                    "writes (no script assignment, output port or SetBlackboard) or declares "
-                    "(<TreeNodesModel> port); unless it is set from outside (--set), the "
-                    "script fails when it runs",
-                )
-        for attr, name, key in port_reads:
-            if name.lstrip("@") not in known:
-                close = suggest_name(name.lstrip("@"), sorted(known))
-                hint = f" (did you mean {{{close}}}?)" if close else ""
-                self.warn(
-                    attr.loc,
-                    f"input port '{key}' reads blackboard entry {{{name}}}, which nothing in "
-                    "this mission writes (no output port, script assignment or SetBlackboard) "
-                    f"or declares (<TreeNodesModel> port){hint}; unless it is set from outside "
-                    "(--set), the node fails when it runs",
-                )
-
-    def instant(self, root: NodeSpec) -> bool:
-        """True if the subtree at ``root`` can never return RUNNING (and so never waits).
-
-        Leaves: synchronous actions and conditions; controls and decorators: the built-in
-        ones in ``_PASS_THROUGH`` over instant children (SubTrees expanded). Anything else
-        (a node that may run for a while, an unknown one) may wait.
-        """
-        todo, seen = [root], set()
-        while todo:
-            node = todo.pop()
-            model = self.registry.get(node.type)
-            if model is None:
-                return False
-            if model.kind == SUBTREE:
-                target = str(node.attrs["ID"].value) if "ID" in node.attrs else ""
-                tree = self.spec.trees.get(target)
-                if tree is None or tree.root is None:
-                    return False
-                if target not in seen:
-                    seen.add(target)
-                    todo.append(tree.root)
-            elif node.children or model.kind in (CONTROL, DECORATOR):
-                if model.id not in _PASS_THROUGH:
-                    return False
-                todo.extend(node.children)
-            elif not issubclass(model.cls, (SyncActionNode, ConditionNode)):
-                return False
-        return True
-
-    def unbounded_loops(self) -> None:
-        """Warn about ``Repeat``/``RetryUntilSuccessful`` with -1 around instant children."""
-        for node in self.nodes():
-            model = self.registry.get(node.type)
-            port = _LOOPS.get(model.id) if model is not None else None
-            attr = node.attrs.get(port) if port else None
-            if attr is None or len(node.children) != 1:
-                continue
-            try:
-                forever = blackboard_ref(attr.value) is None and INT.convert(attr.value) == -1
-            except PortValueError:
-                continue
-            if forever and self.instant(node.children[0]):
-                until = "fails" if model.id == "Repeat" else "succeeds"
-                self.warn(
-                    attr.loc,
-                    f'{model.id} {port}="-1" around children that never return RUNNING: '
-                    f"the loop repeats within one tick and never ends unless the child {until} "
-                    "(as in BehaviorTree.CPP); nothing else runs meanwhile, and the tree is not "
-                    "halted on time. Bound the count, or add an action that takes time",
-                )
 
     def node(self, node: NodeSpec) -> None:
         if node.type == "?":
