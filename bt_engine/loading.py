@@ -1,9 +1,10 @@
 """Mission files in, mission files out: the one module that knows both formats.
 
-:mod:`bt_engine.xml_io` and :mod:`bt_engine.yaml_io` each read and write one format and know
-nothing of each other; an ``<include>`` (XML) or ``include:`` (YAML) of either format is
-resolved here (:class:`Includes`) and handed to the right loader. :func:`load_spec` reads a
-mission file of either format, :func:`convert_file` writes one format from the other.
+:mod:`bt_engine.xml_io` and :mod:`bt_engine.yaml_io` (writing: :mod:`bt_engine.yaml_writer`)
+each read and write one format and know nothing of each other; an ``<include>`` (XML) or
+``include:`` (YAML) of either format is resolved here (:class:`Includes`) and handed to the
+right loader. :func:`load_spec` reads a mission file of either format, :func:`convert_file`
+writes one format from the other.
 
 An include may only read files inside the main mission file's folder (and its subfolders)
 or inside an *include path* (``load_spec(path, include_paths=[...])``, ``btrun ...
@@ -24,8 +25,9 @@ from bt_engine.spec import Loc, MissionSpec, Problem
 from bt_engine.validate import validate
 from bt_engine.xml_io import dump_xml, merge_xml
 from bt_engine.xml_io import load_xml as _load_xml
-from bt_engine.yaml_io import dump_yaml, merge_yaml
 from bt_engine.yaml_io import load_yaml as _load_yaml
+from bt_engine.yaml_io import merge_yaml
+from bt_engine.yaml_writer import dump_yaml
 
 #: Deepest chain of includes.
 MAX_INCLUDE_DEPTH = 20

@@ -6,5 +6,6 @@
 * :mod:`drivers.sim` - the simulated drone, sensors, world, renderers and emulators.
 * :mod:`drivers.rig` - rig files and the platform factory: the only place that knows every
   platform.
-* :mod:`drivers.settings` - the small typed-settings language of rig and world files.
+* :mod:`drivers.settings` - the small typed-settings language of rig and world files;
+  :mod:`drivers.settings_yaml` reads and checks such files with located problems.
 """

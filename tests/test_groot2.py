@@ -366,7 +366,7 @@ def test_blackboard_payload_is_what_the_msgpack_package_writes(ctx):
 
 
 def test_msgpack_is_a_declared_dependency():
-    """A fresh ``pip install -e .`` installs the MessagePack library groot2.py imports."""
+    """A fresh ``pip install -e .`` installs the MessagePack library groot2_protocol.py imports."""
     tomllib = pytest.importorskip("tomllib")  # Python 3.11+
     with open(os.path.join(REPO, "pyproject.toml"), "rb") as f:
         deps = tomllib.load(f)["project"]["dependencies"]

@@ -21,7 +21,8 @@ from bt_engine.cli import main
 from bt_engine.spec import Loc, MissionError
 from bt_engine.ticklog import read_log
 from drivers.rig.loader import load_rig
-from drivers.settings import MAX_SETTINGS_BYTES, ConfigError
+from drivers.settings import ConfigError
+from drivers.settings_yaml import MAX_SETTINGS_BYTES
 from drivers.sim.world import load_world
 from nodes.fleet.check import previous_run
 from nodes.fleet.spec import load_fleet

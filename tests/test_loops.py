@@ -17,7 +17,7 @@ from bt_engine.node import NodeRuntimeError
 from bt_engine.ports import INT, STRING, PortValueError, QueueType, split_queue
 from bt_engine.validate import validate
 from bt_engine.xml_io import dump_xml
-from bt_engine.yaml_io import dump_yaml
+from bt_engine.yaml_writer import dump_yaml
 
 
 def ticks(m, n: int) -> list[str]:

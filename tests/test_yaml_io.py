@@ -16,7 +16,7 @@ from bt_engine.ports import FLOAT, PATH, VEC3, EnumType, input_port, output_port
 from bt_engine.registry import REGISTRY
 from bt_engine.validate import validate
 from bt_engine.xml_io import dump_xml
-from bt_engine.yaml_io import dump_yaml
+from bt_engine.yaml_writer import dump_yaml
 
 YAW = EnumType("YawMode", {"KEEP_YAW": 0, "PATH_FACING": 1, "FIXED_YAW": 2})
 

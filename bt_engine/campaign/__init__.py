@@ -7,7 +7,8 @@ and :mod:`bt_engine.run_cmd`) in a worker process, on a local pool or a Dask clu
 Modules, in the order a campaign goes through them:
 
 * :mod:`~bt_engine.campaign.spec` - the file's keys, read with located problems
-  (:mod:`~bt_engine.campaign.yaml_reader`: YAML values with their places);
+  (:mod:`~bt_engine.campaign.yaml_reader`: YAML values with their places;
+  :mod:`~bt_engine.campaign.model`: the campaign, its draws and fault cases, its limits);
 * :mod:`~bt_engine.campaign.rows` - the rows (one per run), seeded draws, row keys;
 * :mod:`~bt_engine.campaign.check` - missions and settings checked with the plug-in;
 * :mod:`~bt_engine.campaign.pool` and :mod:`~bt_engine.campaign.worker` - where runs execute;

@@ -13,13 +13,11 @@ from typing import Any
 
 from drivers.rig.paths import DEFAULT_RIG, REPO_ROOT
 from drivers.rig.schema import RIG_SCHEMA
-from drivers.settings import (
-    ConfigError,
-    load_yaml_file,
-)
+from drivers.settings import ConfigError
 from drivers.settings import (
     apply_overrides as _apply,
 )
+from drivers.settings_yaml import load_yaml_file
 
 __all__ = ["ConfigError", "Rig", "RIG_SCHEMA", "apply_overrides", "load_rig", "REPO_ROOT"]
 

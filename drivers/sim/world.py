@@ -21,9 +21,9 @@ from drivers.settings import (
     SettingProblem,
     apply_overrides,
     key_parts,
-    load_yaml_file,
     problem_at,
 )
+from drivers.settings_yaml import load_yaml_file
 from drivers.sim.racks import (
     Place,
     draw_pose_error,
