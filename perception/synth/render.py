@@ -7,15 +7,15 @@ sensor gains = green cast, illuminant colour, vignetting, exposure, brightness g
 contrast, shot and read noise). The raw frame is 244 x 324 uint8 Bayer; OpenCV's
 ``COLOR_BayerBG2BGR`` turns it back into colour (red at even rows and even columns, blue at odd
 rows and odd columns, green elsewhere).
+
+The sensor stage lives in :mod:`perception.synth.sensor`, the texture look-ahead in
+:mod:`perception.synth.texture_lookahead`; the sensor stage's names are importable from here
+too.
 """
 
 from __future__ import annotations
 
 import math
-import os
-import threading
-from collections import deque
-from dataclasses import dataclass
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -24,6 +24,15 @@ import numpy as np
 
 from perception.synth.camera_model import CameraModel, CameraPose, world_to_optical
 from perception.synth.scene import PalletSpec, Quad, Scene, SceneLight
+from perception.synth.sensor import (
+    Lighting,
+    SensorModel,
+    apply_sensor,
+    illuminant_bgr,
+    image_motion,
+    motion_kernel,
+)
+from perception.synth.texture_lookahead import _TEXTURES, _look_ahead
 
 NEAR_M = 0.02
 
@@ -42,118 +51,6 @@ class BlockBox(NamedTuple):
     visible: float
     block: int
     identity: str
-
-
-@dataclass(frozen=True)
-class Lighting:
-    """Per-frame light and exposure: overall gain, contrast about mid-grey, a linear
-    brightness gradient (fractional change from the centre to the image edge, direction in
-    the image), and the exposure time used for motion blur."""
-
-    exposure: float = 1.0
-    contrast: float = 1.0
-    gradient: float = 0.0
-    gradient_angle_rad: float = 0.0
-    exposure_time_s: float = 0.02
-
-
-@dataclass(frozen=True)
-class SensorModel:
-    """Raw sensor response: per-channel gains (B, G, R; green strongest = the green cast of
-    the raw AI-deck image), vignetting (corner fall-off), black level, read noise (DN) and
-    shot noise (variance per DN)."""
-
-    channel_gain_bgr: tuple[float, float, float] = (0.78, 1.0, 0.70)
-    vignetting: float = 0.25
-    black_level: float = 3.0
-    read_noise: float = 1.8
-    shot_noise: float = 0.18
-
-
-def illuminant_bgr(kelvin: float) -> tuple[float, float, float]:
-    """Relative (B, G, R) of a light of colour temperature ``kelvin`` (green = 1; 5500 K
-    neutral); a mild blackbody approximation (warm light: more red, less blue)."""
-    t = math.log(max(kelvin, 1000.0) / 5500.0)
-    return (float(np.clip(1.0 + 0.55 * t, 0.4, 1.6)), 1.0, float(np.clip(1.0 - 0.35 * t, 0.6, 1.6)))
-
-
-# ---------------------------------------------------------------------------- textures ahead
-class _Textures:
-    """Quad textures made ahead of need on one worker thread (:func:`render_scene`'s
-    ``lookahead_m``), so the second core makes them while the first draws.
-
-    A quad's texture is a pure function of the quad (made on first use, deterministically:
-    :attr:`perception.synth.scene.Quad.levels`), so who makes it, and when, changes no pixel.
-    Each quad is made once: whoever starts it (the worker or a drawing thread) registers it,
-    and a drawing thread that needs a texture being made waits for it."""
-
-    def __init__(self) -> None:
-        self._reset()
-        # a forked child has no worker: it starts afresh (what was being made is made again)
-        os.register_at_fork(after_in_child=self._reset)
-
-    def _reset(self) -> None:
-        self._lock = threading.Condition(threading.Lock())
-        self._making: dict[int, threading.Event] = {}  # id(quad) -> set when made
-        self._queue: deque[Quad] = deque()
-        self._queued: set[int] = set()
-        self._thread: threading.Thread | None = None
-
-    def ready(self, quad: Quad) -> None:
-        """Make sure ``quad``'s texture is made (here, or by the worker: then wait)."""
-        if not callable(quad.texture):
-            return
-        with self._lock:
-            event = self._making.get(id(quad))
-            mine = event is None and callable(quad.texture)
-            if mine:
-                event = self._making[id(quad)] = threading.Event()
-        if mine:
-            self._make(quad, event)
-        elif event is not None:
-            event.wait()
-        quad.levels  # noqa: B018  (made here if the worker could not)
-
-    def want(self, quads: list[Quad]) -> None:
-        """Queue ``quads`` (nearest first) to be made on the worker thread."""
-        with self._lock:
-            for q in quads:
-                if id(q) not in self._queued and id(q) not in self._making and callable(q.texture):
-                    self._queue.append(q)
-                    self._queued.add(id(q))
-            if self._queue:
-                if self._thread is None:
-                    self._thread = threading.Thread(
-                        target=self._run, name="texture-lookahead", daemon=True
-                    )
-                    self._thread.start()
-                self._lock.notify()
-
-    def _make(self, quad: Quad, event: threading.Event) -> None:
-        try:
-            quad.levels  # noqa: B018
-        finally:
-            with self._lock:
-                self._making.pop(id(quad), None)
-            event.set()
-
-    def _run(self) -> None:
-        while True:
-            with self._lock:
-                while not self._queue:
-                    self._lock.wait()
-                quad = self._queue.popleft()
-                self._queued.discard(id(quad))
-                if id(quad) in self._making or not callable(quad.texture):
-                    continue
-                event = self._making[id(quad)] = threading.Event()
-            try:
-                self._make(quad, event)
-            except Exception:  # noqa: BLE001 - a drawing thread makes it again and raises
-                pass
-
-
-_TEXTURES = _Textures()
 
 
 # ---------------------------------------------------------------------------- scene drawing
@@ -350,21 +247,6 @@ def _draw_objects(
     return nearest
 
 
-def _look_ahead(objects: list[Quad], near: np.ndarray, rel: np.ndarray, reach_m: float) -> None:
-    """Queue the untextured quads of ``near`` (facing the camera, in front of it, not in
-    this frame) within ``reach_m`` of the camera for the texture worker, nearest first."""
-    idx = np.flatnonzero(near)
-    if not len(idx):
-        return
-    d2 = np.sum(rel[idx] ** 2, axis=1)
-    close = d2 < reach_m * reach_m
-    idx, d2 = idx[close], d2[close]
-    want = [objects[i] for i in idx[np.argsort(d2, kind="stable")].tolist()]
-    want = [q for q in want if callable(q.texture)]
-    if want:
-        _TEXTURES.want(want)
-
-
 def render_scene(
     camera: CameraModel,
     pose: CameraPose,
@@ -449,146 +331,6 @@ def block_boxes(camera: CameraModel, pose: CameraPose, scene: Scene) -> list[Blo
     return out
 
 
-# ---------------------------------------------------------------------------- sensor stage
-@lru_cache(maxsize=8)
-def _cfa(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    """Flat gather indices of the BayerBG mosaic (R at even/even) and per-pixel channel."""
-    rows, cols = np.mgrid[0:height, 0:width]
-    ch = np.ones((height, width), np.int64)  # green
-    ch[(rows % 2 == 0) & (cols % 2 == 0)] = 2  # red
-    ch[(rows % 2 == 1) & (cols % 2 == 1)] = 0  # blue
-    idx = (rows * width + cols) * 3 + ch
-    return idx.ravel(), ch
-
-
-@lru_cache(maxsize=16)
-def _static_gain(
-    width: int, height: int, sensor: SensorModel, illuminant: tuple[float, float, float]
-) -> np.ndarray:
-    _, ch = _cfa(width, height)
-    gains = np.asarray(sensor.channel_gain_bgr) * np.asarray(illuminant)
-    yy, xx = np.mgrid[0:height, 0:width].astype(np.float64)
-    r2 = ((xx - (width - 1) / 2) ** 2 + (yy - (height - 1) / 2) ** 2) / (
-        (width / 2) ** 2 + (height / 2) ** 2
-    )
-    vignette = 1.0 - sensor.vignetting * r2
-    return (gains[ch] * vignette).astype(np.float32)
-
-
-@lru_cache(maxsize=4)
-def _grids(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
-    return (xx - (width - 1) / 2) / (width / 2), (yy - (height - 1) / 2) / (height / 2)
-
-
-@lru_cache(maxsize=4)
-def _noise_bank(n: int) -> np.ndarray:
-    return np.random.default_rng(20240611).standard_normal(4 * n).astype(np.float32)
-
-
-def motion_kernel(du: float, dv: float) -> np.ndarray | None:
-    """Linear blur kernel for an image-space smear (du, dv) in pixels (None if < 1 px)."""
-    length = math.hypot(du, dv)
-    if length < 1.0:
-        return None
-    n = int(math.ceil(length)) | 1
-    k = np.zeros((n, n), np.float32)
-    c = n // 2
-    cv2.line(
-        k,
-        (int(round(c - du / 2)), int(round(c - dv / 2))),
-        (int(round(c + du / 2)), int(round(c + dv / 2))),
-        1.0,
-        1,
-        cv2.LINE_AA,
-    )
-    return k / k.sum()
-
-
-def image_motion(
-    camera: CameraModel,
-    pose: CameraPose,
-    velocity: tuple[float, float, float],
-    yaw_rate: float,
-    depth_m: float,
-    exposure_time_s: float,
-) -> tuple[float, float]:
-    """Smear (du, dv) in pixels at the image centre over one exposure: translation at
-    ``depth_m`` plus the yaw rotation (rad/s)."""
-    R, _ = world_to_optical(camera, pose)
-    vc = R @ np.asarray(velocity, float)
-    f = camera.fx
-    depth = max(depth_m, 0.05) if math.isfinite(depth_m) else 5.0
-    du = -f * vc[0] / depth + f * yaw_rate
-    dv = -f * vc[1] / depth
-    return du * exposure_time_s, dv * exposure_time_s
-
-
-def apply_sensor(
-    bgr: np.ndarray,
-    rng: np.random.Generator,
-    *,
-    lighting: Lighting = Lighting(),
-    sensor: SensorModel = SensorModel(),
-    illuminant: tuple[float, float, float] = (1.0, 1.0, 1.0),
-    blur: tuple[float, float] = (0.0, 0.0),
-) -> np.ndarray:
-    """True-colour BGR uint8 -> raw BayerBG uint8 (blur, mosaic, gains, noise, clipping)."""
-    h, w = bgr.shape[:2]
-    k = motion_kernel(*blur)
-    if k is not None:
-        bgr = cv2.filter2D(bgr, -1, k, borderType=cv2.BORDER_REPLICATE)
-    raw8 = np.empty((h, w), np.uint8)  # BayerBG as OpenCV reads it: R at (even, even)
-    raw8[0::2, 0::2] = bgr[0::2, 0::2, 2]
-    raw8[0::2, 1::2] = bgr[0::2, 1::2, 1]
-    raw8[1::2, 0::2] = bgr[1::2, 0::2, 1]
-    raw8[1::2, 1::2] = bgr[1::2, 1::2, 0]
-    gain = _gain_map(
-        w,
-        h,
-        sensor,
-        tuple(float(v) for v in illuminant),
-        lighting.exposure,
-        lighting.gradient,
-        lighting.gradient_angle_rad,
-    )
-    raw = cv2.multiply(raw8, gain, dtype=cv2.CV_32F)
-    if lighting.contrast != 1.0:
-        raw -= 100.0
-        raw *= lighting.contrast
-        raw += 100.0
-    sigma = cv2.LUT(cv2.convertScaleAbs(raw), _sigma_lut(sensor.shot_noise, sensor.read_noise))
-    bank = _noise_bank(h * w)
-    off = int(rng.integers(0, bank.size - h * w))
-    raw += cv2.multiply(sigma, bank[off : off + h * w].reshape(h, w))
-    # |x + black| saturated to uint8: values below -black (rare noise) fold back up.
-    return cv2.convertScaleAbs(raw, alpha=1.0, beta=sensor.black_level)
-
-
-@lru_cache(maxsize=8)
-def _sigma_lut(shot: float, read: float) -> np.ndarray:
-    """Noise standard deviation per signal level 0..255: sqrt(shot * x + read^2)."""
-    return np.sqrt(np.arange(256, dtype=np.float32) * shot + read * read).astype(np.float32)
-
-
-@lru_cache(maxsize=64)
-def _gain_map(
-    w: int,
-    h: int,
-    sensor: SensorModel,
-    illuminant: tuple[float, float, float],
-    exposure: float,
-    gradient: float,
-    angle: float,
-) -> np.ndarray:
-    """Per-pixel gain: Bayer channel gain x illuminant x vignetting x exposure x gradient."""
-    gain = _static_gain(w, h, sensor, illuminant) * np.float32(exposure)
-    if gradient:
-        gx, gy = _grids(w, h)
-        gain = gain * (1.0 + gradient * math.cos(angle) * gx + gradient * math.sin(angle) * gy)
-    return gain.astype(np.float32)
-
-
 def render_frame(
     camera: CameraModel,
     pose: CameraPose,
@@ -597,8 +339,8 @@ def render_frame(
     *,
     velocity: tuple[float, float, float] | None = None,
     yaw_rate: float = 0.0,
-    lighting: Lighting = Lighting(),
-    sensor: SensorModel = SensorModel(),
+    lighting: Lighting = Lighting(),  # noqa: B008 (frozen dataclass: immutable)
+    sensor: SensorModel = SensorModel(),  # noqa: B008 (frozen dataclass: immutable)
     colour_temperature_k: float | None = None,
     return_boxes: bool = False,
     lookahead_m: float = 0.0,
