@@ -9,6 +9,7 @@ A texture is a pure function of its quad, so who makes it, and when, changes no 
 
 from __future__ import annotations
 
+import atexit
 import os
 import threading
 from collections import deque
@@ -38,6 +39,22 @@ class _Textures:
         self._queue: deque[Quad] = deque()
         self._queued: set[int] = set()
         self._thread: threading.Thread | None = None
+        self._closed = False
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Drop what is queued and let the worker finish the texture it is making (at the
+        interpreter's exit: a daemon thread still inside OpenCV when Python finalises is
+        ended from within OpenCV's C++ frames, and the process aborts with "terminate
+        called without an active exception" after its work is done). Later wants are
+        ignored; drawing threads still make what they need themselves."""
+        with self._lock:
+            self._closed = True
+            self._queue.clear()
+            self._queued.clear()
+            self._lock.notify_all()
+            thread = self._thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout_s)
 
     def ready(self, quad: Quad) -> None:
         """Make sure ``quad``'s texture is made (here, or by the worker: then wait)."""
@@ -57,6 +74,8 @@ class _Textures:
     def want(self, quads: list[Quad]) -> None:
         """Queue ``quads`` (nearest first) to be made on the worker thread."""
         with self._lock:
+            if self._closed:
+                return
             for q in quads:
                 if id(q) not in self._queued and id(q) not in self._making and callable(q.texture):
                     self._queue.append(q)
@@ -80,8 +99,10 @@ class _Textures:
     def _run(self) -> None:
         while True:
             with self._lock:
-                while not self._queue:
+                while not self._queue and not self._closed:
                     self._lock.wait()
+                if self._closed:
+                    return
                 quad = self._queue.popleft()
                 self._queued.discard(id(quad))
                 if id(quad) in self._making or not callable(quad.texture):
@@ -94,6 +115,7 @@ class _Textures:
 
 
 _TEXTURES = _Textures()
+atexit.register(_TEXTURES.close)  # before Python finalises: no worker left inside OpenCV
 
 
 def _look_ahead(objects: list[Quad], near: np.ndarray, rel: np.ndarray, reach_m: float) -> None:
