@@ -10,6 +10,7 @@ import argparse
 import os
 import sys
 
+from bt_engine.arg_types import positive
 from bt_engine.plugins import Command, PluginError, plugin_commands
 from bt_engine.spec import MissionError, Problem
 
@@ -61,7 +62,12 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     r.add_argument(
         "--seed", type=int, default=None, help="random seed of the simulator (default 0)"
     )
-    r.add_argument("--rate", type=float, default=50.0, help="tick rate in Hz (default 50)")
+    r.add_argument(
+        "--rate",
+        type=positive("a tick rate in Hz", 1000.0),
+        default=50.0,
+        help="tick rate in Hz (default 50)",
+    )
     r.add_argument("--out", help="run folder (default runs/<mission>-<time>)")
     r.add_argument(
         "--resume",
@@ -78,19 +84,22 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         "none: record nothing; docs/store.md)",
     )
     r.add_argument(
-        "--max-time", type=float, default=900.0, help="mission time limit in s (default 900)"
+        "--max-time",
+        type=positive("a time in s"),
+        default=900.0,
+        help="mission time limit in s (default 900)",
     )
     r.add_argument(
         "--realtime",
         nargs="?",
         const=1.0,
-        type=float,
+        type=positive("a factor", 100.0),
         metavar="FACTOR",
         help="pace the run on the wall clock (optionally FACTOR times real time)",
     )
     r.add_argument(
         "--tick-budget",
-        type=float,
+        type=positive("a time in s"),
         default=None,
         metavar="S",
         help="wall-clock seconds one tick may take before the watchdog stops the tree and "

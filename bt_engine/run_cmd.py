@@ -86,6 +86,25 @@ def _run_dir(args) -> str:
     return os.path.join("runs", f"{stem}-{time.strftime('%Y%m%d-%H%M%S')}")
 
 
+def run_dir_problem(run_dir: str, option: str = "--out") -> Problem | None:
+    """Why the run folder ``run_dir`` cannot be made (a file in its place or above it, a
+    folder that cannot be written), located at ``option``; None if it can, as far as can
+    be told without making it (a refused run makes no folder)."""
+    path = os.path.abspath(run_dir)
+    where = Loc(option, 0, 0)
+    if os.path.exists(path) and not os.path.isdir(path):
+        return Problem(where, f"{run_dir}: a file is there; the run folder must be a folder")
+    parent = path
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if parent != path and not os.path.isdir(parent):
+        return Problem(where, f"{run_dir}: {parent} is a file, so no folder can be made in it")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        what = "write in" if parent == path else "make a folder in"
+        return Problem(where, f"{run_dir}: cannot {what} {parent} (permission denied)")
+    return None
+
+
 class _PlainLog:
     """Non-TTY progress: one line per action start/finish and node messages."""
 
@@ -250,6 +269,10 @@ def prepare(
     if clock is None:
         clock = WallClock(factor) if factor else SimClock()
     run_dir = _run_dir(args)
+    bad_dir = run_dir_problem(run_dir)
+    if bad_dir is not None:  # before a guard or a platform is started
+        release(target, written=False)
+        raise MissionError([bad_dir])
     if target is not None:  # what a guard process needs before the platform is built
         target.run_dir = run_dir  # type: ignore[attr-defined]
         target.run_record = {  # type: ignore[attr-defined]
@@ -296,7 +319,15 @@ def prepare(
             platform.shutdown("pre-flight check failed")
         release(target, written=False)
         raise MissionError(preflight)
-    os.makedirs(run_dir, exist_ok=True)
+    try:
+        os.makedirs(run_dir, exist_ok=True)
+    except OSError as exc:  # what the check above could not foresee (/proc, a full disk)
+        if platform is not None:
+            platform.shutdown("no run folder")
+        release(target, written=False)
+        why = exc.strerror or type(exc).__name__
+        problem = Problem(Loc("--out", 0, 0), f"{run_dir}: cannot be made ({why})")
+        raise MissionError([problem]) from None
     if target is not None:  # a target may write files of its own beside the tick log
         target.run_dir = run_dir  # type: ignore[attr-defined]
         target.record_mcap = not getattr(args, "no_mcap", False)  # type: ignore[attr-defined]

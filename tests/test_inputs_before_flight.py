@@ -342,3 +342,54 @@ def test_a_bad_input_is_refused_before_any_model_or_gallery_is_loaded(
         assert main(args) == 2
         assert "1 problem found; nothing was run." in capsys.readouterr().err
     assert not (tmp_path / "cache" / "galleries").exists()  # nothing was built
+
+
+# -- command-line numbers and the run folder ---------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "args, said",
+    [
+        (["--rate", "0"], "argument --rate: expected a tick rate in Hz > 0 and at most 1000"),
+        (["--rate", "inf"], "argument --rate: expected a tick rate in Hz > 0"),  # ticked for ever
+        (["--rate", "nan"], "argument --rate: expected a tick rate in Hz > 0"),  # a traceback
+        (["--max-time", "nan"], "argument --max-time: expected a time in s > 0"),  # no limit
+        (["--max-time", "-1"], "argument --max-time: expected a time in s > 0"),
+        (["--realtime", "0"], "argument --realtime: expected a factor > 0 and at most 100"),
+        (["--tick-budget", "0"], "argument --tick-budget: expected a time in s > 0"),  # traceback
+    ],
+)
+def test_a_bad_number_on_the_command_line_is_one_line_and_exit_2(
+    args, said, tmp_path, capsys
+) -> None:
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        main(["missions/square.xml", *args, "--out", str(out), "-q"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert said in err and "Traceback" not in err, err
+    assert not out.exists()
+    with pytest.raises(SystemExit) as exc:  # a fleet's options alike
+        main(["fleet", "fleets/aisle_2.yaml", "--rate", "0", "--out", str(out)])
+    assert exc.value.code == 2 and "argument --rate" in capsys.readouterr().err
+
+
+def test_a_run_folder_that_cannot_be_made_is_refused_before_anything_flies(
+    tmp_path, capsys
+) -> None:
+    """``--out`` naming a file (or a folder below one) ended in a traceback after the drone
+    and its guard process were started; the guard then failed to write its record too."""
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("x\n")
+    for out, said in (
+        (a_file, "a file is there; the run folder must be a folder"),
+        (a_file / "run", f"{a_file} is a file, so no folder can be made in it"),
+    ):
+        assert main(["missions/pallet_scan.xml", "--out", str(out), "-q"]) == 2
+        err = _err_lines(capsys)
+        assert err[0] == f"--out {out}: {said}", err
+        assert err[-1] == "1 problem found; nothing was run."
+        assert main(["fleet", "fleets/aisle_2.yaml", "--out", str(out)]) == 2
+        err = _err_lines(capsys)
+        assert err[0] == f"--out {out}: {said}", err
+    assert a_file.read_text() == "x\n"

@@ -19,10 +19,18 @@ import sys
 import time
 from typing import Any
 
+from bt_engine.arg_types import positive
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.files import atomic_write_text
 from bt_engine.fleet import FleetRunner
-from bt_engine.run_cmd import PreparedRun, finish, make_runner, prepare, release
+from bt_engine.run_cmd import (
+    PreparedRun,
+    finish,
+    make_runner,
+    prepare,
+    release,
+    run_dir_problem,
+)
 from bt_engine.spec import Loc, MissionError, Problem
 from drivers.safety.airspace import Airspace, SeparationGuard
 from drivers.safety.policies import SafetyConfig
@@ -56,8 +64,15 @@ def setup(p: argparse.ArgumentParser) -> None:
         help="for every drone, after the fleet file's set: (blackboard, rig, world)",
     )
     p.add_argument("--out", help="run folder (default runs/<fleet>-<time>)")
-    p.add_argument("--rate", type=float, default=50.0, help="tick rate in Hz (default 50)")
-    p.add_argument("--max-time", type=float, default=None, help="mission time limit, s")
+    p.add_argument(
+        "--rate",
+        type=positive("a tick rate in Hz", 1000.0),
+        default=50.0,
+        help="tick rate in Hz (default 50)",
+    )
+    p.add_argument(
+        "--max-time", type=positive("a time in s"), default=None, help="mission time limit, s"
+    )
     p.add_argument(
         "--resume",
         metavar="RUN",
@@ -114,6 +129,9 @@ def run(args: Any) -> int:
     seed = resumed_seed(previous, args.seed, args.resume)
     seed = spec.data["seed"] if seed is None else seed
     out = args.out or os.path.join("runs", f"{spec.data['name']}-{time.strftime('%Y%m%d-%H%M%S')}")
+    bad_dir = run_dir_problem(out)
+    if bad_dir is not None:  # before any drone, store or guard is started
+        raise MissionError([bad_dir])
     common = common_sets(spec, args.set, previous)
     rig, world = rig_and_world(spec, common, seed)
     try:
