@@ -318,6 +318,13 @@ def test_a_scheduler_that_does_not_answer_fails_fast_with_a_hint(tmp_path, capsy
     assert pool.CONNECT_TIMEOUT_S <= 5  # the default: not Dask's 30 s
     assert main(["campaign", cmd[1], "--out", str(out), "--scheduler", "nowhere"]) == 2
     assert "'nowhere' is not a Dask scheduler address" in capsys.readouterr().err
+    for bad in ("0", "inf", "1e11"):  # inf and 1e11 reached Dask and threading: tracebacks
+        with pytest.raises(SystemExit) as exc:
+            main([*cmd, "--connect-timeout", bad])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert "argument --connect-timeout: expected a time in s > 0 and at most 3600" in err
+        assert "Traceback" not in err and not out.exists()
 
 
 def test_a_dask_campaign_prints_the_dashboard_link(tmp_path, monkeypatch, capsys) -> None:
