@@ -308,12 +308,12 @@ def _cmd_validate(args) -> int:
     for f in args.files:
         other = check_other_file(f, args.set, args.seed, args.rig)
         if other is not None:  # a rig, a world, a fleet, a campaign: its own checks
-            kind, problems = other
+            kind, problems, found = other
             if problems:
                 all_problems += problems
                 worst = 2
             else:
-                print(f"{f}: ok ({kind})")
+                print(f"{f}: ok ({kind}" + (f"; {found})" if found else ")"))
             continue
         warnings: list[Problem] = []
         spec, problems = check_mission(f, REGISTRY, args.include_path, warnings)

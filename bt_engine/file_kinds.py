@@ -86,9 +86,10 @@ def file_kind(path: str) -> tuple[str, FileKind] | None:
 
 def check_other_file(
     path: str, sets: list[str], seed: int | None, rig: str | None
-) -> tuple[str, list[Problem]] | None:
+) -> tuple[str, list[Problem], str] | None:
     """Check a file that is not a mission as the command that reads it would, flying
-    nothing: ``(kind, problems)``; None if ``path`` is read as a mission."""
+    nothing: ``(kind, problems, found)`` (``found``: what the check says the file holds,
+    or ""); None if ``path`` is read as a mission."""
     found = file_kind(path)
     if found is None:
         return None
@@ -109,8 +110,11 @@ def check_other_file(
             )
         )
     if problems:
-        return name, problems
-    return name, kind.check(path, sets, seed)
+        return name, problems, ""
+    result = kind.check(path, sets, seed)
+    if isinstance(result, tuple):
+        return name, list(result[0]), str(result[1])
+    return name, result, ""
 
 
 def not_a_mission(path: str) -> Problem | None:

@@ -101,10 +101,12 @@ class FileKind:
     """A kind of YAML file a plug-in reads besides missions (a rig, a fleet): told apart by
     its top-level ``keys``; ``check(path, sets, seed)`` returns every located problem, as
     the command that reads the file would find them before flying (``seed`` None: the
-    file's or the command's default); ``usage`` says how the file is used."""
+    file's or the command's default), or ``(problems, found)``: ``found`` is what a file
+    without problems holds, in a few words (``btrun validate`` prints it after "ok");
+    ``usage`` says how the file is used."""
 
     keys: frozenset[str]
-    check: Callable[[str, list[str], int | None], list]
+    check: Callable[[str, list[str], int | None], list | tuple[list, str]]
     usage: str
     #: whether ``--set KEY=VALUE`` items apply to the file (as to the command using it)
     takes_sets: bool = True

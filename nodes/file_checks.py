@@ -51,13 +51,16 @@ def check_world(path: str, sets: list[str], seed: int | None) -> list[Problem]:
     return []
 
 
-def check_fleet_file(path: str, sets: list[str], seed: int | None) -> list[Problem]:
-    """A fleet file as ``btrun fleet --check`` checks it (seed None: the file's)."""
+def check_fleet_file(
+    path: str, sets: list[str], seed: int | None
+) -> list[Problem] | tuple[list[Problem], str]:
+    """A fleet file as ``btrun fleet --check`` checks it (seed None: the file's); with no
+    problem, what ``btrun fleet --check`` says of it (the drones and their shares)."""
     try:
-        check_fleet(path, sets, seed)
+        lines = check_fleet(path, sets, seed)
     except MissionError as exc:
         return exc.problems
-    return []
+    return [], f"{len(lines)} drones; " + ", ".join(lines)
 
 
 #: btrun's file kinds besides missions (:class:`~bt_engine.plugins.FileKind`).
