@@ -320,20 +320,37 @@ def _entries_json(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]]
         if obj is None or not isinstance(obj.get("place"), str):
             problems.append(
                 Problem(
-                    where, f'rows[{i}]: expected {{"place": ..., "pallet": ...}}, got {item!r:.60}'
+                    where,
+                    f'rows[{i}]: expected {{"place": ..., "pallet": ...}} with the place as '
+                    f"text, got {_shown(item)}",
                 )
             )
             continue
         pallet = obj.get("pallet")
         if pallet is not None and not isinstance(pallet, (str, int)):
             problems.append(
-                Problem(where, f"rows[{i}]: pallet must be text or null, got {pallet!r:.60}")
+                Problem(where, f"rows[{i}]: pallet must be text or null, got {_shown(pallet)}")
             )
             continue
         out.append(
             (obj["place"].strip(), "" if pallet is None else str(pallet).strip(), where, where)
         )
     return out, problems
+
+
+def _shown(value: object, most: int = 60) -> str:
+    """A JSON value as the file wrote it, shortened (the reader keeps objects as lists of
+    pairs, which Python would print as ``[('x', 1)]``)."""
+
+    def plain(v: object) -> object:
+        if isinstance(v, list):
+            if v and all(isinstance(p, tuple) and len(p) == 2 for p in v):
+                return {str(k): plain(x) for k, x in v}
+            return [plain(x) for x in v]
+        return v
+
+    text = json.dumps(plain(value), ensure_ascii=False)
+    return text if len(text) <= most else text[: most - 3] + "..."
 
 
 def _mapping(
@@ -347,7 +364,7 @@ def _mapping(
         where = _offset_loc(path, text, start)
         if pallet is not None and not isinstance(pallet, (str, int)):
             problems.append(
-                Problem(where, f"{place}: pallet must be text or null, got {pallet!r:.60}")
+                Problem(where, f"{place}: pallet must be text or null, got {_shown(pallet)}")
             )
             continue
         out.append((place.strip(), "" if pallet is None else str(pallet).strip(), where, where))

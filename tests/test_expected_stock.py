@@ -121,6 +121,9 @@ def test_the_same_as_json_in_three_shapes(tmp_path, world):
         ("s.json", '{"A-01-1": "109",\n "A-01-2": ', (2, 12), "not JSON"),
         ("s.json", '[{"place": "A-01-1", "pallet": "1"},\n {"place": "B-01-1", "pallet": "3"}]', (2, 2), "unknown place 'B-01-1'"),
         ("s.json", '[{"place": "A-01-1", "pallet": [1]}]', (1, 2), "pallet must be text or null"),
+        # objects are said as the file wrote them, not as Python's [('x', 1)]
+        ("s.json", '[{"place": "A-01-1", "pallet": {"x": 1}}]', (1, 2), 'pallet must be text or null, got {"x": 1}'),
+        ("s.json", '[{"place": null, "pallet": "1"}]', (1, 2), 'with the place as text, got {"place": null, "pallet": "1"}'),
     ],
 )  # fmt: skip
 def test_every_problem_is_located_in_the_file(tmp_path, world, name, text, where, message):
