@@ -86,8 +86,8 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
     r.add_argument(
         "--max-time",
         type=positive("a time in s"),
-        default=900.0,
-        help="mission time limit in s (default 900)",
+        default=None,
+        help="mission time limit in s (default: the mission's max_time input, else 900)",
     )
     r.add_argument(
         "--realtime",

@@ -7,6 +7,7 @@ Each step is a function: :func:`prepare` refuses bad input before anything flies
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -84,6 +85,36 @@ def _run_dir(args) -> str:
         return args.out
     stem = os.path.splitext(os.path.basename(args.mission))[0]
     return os.path.join("runs", f"{stem}-{time.strftime('%Y%m%d-%H%M%S')}")
+
+
+#: the mission-time limit of a run when neither ``--max-time`` nor the mission says (s)
+DEFAULT_MAX_TIME_S = 900.0
+#: the main tree's input that sets its own limit (``<input_port name="max_time" ...>``)
+MAX_TIME_INPUT = "max_time"
+
+
+def mission_time_limit(spec: Any, bb: dict[str, Any]) -> tuple[float, Problem | None]:
+    """The run's mission-time limit when ``--max-time`` is not given: ``--set max_time=S``,
+    else the default of the main tree's ``max_time`` input (a sweep of a whole site with
+    its battery changes takes longer than :data:`DEFAULT_MAX_TIME_S`), else that; and a
+    located problem if the value is not a time > 0."""
+    main = spec.main_tree_id()
+    model = spec.models.get(main) if main else None
+    port = model.ports.get(MAX_TIME_INPUT) if model is not None else None
+    if MAX_TIME_INPUT in bb:
+        raw, where = bb[MAX_TIME_INPUT], Loc("--set", 0, 0)
+    elif port is not None and port.default not in (None, ""):
+        raw, where = port.default, model.loc  # type: ignore[union-attr]
+    else:
+        return DEFAULT_MAX_TIME_S, None
+    try:
+        value = float(raw)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        why = f"{MAX_TIME_INPUT}: the mission's time limit must be a time in s > 0, got {raw!r}"
+        return DEFAULT_MAX_TIME_S, Problem(where, why)
+    return value, None
 
 
 def run_dir_problem(run_dir: str, option: str = "--out") -> Problem | None:
@@ -258,6 +289,9 @@ def prepare(
     declared = None if problems else declared_inputs(spec)  # a typo never flies the default
     bb, rig_over, set_problems = parse_sets(args.set, declared, args.mission)
     problems += set_problems
+    if getattr(args, "max_time", None) is None and not problems:
+        args.max_time, limit_problem = mission_time_limit(spec, bb)
+        problems += [limit_problem] if limit_problem is not None else []
     if problems:
         raise MissionError(problems)
     target = load_target(args.rig, rig_over)

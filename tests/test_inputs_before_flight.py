@@ -15,7 +15,7 @@ from helpers import REPO
 from bt_engine.cli import main
 from bt_engine.loading import load_spec
 from bt_engine.mission import declared_inputs
-from bt_engine.run_cmd import parse_sets
+from bt_engine.run_cmd import mission_time_limit, parse_sets
 
 SQUARE = os.path.join(REPO, "missions", "square.xml")
 AISLE_RIG = os.path.join(REPO, "rigs", "aisle.yaml")
@@ -393,3 +393,46 @@ def test_a_run_folder_that_cannot_be_made_is_refused_before_anything_flies(
         err = _err_lines(capsys)
         assert err[0] == f"--out {out}: {said}", err
     assert a_file.read_text() == "x\n"
+
+
+LIMITED = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <Delay delay_msec="3000"><AlwaysSuccess/></Delay>
+  </BehaviorTree>
+  <TreeNodesModel>
+    <SubTree ID="Main">
+      <input_port name="max_time" type="double" default="1">mission time limit, s</input_port>
+    </SubTree>
+  </TreeNodesModel>
+</root>
+"""
+
+
+def test_a_mission_sets_its_own_time_limit(tmp_path, capsys) -> None:
+    """A sweep of the site with battery changes and rescans can take longer than btrun's
+    900 s default: a mission says how long it may take (its ``max_time`` input); ``--set
+    max_time=`` and ``--max-time`` override it."""
+    mission = tmp_path / "limited.xml"
+    mission.write_text(LIMITED)
+
+    def status(*extra: str) -> str:
+        out = tmp_path / f"run{len(list(tmp_path.iterdir()))}"
+        main([str(mission), "--out", str(out), "-q", "--no-report", *extra])
+        capsys.readouterr()
+        return json.load(open(out / "summary.json"))["status"]
+
+    assert status() == "ABORTED"  # its own 1 s, not 900 s
+    assert status("--set", "max_time=10") == "SUCCESS"
+    assert status("--max-time", "10") == "SUCCESS"
+    assert status("--set", "max_time=10", "--max-time", "1") == "ABORTED"
+    assert main([str(mission), "--set", "max_time=soon", "--out", str(tmp_path / "x")]) == 2
+    err = _err_lines(capsys)
+    assert err[0] == (
+        "--set max_time: the mission's time limit must be a time in s > 0, got 'soon'"
+    ), err
+    assert not (tmp_path / "x").exists()
+    for name, limit in (("inventory", 3600.0), ("inventory_per_place", 7200.0)):
+        for suffix in (".xml", ".yaml"):  # both formats say the same
+            spec = load_spec(os.path.join(REPO, "missions", name + suffix))
+            assert mission_time_limit(spec, {}) == (limit, None)
+    assert mission_time_limit(load_spec(SQUARE), {})[0] == 900.0
