@@ -32,7 +32,7 @@ TOP_KEYS: dict[str, str] = {
     "draw_seed": "seed of the random draws (default 0)",
     "faults": "fault schedules crossed with the rest: [{name, set, timeout_s}]",
     "timeout_s": "wall-clock seconds one run may take (default 600)",
-    "max_time_s": "mission-time limit of one run in s (default 900)",
+    "max_time_s": "mission-time limit of one run in s (default: the mission's max_time, else 900)",
     "rate_hz": "tick rate (default 50)",
     "metrics": "columns read from each run's summary.json (name: path or operation)",
     "keep_runs": "which run folders to keep: failed (default), all or none",
@@ -124,7 +124,7 @@ class Campaign:
     draw_seed: int = 0
     faults: list[FaultCase] | None = None
     timeout_s: float = 600.0
-    max_time_s: float = 900.0
+    max_time_s: float | None = None  # None: the mission's own (btrun run without --max-time)
     rate_hz: float = 50.0
     metrics: list[Metric] = field(default_factory=list)
     keep_runs: str = "failed"

@@ -70,7 +70,7 @@ def _args(payload: dict[str, Any]) -> argparse.Namespace:
         seed=int(payload["seed"]),
         rate=float(payload.get("rate_hz", 50.0)),
         out=payload["run_dir"],
-        max_time=float(payload.get("max_time_s", 900.0)),
+        max_time=None if payload.get("max_time_s") is None else float(payload["max_time_s"]),
         realtime=None,
         tick_budget=None,
         quiet=True,
