@@ -112,9 +112,14 @@ def check_other_file(
     if problems:
         return name, problems, ""
     result = kind.check(path, sets, seed)
-    if isinstance(result, tuple):
-        return name, list(result[0]), str(result[1])
-    return name, result, ""
+    if (  # (problems, found); a plain tuple of problems is problems
+        isinstance(result, tuple)
+        and len(result) == 2
+        and isinstance(result[0], (list, tuple))
+        and isinstance(result[1], str)
+    ):
+        return name, list(result[0]), result[1]
+    return name, list(result), ""
 
 
 def not_a_mission(path: str) -> Problem | None:
