@@ -284,7 +284,15 @@ class Mission:
                 else:
                     where = node.loc or Loc("<mission>")
                     out.append(Problem(where, f"{node.describe()}: {message}"))
-        return out
+        # one --set value refused alike by several nodes reading it is said once
+        seen: set[tuple[Any, ...]] = set()
+        unique = []
+        for p in out:
+            key = (p.loc.file, p.loc.line, p.loc.col, p.message)
+            if key not in seen:
+                seen.add(key)
+                unique.append(p)
+        return unique
 
     def set_value_problems(self, set_keys: set[str]) -> list[Problem]:
         """A ``--set`` value that a port reading it cannot take (``sweep_speed=abc`` read as

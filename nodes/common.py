@@ -22,6 +22,24 @@ def config_problems(exc: Any) -> list[Problem]:
     return [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
 
 
+def limit_problems(node: BTNode, limits: Any) -> list[tuple[str, str]]:
+    """``(port, message)`` for every numeric input of ``node`` outside its ``limits``
+    (``(port, low, high, what it is)`` each), as a leaf's ``preflight`` returns them: the
+    mission's value, its input's default or a ``--set``, refused before anything flies.
+    A port not readable before flight (written in flight) is checked then."""
+    out: list[tuple[str, str]] = []
+    for port, lo, hi, what in limits:
+        try:
+            value = node.get_input(port)
+        except Exception:  # noqa: BLE001 - written in flight: checked then
+            continue
+        if value is None or isinstance(value, bool) or not isinstance(value, (int, float)):
+            continue
+        if not (math.isfinite(value) and lo <= value <= hi):
+            out.append((port, f"{port} {value!r}: expected {what}, {lo:g} to {hi:g}"))
+    return out
+
+
 def vehicle_of(node: BTNode) -> Any:
     """The vehicle a leaf flies, or a located error if the mission runs without one."""
     v = node.ctx.vehicle if node.ctx is not None else None

@@ -18,7 +18,7 @@ from typing import Any
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, ConditionNode, NodeStatus, StatefulActionNode
 from bt_engine.ports import DURATION, FLOAT, STRING, VEC3, input_port
 from bt_engine.registry import register
-from nodes.common import vehicle_of
+from nodes.common import limit_problems, vehicle_of
 
 CATEGORY_ENERGY = "energy"
 #: charge (percent points) a reading must rise by to count as a new battery
@@ -109,6 +109,17 @@ class EnoughEnergy(ConditionNode):
             "ticked every tick beside a long action, such as a sweep pass, s",
         ),
     )
+    #: the values the estimate can work with: (port, low, high, what it is)
+    LIMITS = (
+        ("reserve", 0.0, 90.0, "a charge to keep at touchdown in %"),
+        ("speed", 0.05, 3.0, "a transit speed in m/s"),
+        ("endurance", 10.0, 36000.0, "a flight time of a full battery in s"),
+    )
+
+    def preflight(self) -> list[Any]:
+        """A reserve, speed or endurance no flight can have (a 150 % reserve changed the
+        battery again and again for 270 s, then failed), before anything flies."""
+        return list(limit_problems(self, self.LIMITS))
 
     def check(self) -> bool:
         v = vehicle_of(self)
@@ -190,6 +201,11 @@ class ChangeBattery(StatefulActionNode):
         input_port("settle", DURATION, 3.0, "rest before reading the charge, s"),
         input_port("timeout", DURATION, 3600.0, "FAILURE if not done within this time, s"),
     )
+    LIMITS = (("target_percent", 1.0, 100.0, "a charge in %"),)
+
+    def preflight(self) -> list[Any]:
+        """A charge to stop at that no battery reaches, before anything flies."""
+        return list(limit_problems(self, self.LIMITS))
 
     def _fail(self, reason: str) -> NodeStatus:
         self.ctx.log(f"{self.describe()} failed: {reason}")

@@ -31,7 +31,7 @@ from typing import Any
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
-from nodes.common import is_realtime, vehicle_of
+from nodes.common import is_realtime, limit_problems, vehicle_of
 from nodes.inventory import CATEGORY_INVENTORY, world_of
 from nodes.inventory_log import EMPTY, IDENTIFIED, NOT_SCANNED, UNKNOWN, InventoryLog
 from nodes.perception_feed import FrameFeed
@@ -153,17 +153,7 @@ class SweepPass(StatefulActionNode):
     def preflight(self) -> list[Any]:
         """Speeds, stand-off, run-up and emulated frame time outside what a pass can fly
         (from the mission, its inputs or ``--set``), before anything flies."""
-        out: list[Any] = []
-        for port, lo, hi, what in self.LIMITS:
-            try:
-                value = self.get_input(port)
-            except Exception:  # noqa: BLE001 - written in flight: checked then
-                continue
-            if value is None or not isinstance(value, (int, float)):
-                continue
-            if not (math.isfinite(value) and lo <= value <= hi):
-                out.append((port, f"{port} {value!r}: expected {what}, {lo:g} to {hi:g}"))
-        return out
+        return list(limit_problems(self, self.LIMITS))
 
     # -- start -------------------------------------------------------------------------------
     def on_start(self) -> NodeStatus:

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import Any
 
 from bt_engine.node import ConditionNode
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, STRING, VEC3, input_port, output_port
 from bt_engine.registry import register
-from nodes.common import vehicle_of
+from nodes.common import limit_problems, vehicle_of
 from nodes.energy import CATEGORY_ENERGY, measured_rate, steady_percent, travel_m
 from nodes.inventory_log import InventoryLog
 from nodes.sweep_plan import pass_line, sweep_plan_of
@@ -163,6 +164,18 @@ class EnoughEnergyForPass(ConditionNode):
         ),
         output_port("start_point", ANY, "where the pass starts, x;y;z"),
     )
+    LIMITS = (
+        ("reserve", 0.0, 90.0, "a charge to keep at touchdown in %"),
+        ("margin", 0.0, 50.0, "a charge in %"),
+        ("speed", 0.02, 2.0, "a speed along a pass in m/s"),
+        ("transit_speed", 0.05, 3.0, "a transit speed in m/s"),
+        ("endurance", 10.0, 36000.0, "a flight time of a full battery in s"),
+    )
+
+    def preflight(self) -> list[Any]:
+        """A reserve, margin, speed or endurance the look-ahead cannot plan with, before
+        anything flies."""
+        return list(limit_problems(self, self.LIMITS))
 
     def check(self) -> bool:
         v = vehicle_of(self)

@@ -436,3 +436,18 @@ def test_a_mission_sets_its_own_time_limit(tmp_path, capsys) -> None:
             spec = load_spec(os.path.join(REPO, "missions", name + suffix))
             assert mission_time_limit(spec, {}) == (limit, None)
     assert mission_time_limit(load_spec(SQUARE), {})[0] == 900.0
+
+
+def test_a_battery_reserve_no_flight_can_keep_is_refused_before_flight(tmp_path, capsys) -> None:
+    """``battery_reserve=150`` (a percentage) flew: every EnoughEnergy failed, the drone
+    changed its battery again and again for 270 s and the run failed with nothing answered.
+    Now one line, said once although five leaves read it."""
+    out = tmp_path / "run"
+    args = ["missions/inventory.xml", "--rig", AISLE_RIG, "--out", str(out), "-q"]
+    assert main([*args, "--set", "battery_reserve=150"]) == 2
+    assert _err_lines(capsys) == [
+        "--set battery_reserve: reserve 150.0: expected a charge to keep at touchdown in %, "
+        "0 to 90",
+        "1 problem found; nothing was run.",
+    ]
+    assert not out.exists()
