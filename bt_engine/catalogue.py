@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import re
 import textwrap
-from typing import Literal
+from typing import Any, Literal
 
 from lxml import etree
 
@@ -166,6 +166,16 @@ def groot_palette(registry: Registry, include_builtins: bool = False) -> str:
     )
 
 
+def range_text(p: Any) -> str | None:
+    """A port's declared range as words (``0.01 to 3``, ``at least 0``), or None."""
+    low, high = getattr(p, "low", None), getattr(p, "high", None)
+    if low is not None and high is not None:
+        return f"{low:g} to {high:g}"
+    if low is not None or high is not None:
+        return f"at least {low:g}" if low is not None else f"at most {high:g}"
+    return None
+
+
 def port_line(p: Port) -> str:
     """One-line description of a port for text output."""
     req = (
@@ -177,6 +187,8 @@ def port_line(p: Port) -> str:
     )
     arrow = {"input": "in ", "output": "out", "inout": "i/o"}[p.direction]
     desc = f" - {plain_text(p.description)}" if p.description else ""
+    span = range_text(p)
+    req += f"; {span}" if span else ""
     return f"{arrow} {p.name}: {p.type.name} ({req}){desc}"
 
 
@@ -261,6 +273,8 @@ def _md_node(m: NodeModel) -> list[str]:
             d = _shown_default(p)
             d = "*required*" if p.required else ("" if d is None else f"`{d}`")
             desc = markdown_text(p.description).replace("|", "\\|")
+            span = range_text(p)
+            desc += f" ({span})" if span else ""
             out.append(f"| `{p.name}` | {p.direction} | {_cell(t)} | {_cell(d)} | {desc} |")
         out.append("")
     return out

@@ -266,19 +266,23 @@ class Mission:
         """The problems of the pre-flight checks of the nodes ``which`` selects."""
         out: list[Problem] = []
         for node in self.nodes:
-            check = getattr(node, "preflight", None)
-            if check is None or not which(node):
+            if not which(node):
                 continue
+            check = getattr(node, "preflight", None)
+            found: list[Any] = []
             try:
-                found = list(check() or ())
+                found = list(check() or ()) if check is not None else []
             except Exception as exc:  # a broken check must not hide the others
                 found = [("", f"pre-flight check failed: {type(exc).__name__}: {exc}")]
+            found += self._range_problems(node)
             for item in found:
                 if isinstance(item, Problem):
                     out.append(item)
                     continue
                 port, message = item
                 key = node.input_entry(port) if port else None
+                if key is not None and node.scope is not None:  # through SubTree remapping
+                    key = node.scope.display_key(key)
                 if key is not None and key in (set_keys or ()):
                     out.append(Problem(Loc("--set", 0, 0), f"{key}: {message}"))
                 else:
@@ -293,6 +297,24 @@ class Mission:
                 seen.add(key)
                 unique.append(p)
         return unique
+
+    @staticmethod
+    def _range_problems(node: Any) -> list[tuple[str, str]]:
+        """``(port, message)`` for every input outside its declared range
+        (:attr:`bt_engine.ports.Port.low` / ``high``); ports not readable before flight
+        (written in flight) are checked when read."""
+        out = []
+        for decl in type(node).ports:
+            if not decl.reads or (decl.low is None and decl.high is None):
+                continue
+            try:
+                value = node.get_input(decl.name)
+            except Exception:  # noqa: BLE001 - written in flight, or a bad value said elsewhere
+                continue
+            why = decl.out_of_range(value)
+            if why is not None:
+                out.append((decl.name, why))
+        return out
 
     def set_value_problems(self, set_keys: set[str]) -> list[Problem]:
         """A ``--set`` value that a port reading it cannot take (``sweep_speed=abc`` read as

@@ -412,7 +412,9 @@ class Port:
     required for inputs; outputs are never required (an unbound output is simply not written).
     ``takes_literal``: an inout port that may also be given a literal, which the node then
     works on privately (the ``queue`` of the Loop decorators); such a port is required
-    unless it has a default.
+    unless it has a default. ``low`` / ``high``: the numbers the node can work with; a
+    value outside (from the mission, its inputs or ``--set``) is refused before flight
+    (:meth:`bt_engine.mission.Mission.preflight`), as are ``nan`` and ``inf``.
     """
 
     name: str
@@ -421,6 +423,27 @@ class Port:
     default: Any = NO_DEFAULT
     description: str = ""
     takes_literal: bool = False
+    low: float | None = None
+    high: float | None = None
+
+    def out_of_range(self, value: Any) -> str | None:
+        """Why ``value`` is outside :attr:`low` .. :attr:`high` (None if it is inside, has
+        no range or is not a number)."""
+        if self.low is None and self.high is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return None
+        if self.low is not None and self.high is not None:
+            want = f"{self.low:g} to {self.high:g}"
+        else:
+            want = f"at least {self.low:g}" if self.low is not None else f"at most {self.high:g}"
+        inside = (self.low is None or value >= self.low) and (
+            self.high is None or value <= self.high
+        )
+        if inside and value == value and abs(value) != float("inf"):
+            return None
+        what = f" ({self.description})" if self.description else ""
+        return f"{self.name} {value!r}: expected {want}{what}"
 
     @property
     def required(self) -> bool:
@@ -439,10 +462,17 @@ class Port:
 
 
 def input_port(
-    name: str, type: PortType = ANY, default: Any = NO_DEFAULT, description: str = ""
+    name: str,
+    type: PortType = ANY,
+    default: Any = NO_DEFAULT,
+    description: str = "",
+    *,
+    low: float | None = None,
+    high: float | None = None,
 ) -> Port:
-    """Declare an input port (required unless it has a default)."""
-    return Port(name, INPUT, type, default, description)
+    """Declare an input port (required unless it has a default); ``low`` / ``high``: the
+    numbers the node can work with, checked before flight."""
+    return Port(name, INPUT, type, default, description, low=low, high=high)
 
 
 def output_port(name: str, type: PortType = ANY, description: str = "") -> Port:

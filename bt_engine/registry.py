@@ -67,8 +67,9 @@ RESERVED_PORTS = ("name", "ID")
 
 def _checked_ports(node_id: str, declared: Any) -> dict[str, Port]:
     """``{name: port}`` of a node's declaration, refusing (``ValueError``) an ID or port
-    name a mission file cannot write, a port declared twice, and a default its own type
-    does not take (it would fail only when the node first ran, in flight)."""
+    name a mission file cannot write, a port declared twice, a default its own type does
+    not take (it would fail only when the node first ran, in flight) or its own range
+    (``low``/``high``) refuses, and an empty range."""
     if not _NAME.match(node_id):
         raise ValueError(f"node ID {node_id!r}: {_NAME_RULE}")
     ports: dict[str, Port] = {}
@@ -80,11 +81,16 @@ def _checked_ports(node_id: str, declared: Any) -> dict[str, Port]:
             raise ValueError(f"{where}: a reserved attribute name ({', '.join(RESERVED_PORTS)})")
         if p.name in ports:
             raise ValueError(f"{where}: declared twice")
+        if p.low is not None and p.high is not None and p.low > p.high:
+            raise ValueError(f"{where}: range {p.low:g} to {p.high:g} is empty")
         if p.default is not NO_DEFAULT and p.default is not None and not blackboard_ref(p.default):
             try:
-                p.type.convert(p.default)
+                value = p.type.convert(p.default)
             except PortValueError as exc:
                 raise ValueError(f"{where}: default {p.default!r}: {exc}") from None
+            outside = p.out_of_range(value)
+            if outside is not None:  # every mission keeping the default would be refused
+                raise ValueError(f"{where}: default outside its range: {outside}")
         ports[p.name] = p
     return ports
 

@@ -33,8 +33,22 @@ _SERVICE = input_port("service_name", STRING, "", "accepted for Aerostack2 files
 
 def _motion_ports(timeout_s: float) -> tuple:
     return (
-        input_port("pos_threshold", FLOAT, DEFAULT_POS_THRESHOLD_M, "position tolerance in m"),
-        input_port("yaw_threshold", FLOAT, DEFAULT_YAW_THRESHOLD_RAD, "yaw tolerance in rad"),
+        input_port(
+            "pos_threshold",
+            FLOAT,
+            DEFAULT_POS_THRESHOLD_M,
+            "position tolerance in m",
+            low=0.005,
+            high=2.0,
+        ),
+        input_port(
+            "yaw_threshold",
+            FLOAT,
+            DEFAULT_YAW_THRESHOLD_RAD,
+            "yaw tolerance in rad",
+            low=0.001,
+            high=3.15,
+        ),
         input_port(
             "yaw_threshold_deg", FLOAT, None, "yaw tolerance in degrees (overrides yaw_threshold)"
         ),
@@ -156,8 +170,8 @@ class TakeOff(_Motion):
 
     bt_id = "TakeOff"
     ports = (
-        input_port("height", FLOAT, 1.0, "height above the take-off point, m"),
-        input_port("speed", FLOAT, 0.5, "climb speed, m/s"),
+        input_port("height", FLOAT, 1.0, "height above the take-off point, m", low=0.05, high=20.0),
+        input_port("speed", FLOAT, 0.5, "climb speed, m/s", low=0.01, high=5.0),
         input_port("timeout", DURATION, 30.0, "FAILURE if not done within this time, s"),
         output_port("takeoff_point", VEC3, "where the climb ends (x;y;z): a place to return to"),
     )
@@ -184,7 +198,7 @@ class GoTo(_Motion):
     bt_id = "GoTo"
     ports = (
         input_port("pose", VEC3, description="goal position x;y;z in m"),
-        input_port("max_speed", FLOAT, 0.5, "speed limit, m/s"),
+        input_port("max_speed", FLOAT, 0.5, "speed limit, m/s", low=0.01, high=5.0),
         input_port(
             "yaw_mode", YAW_MODE, "KEEP_YAW", "KEEP_YAW, PATH_FACING or FIXED_YAW (or 0, 1, 2)"
         ),
@@ -230,7 +244,7 @@ class FollowPath(_Motion):
     bt_id = "FollowPath"
     ports = (
         input_port("path", PATH, description="waypoints x;y;z|x;y;z|... in m"),
-        input_port("speed", FLOAT, 0.5, "speed along the path, m/s"),
+        input_port("speed", FLOAT, 0.5, "speed along the path, m/s", low=0.01, high=5.0),
         input_port("yaw_mode", YAW_MODE, "KEEP_YAW", "KEEP_YAW, PATH_FACING or FIXED_YAW"),
         input_port("yaw_angle", FLOAT, 0.0, "yaw for FIXED_YAW, rad"),
         input_port("yaw_angle_deg", FLOAT, None, "yaw for FIXED_YAW in degrees"),
@@ -275,7 +289,7 @@ class Land(_Motion):
 
     bt_id = "Land"
     ports = (
-        input_port("speed", FLOAT, 0.5, "descent speed, m/s"),
+        input_port("speed", FLOAT, 0.5, "descent speed, m/s", low=0.01, high=3.0),
         input_port("timeout", DURATION, 60.0, "FAILURE if not landed within this time, s"),
     )
 

@@ -42,8 +42,12 @@ STANDOFF_SLACK_M = 0.15  # stand off up to this much further to keep inside the 
 _DETECTOR = input_port("detector", STRING, "", "detector weights file (empty: the shipped model)")
 _MIN_SCORE = input_port("min_score", FLOAT, None, MIN_SCORE_DOC)
 _FACE_IN = input_port("face", ANY, description="LocatePallet's face estimate")
-_STANDOFF = input_port("standoff", FLOAT, 0.4, "distance to keep from the face while scanning, m")
-_SPEED = input_port("speed", FLOAT, 0.3, "speed of the positioning flights, m/s")
+_STANDOFF = input_port(
+    "standoff", FLOAT, 0.4, "distance to keep from the face while scanning, m", low=0.1, high=3.0
+)
+_SPEED = input_port(
+    "speed", FLOAT, 0.3, "speed of the positioning flights, m/s", low=0.01, high=3.0
+)
 
 
 class _Reactive(StatefulActionNode):
@@ -175,9 +179,23 @@ class LocatePallet(_Reactive):
     ports = (
         input_port("place", VEC3, description="mapped centre of the block row, x;y;z in m"),
         input_port("facing_deg", FLOAT, 0.0, "mapped drone yaw that faces the pallet, degrees"),
-        input_port("look_distance", FLOAT, 0.75, "distance from the face to look from, m"),
+        input_port(
+            "look_distance",
+            FLOAT,
+            0.75,
+            "distance from the face to look from, m",
+            low=0.1,
+            high=5.0,
+        ),
         input_port("look_time", DURATION, 1.0, "time to hold and look at each look point, s"),
-        input_port("search_step", FLOAT, 0.6, "spacing of further look points along the face, m"),
+        input_port(
+            "search_step",
+            FLOAT,
+            0.6,
+            "spacing of further look points along the face, m",
+            low=0.05,
+            high=5.0,
+        ),
         input_port("search_points", INT, 3, "look points to try (1 = only the mapped one)"),
         input_port(
             "window", FLOAT, 0.45, "the row centre may be this far along the face from place, m"
@@ -391,7 +409,7 @@ class ScanFace(_Reactive):
     ports = (
         _FACE_IN,
         _STANDOFF,
-        input_port("speed", FLOAT, 0.07, "scan speed along the face, m/s"),
+        input_port("speed", FLOAT, 0.07, "scan speed along the face, m/s", low=0.005, high=2.0),
         input_port("count", INT, 0, "blocks committed so far (DetectBlocks' count)"),
         input_port("blocks", INT, 3, "blocks to commit"),
         input_port("trail", FLOAT, 0.15, "go this far past the last block, m"),

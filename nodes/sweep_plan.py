@@ -369,7 +369,7 @@ class FlyRoute(StatefulActionNode):
     category = CATEGORY_INVENTORY
     ports = (
         input_port("pose", VEC3, description="goal x;y;z in m"),
-        input_port("max_speed", FLOAT, 0.5, "speed, m/s"),
+        input_port("max_speed", FLOAT, 0.5, "speed, m/s", low=0.01, high=5.0),
         input_port("timeout", DURATION, 120.0, "FAILURE if not there within this time, s"),
     )
 

@@ -451,3 +451,42 @@ def test_a_battery_reserve_no_flight_can_keep_is_refused_before_flight(tmp_path,
         "1 problem found; nothing was run.",
     ]
     assert not out.exists()
+
+
+def test_declared_port_ranges_are_checked_before_flight(tmp_path, capsys) -> None:
+    """A port may declare the numbers its node can work with (``input_port(..., low=,
+    high=)``): ``height=-1`` or ``land_speed=0`` flew and failed in the air (or was refused
+    by the Vehicle API after take-off); now each is one line before anything flies, at the
+    ``--set`` through any SubTree's remapping, else where the mission file wrote it."""
+    out = tmp_path / "run"
+    assert main(["missions/square.xml", "--set", "height=-1", "--out", str(out), "-q"]) == 2
+    assert _err_lines(capsys)[0] == (
+        "--set height: height -1.0: expected 0.05 to 20 (height above the take-off point, m)"
+    )
+    assert not out.exists()
+    inventory = ["validate", "missions/inventory.xml", "--rig", AISLE_RIG]
+    assert main([*inventory, "--set", "scan_speed=0"]) == 2  # read inside lib/align_and_scan
+    assert _err_lines(capsys)[0] == (
+        "--set scan_speed: speed 0.0: expected 0.005 to 2 (scan speed along the face, m/s)"
+    )
+    square = open(SQUARE).read()
+    written = tmp_path / "square.xml"
+    written.write_text(
+        square.replace('<Land name="land" speed="0.5"', '<Land name="land" speed="0"')
+    )
+    assert 'speed="0"' in written.read_text()
+    assert main(["validate", str(written), "--rig", "rigs/sim.yaml"]) == 2
+    err = _err_lines(capsys)[0]
+    assert err.startswith(f"{written}:") and "Land 'land': speed 0.0: expected 0.01 to 3" in err
+
+
+def test_a_port_range_refuses_nan_and_inf_and_leaves_other_values_alone() -> None:
+    from bt_engine.ports import FLOAT, input_port
+
+    port = input_port("speed", FLOAT, 0.5, "m/s", low=0.01, high=3.0)
+    assert port.out_of_range(0.5) is None and port.out_of_range(3.0) is None
+    for bad in (0.0, 3.5, float("nan"), float("inf"), -float("inf")):
+        assert port.out_of_range(bad) is not None, bad
+    assert port.out_of_range("fast") is None and port.out_of_range(True) is None
+    assert input_port("n", FLOAT, 1.0, low=0).out_of_range(-1) == "n -1: expected at least 0"
+    assert input_port("x", FLOAT, 1.0).out_of_range(1e9) is None  # no range declared

@@ -119,6 +119,16 @@ class {cls}(StatefulActionNode):
             "port 'count': default 'three': expected a whole number",
         ),  # fmt: skip
         ("Snap", '(input_port("name", INT, 1),)', "port 'name': a reserved attribute name"),
+        (  # every mission keeping the default would be refused before flight
+            "Snap",
+            '(input_port("count", INT, 9, low=1, high=5),)',
+            "port 'count': default outside its range: count 9: expected 1 to 5",
+        ),
+        (
+            "Snap",
+            '(input_port("count", INT, 3, low=5, high=1),)',
+            "port 'count': range 5 to 1 is empty",
+        ),
         (
             "Snap",
             '(input_port("_x", INT, 1),)',
