@@ -204,8 +204,17 @@ class ChangeBattery(StatefulActionNode):
     LIMITS = (("target_percent", 1.0, 100.0, "a charge in %"),)
 
     def preflight(self) -> list[Any]:
-        """A charge to stop at that no battery reaches, before anything flies."""
-        return list(limit_problems(self, self.LIMITS))
+        """A charge to stop at that no battery reaches, or a mode that is neither swap nor
+        charge (``battery_mode=nuclear`` flew and failed at the first change), before
+        anything flies."""
+        out: list[Any] = list(limit_problems(self, self.LIMITS))
+        try:
+            mode = self.get_input("mode")
+        except Exception:  # noqa: BLE001 - written in flight: checked then
+            return out
+        if isinstance(mode, str) and mode.strip().lower() not in ("swap", "charge"):
+            out.append(("mode", f"mode {mode!r}: expected swap or charge"))
+        return out
 
     def _fail(self, reason: str) -> NodeStatus:
         self.ctx.log(f"{self.describe()} failed: {reason}")

@@ -451,6 +451,8 @@ def test_a_battery_reserve_no_flight_can_keep_is_refused_before_flight(tmp_path,
         "1 problem found; nothing was run.",
     ]
     assert not out.exists()
+    assert main([*args, "--set", "battery_mode=nuclear"]) == 2  # failed at the first change
+    assert _err_lines(capsys)[0] == "--set battery_mode: mode 'nuclear': expected swap or charge"
 
 
 def test_declared_port_ranges_are_checked_before_flight(tmp_path, capsys) -> None:
