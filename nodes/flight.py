@@ -50,7 +50,12 @@ def _motion_ports(timeout_s: float) -> tuple:
             high=3.15,
         ),
         input_port(
-            "yaw_threshold_deg", FLOAT, None, "yaw tolerance in degrees (overrides yaw_threshold)"
+            "yaw_threshold_deg",
+            FLOAT,
+            None,
+            "yaw tolerance in degrees (overrides yaw_threshold)",
+            low=0.05,
+            high=180.0,
         ),
         input_port(
             "settle_time", DURATION, 0.0, "time both tolerances must hold before SUCCESS, s"
