@@ -16,7 +16,7 @@ from typing import Any, Literal
 
 from lxml import etree
 
-from bt_engine.ports import NO_DEFAULT, EnumType, Port
+from bt_engine.ports import NO_DEFAULT, EnumType, Port, range_words
 from bt_engine.registry import KINDS, NodeModel, Registry
 
 GROOT_TYPES = {
@@ -168,12 +168,7 @@ def groot_palette(registry: Registry, include_builtins: bool = False) -> str:
 
 def range_text(p: Any) -> str | None:
     """A port's declared range as words (``0.01 to 3``, ``at least 0``), or None."""
-    low, high = getattr(p, "low", None), getattr(p, "high", None)
-    if low is not None and high is not None:
-        return f"{low:g} to {high:g}"
-    if low is not None or high is not None:
-        return f"at least {low:g}" if low is not None else f"at most {high:g}"
-    return None
+    return range_words(getattr(p, "low", None), getattr(p, "high", None))
 
 
 def port_line(p: Port) -> str:

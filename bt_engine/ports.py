@@ -404,6 +404,16 @@ NO_DEFAULT: Any = _NoDefault()
 INPUT, OUTPUT, INOUT = "input", "output", "inout"
 
 
+def range_words(low: float | None, high: float | None) -> str | None:
+    """A port's range said in words (``0.01 to 3``, ``at least 0``, ``at most 5``); None
+    when it has none."""
+    if low is not None and high is not None:
+        return f"{low:g} to {high:g}"
+    if low is not None:
+        return f"at least {low:g}"
+    return f"at most {high:g}" if high is not None else None
+
+
 @dataclass(frozen=True)
 class Port:
     """One declared port of a node.
@@ -429,18 +439,13 @@ class Port:
     def out_of_range(self, value: Any) -> str | None:
         """Why ``value`` is outside :attr:`low` .. :attr:`high` (None if it is inside, has
         no range or is not a number)."""
-        if self.low is None and self.high is None:
+        want = range_words(self.low, self.high)
+        if want is None or isinstance(value, bool) or not isinstance(value, (int, float)):
             return None
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return None
-        if self.low is not None and self.high is not None:
-            want = f"{self.low:g} to {self.high:g}"
-        else:
-            want = f"at least {self.low:g}" if self.low is not None else f"at most {self.high:g}"
         inside = (self.low is None or value >= self.low) and (
             self.high is None or value <= self.high
         )
-        if inside and value == value and abs(value) != float("inf"):
+        if inside and math.isfinite(value):
             return None
         what = f" ({self.description})" if self.description else ""
         return f"{self.name} {value!r}: expected {want}{what}"
