@@ -8,6 +8,7 @@ from typing import Any
 from bt_engine.node import BTNode, NodeRuntimeError
 from bt_engine.ports import EnumType
 from bt_engine.spec import Loc, Problem
+from drivers.safety.policies import SafetyConfig
 
 #: Aerostack2's yaw modes; names or integers are accepted in mission files.
 YAW_MODE = EnumType("YawMode", {"KEEP_YAW": 0, "PATH_FACING": 1, "FIXED_YAW": 2})
@@ -37,6 +38,43 @@ def limit_problems(node: BTNode, limits: Any) -> list[tuple[str, str]]:
             continue
         if not (math.isfinite(value) and lo <= value <= hi):
             out.append((port, f"{port} {value!r}: expected {what}, {lo:g} to {hi:g}"))
+    return out
+
+
+def geofence_config(node: BTNode) -> Any:
+    """The rig's safety settings (:class:`drivers.safety.policies.SafetyConfig`) when its
+    geofence is on, else None: the running supervisor's, or before flight the rig's own
+    (``rig`` in the run's resources)."""
+    resources = node.ctx.resources if node.ctx is not None else {}
+    config = getattr(resources.get("safety"), "config", None)
+    if config is None:
+        data = getattr(resources.get("rig"), "data", None)
+        if not isinstance(data, dict) or not isinstance(data.get("safety"), dict):
+            return None
+        config = SafetyConfig.from_dict(data["safety"])
+    return config if getattr(config, "geofence_enabled", False) else None
+
+
+def outside_geofence(node: BTNode, port: str, points: Any, what: str = "") -> list[tuple[str, str]]:
+    """``(port, message)`` for each of ``points`` (x;y;z goals a leaf will fly to) outside
+    the rig's geofence, as a leaf's ``preflight`` returns them: a goal the safety
+    supervisor would call a breach is refused before take-off, not flown into. ``what``
+    replaces the port's name and value in the message."""
+    config = geofence_config(node)
+    if config is None:
+        return []
+    lo, hi = config.geofence_min_m, config.geofence_max_m
+    box = ", ".join(f"{a} {lo[i]:g} to {hi[i]:g}" for i, a in enumerate("xyz"))
+    pts = list(points)
+    out = []
+    for i, p in enumerate(pts):
+        if len(p) != 3 or config.inside(tuple(float(v) for v in p)):
+            continue
+        shown = ";".join(f"{float(v):g}" for v in p)
+        which = what or (
+            f"{port} waypoint {i + 1} ({shown})" if len(pts) > 1 else f"{port} {shown}"
+        )
+        out.append((port, f"{which}: expected a point inside the rig's geofence ({box} m)"))
     return out
 
 

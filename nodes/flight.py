@@ -8,8 +8,17 @@ Every motion has a time-out; a halted motion leaves the drone holding position.
 from __future__ import annotations
 
 import math
+from typing import Any
 
-from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode, SyncActionNode
+from bt_engine.node import (
+    FAILURE,
+    RUNNING,
+    SUCCESS,
+    BTNode,
+    NodeStatus,
+    StatefulActionNode,
+    SyncActionNode,
+)
 from bt_engine.ports import (
     ANY,
     BOOL,
@@ -22,7 +31,14 @@ from bt_engine.ports import (
     output_port,
 )
 from bt_engine.registry import register
-from nodes.common import CATEGORY_FLIGHT, YAW_MODE, angle_input, vehicle_of, yaw_mode_value
+from nodes.common import (
+    CATEGORY_FLIGHT,
+    YAW_MODE,
+    angle_input,
+    outside_geofence,
+    vehicle_of,
+    yaw_mode_value,
+)
 
 DEFAULT_POS_THRESHOLD_M = 0.03  # the reference study's go-to completion threshold
 DEFAULT_YAW_THRESHOLD_RAD = math.radians(15.0)
@@ -165,6 +181,22 @@ class _Motion(StatefulActionNode):
         return self.get_input("pos_threshold"), yaw
 
 
+def _port(node: BTNode, name: str) -> Any:
+    """The declaration of ``node``'s port ``name``."""
+    return next(p for p in type(node).ports if p.name == name)
+
+
+def _start_point(node: BTNode) -> tuple[float, float, float]:
+    """Where the drone stands before flight: a simulated rig's ``sim.start_m`` (its
+    vehicle reads the origin until the simulation steps); raises for a real drone, whose
+    start is only known once it is connected and tracked."""
+    data = node.ctx.resources["rig"].data
+    if data["link"] != "sim":
+        raise LookupError("the drone's start is not known before it connects")
+    x, y, z = data["sim"]["start_m"]
+    return float(x), float(y), float(z)
+
+
 @register
 class TakeOff(_Motion):
     """Climb ``height`` metres above the current position at ``speed`` m/s (arms if needed).
@@ -180,6 +212,18 @@ class TakeOff(_Motion):
         input_port("timeout", DURATION, 30.0, "FAILURE if not done within this time, s"),
         output_port("takeoff_point", VEC3, "where the climb ends (x;y;z): a place to return to"),
     )
+
+    def preflight(self) -> list[tuple[str, str]]:
+        """A climb that would end above the rig's geofence, refused before it starts."""
+        try:
+            height = float(self.get_input("height"))
+            x, y, z = _start_point(self)
+        except Exception:  # noqa: BLE001 - no start known, or written in flight: checked then
+            return []
+        if _port(self, "height").out_of_range(height) is not None:  # the range check says it
+            return []
+        what = f"height {height:g} (the climb ends at z {z + height:g} m)"
+        return outside_geofence(self, "height", [(x, y, z + height)], what)
 
     def start_motion(self):
         progress = self.vehicle.takeoff(self.get_input("height"), self.get_input("speed"))
@@ -214,6 +258,17 @@ class GoTo(_Motion):
         input_port("relative", BOOL, False, "pose is an offset from the current position"),
         input_port("frame_id", STRING, "earth", "reference frame (only 'earth' is supported)"),
     ) + _motion_ports(60.0)
+
+    def preflight(self) -> list[tuple[str, str]]:
+        """A goal outside the rig's geofence (not an offset: ``relative``), refused before
+        anything flies."""
+        try:
+            if self.get_input("relative"):
+                return []
+            pose = self.get_input("pose")
+        except Exception:  # noqa: BLE001 - written in flight: the supervisor watches it
+            return []
+        return outside_geofence(self, "pose", [pose])
 
     def start_motion(self):
         x, y, z = self.get_input("pose")
@@ -257,6 +312,14 @@ class FollowPath(_Motion):
         input_port("server_timeout", STRING, "", "accepted for Aerostack2 files; ignored"),
         _SERVICE,
     ) + _motion_ports(120.0)
+
+    def preflight(self) -> list[tuple[str, str]]:
+        """Waypoints outside the rig's geofence, refused before anything flies."""
+        try:
+            path = self.get_input("path")
+        except Exception:  # noqa: BLE001 - written in flight: the supervisor watches it
+            return []
+        return outside_geofence(self, "path", path)
 
     def start_motion(self):
         pos_tol, yaw_tol = self.tolerances()

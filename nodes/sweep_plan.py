@@ -23,7 +23,7 @@ from typing import Any
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode, SyncActionNode
 from bt_engine.ports import ANY, DURATION, FLOAT, INT, VEC3, input_port, output_port
 from bt_engine.registry import register
-from nodes.common import vehicle_of
+from nodes.common import outside_geofence, vehicle_of
 from nodes.inventory import CATEGORY_INVENTORY, world_of
 
 #: keep this far from a rack's footprint when flying around it, m
@@ -372,6 +372,14 @@ class FlyRoute(StatefulActionNode):
         input_port("max_speed", FLOAT, 0.5, "speed, m/s", low=0.01, high=5.0),
         input_port("timeout", DURATION, 120.0, "FAILURE if not there within this time, s"),
     )
+
+    def preflight(self) -> list[tuple[str, str]]:
+        """A goal outside the rig's geofence, refused before anything flies."""
+        try:
+            pose = self.get_input("pose")
+        except Exception:  # noqa: BLE001 - written in flight (the pads' point): checked then
+            return []
+        return outside_geofence(self, "pose", [pose])
 
     def on_start(self) -> NodeStatus:
         self.vehicle = vehicle_of(self)

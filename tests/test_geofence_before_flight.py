@@ -1,0 +1,70 @@
+"""A goal outside the rig's geofence is refused before take-off (located where the mission
+wrote it, or at ``--set``), not flown into: the supervisor would call it a breach, fly the
+drone back inside and land, with the mission failed in the air."""
+
+from __future__ import annotations
+
+from bt_engine.cli import main
+
+MISSION = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <Sequence>
+      <TakeOff height="{climb}"/>
+      <GoTo pose="1;0;1" relative="true"/>
+      <GoTo pose="{goal}"/>
+      <FollowPath path="1;0;1|2;0;1|3;0;1"/>
+      <Land/>
+    </Sequence>
+  </BehaviorTree>
+</root>
+"""
+BOX = "expected a point inside the rig's geofence (x -1.5 to 9.2, y -3 to 3, z -0.5 to 2.5 m)"
+
+
+def _mission(tmp_path, climb: str = "1", goal: str = "2;0;1", path: str = "") -> str:
+    text = MISSION.replace("{climb}", climb).replace("{goal}", goal)
+    if path:
+        text = text.replace("1;0;1|2;0;1|3;0;1", path)
+    f = tmp_path / "m.xml"
+    f.write_text(text)
+    return str(f)
+
+
+def test_goals_outside_the_geofence_are_refused_where_the_file_wrote_them(tmp_path, capsys):
+    m = _mission(tmp_path, climb="4", goal="20;0;1", path="1;0;1|2;-5;1|3;0;1")
+    out = tmp_path / "run"
+    assert main([m, "--rig", "rigs/sim.yaml", "--out", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        f"{m}:4:7: TakeOff: height 4 (the climb ends at z 4 m): {BOX}",
+        f"{m}:6:7: GoTo: pose 20;0;1: {BOX}",
+        f"{m}:7:7: FollowPath: path waypoint 2 (2;-5;1): {BOX}",
+        "3 problems found; nothing was run.",
+    ]
+    assert not out.exists()  # nothing was built, nothing flew
+    # btrun validate --rig says the same without building a drone
+    assert main(["validate", m, "--rig", "rigs/sim.yaml"]) == 2
+    assert f"{m}:4:7: TakeOff: height 4" in capsys.readouterr().err
+
+
+def test_a_set_goal_outside_the_geofence_is_refused_at_the_set(tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["missions/pallet_scan.xml", "--set", "home=100;0;0", "--out", str(out), "-q"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"--set home: pose 100;0;0: {BOX}", "1 problem found; nothing was run."]
+    assert not out.exists()
+
+
+def test_goals_inside_a_relative_offset_or_a_geofence_turned_off_pass(tmp_path, capsys):
+    """An offset (``relative``) is not a point of the map; a rig without a geofence has
+    nothing to check; a mission inside the box passes."""
+    assert main(["validate", _mission(tmp_path), "--rig", "rigs/sim.yaml"]) == 0
+    m = _mission(tmp_path, goal="20;0;1")
+    off = ["--set", "safety.geofence.enabled=false"]
+    assert main(["validate", m, "--rig", "rigs/sim.yaml", *off]) == 0
+    capsys.readouterr()
+    assert main(["validate", "missions/square.xml", "--rig", "rigs/sim.yaml"]) == 0
+    site = ["validate", "missions/inventory.xml", "--rig", "rigs/site.yaml"]
+    assert main([*site, "--set", "home=1;-10;9"]) == 2
+    assert "--set home: pose 1;-10;9: expected a point inside" in capsys.readouterr().err
