@@ -52,6 +52,13 @@ def measured_rate(ctx: Any, now: float, max_age_s: float = 30.0) -> float | None
     return float(got[1])
 
 
+def forget_battery(ctx: Any) -> None:
+    """A new battery (``ChangeBattery`` done): the consumption and charge measured on the
+    old one no longer hold."""
+    ctx.resources.pop(RATE_KEY, None)
+    ctx.resources.pop(PERCENT_KEY, None)
+
+
 def steady_reading(ctx: Any, now: float, max_age_s: float) -> tuple[float, float] | None:
     """(the charge an ``EnoughEnergy`` read last in flight: the median over
     :data:`STEADY_S`, %; how long ago, s), if within ``max_age_s``; else None."""
@@ -280,6 +287,7 @@ class ChangeBattery(StatefulActionNode):
         return RUNNING
 
     def _done(self, now: float) -> NodeStatus:
+        forget_battery(self.ctx)
         self.ctx.log(
             f"{self.describe()}: battery {self.mode} done, {self.before:.0f} % -> "
             f"{self.vehicle.battery.percent:.0f} % after {now - self.started_s:.0f} s"

@@ -218,7 +218,10 @@ class EnoughEnergyForPass(ConditionNode):
             here = end
         if not steps:
             return True
-        rate = measured_rate(self.ctx, self.now())
+        # measured on this battery, however long ago (ChangeBattery forgets it): after a
+        # few per-place rescans the last measurement is minutes old, and still far nearer
+        # the drone's consumption than the assumed endurance
+        rate = measured_rate(self.ctx, self.now(), max_age_s=math.inf)
         how = "measured"
         if rate is None:
             rate, how = 100.0 / max(self.get_input("endurance"), 1.0), "assumed"

@@ -178,3 +178,49 @@ def test_a_battery_change_in_flight_is_refused():
     assert result.status == "FAILURE"
     assert "flying: land first" in result.reason
     assert pf.summary()["battery"]["swaps"] == 0
+
+
+def test_a_battery_change_forgets_what_was_measured_on_the_old_battery():
+    """The consumption measured in flight is kept on this battery however old it is (the
+    sweep's look-ahead used the assumed endurance once the last measurement was 30 s old,
+    after a per-place rescan), and forgotten when ChangeBattery puts in another."""
+    import math
+
+    from helpers import sim_mission
+
+    from nodes.energy import RATE_KEY, measured_rate
+
+    xml = """<root BTCPP_format="4"><BehaviorTree ID="M"><Sequence>
+      <TakeOff height="0.5"/>
+      <ReactiveSequence>
+        <EnoughEnergy target="0;0;0.5" home="0;0;0" reserve="5" period="1"/>
+        <Hover duration="25"/>
+      </ReactiveSequence>
+      <Hover duration="40"/>
+      <Land/>
+      <ChangeBattery mode="swap" duration="5"/>
+    </Sequence></BehaviorTree></root>"""
+    m, run, pf = sim_mission(xml, rig="rigs/aisle.yaml")
+    seen = []
+    run.hooks.append(
+        type(
+            "Watch",
+            (),
+            {
+                "before_tick": lambda self, t: None,
+                "after_tick": lambda self, t: seen.append(
+                    (t, m.ctx.resources.get(RATE_KEY), measured_rate(m.ctx, t, math.inf))
+                ),
+                "shutdown": lambda self, reason: None,
+            },
+        )()
+    )
+    result = run.run(max_time_s=200)
+    assert result.status == "SUCCESS", result.reason
+    measured = [s for s in seen if s[1] is not None]
+    assert measured, "EnoughEnergy measured no consumption in 25 s of flight"
+    assert all(s[1][1] > 0 for s in measured)
+    later = [s for s in measured if s[0] - s[1][0] > 30.0]  # measured over 30 s before
+    assert later and all(s[2] == s[1][1] for s in later)  # kept at any age on this battery
+    assert measured_rate(m.ctx, later[0][0]) is None  # the default age limit
+    assert seen[-1][1] is None  # the swap forgot it
