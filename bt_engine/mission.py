@@ -265,6 +265,7 @@ class Mission:
     def _preflight(self, which: Callable[[Any], bool], set_keys: set[str] | None) -> list[Problem]:
         """The problems of the pre-flight checks of the nodes ``which`` selects."""
         out: list[Problem] = []
+        ranged: set[str] = set()  # --set entries a range check refused already
         for node in self.nodes:
             if not which(node):
                 continue
@@ -274,8 +275,8 @@ class Mission:
                 found = list(check() or ()) if check is not None else []
             except Exception as exc:  # a broken check must not hide the others
                 found = [("", f"pre-flight check failed: {type(exc).__name__}: {exc}")]
-            found += self._range_problems(node)
-            for item in found:
+            ranges = self._range_problems(node)
+            for item in found + ranges:
                 if isinstance(item, Problem):
                     out.append(item)
                     continue
@@ -284,6 +285,10 @@ class Mission:
                 if key is not None and node.scope is not None:  # through SubTree remapping
                     key = node.scope.display_key(key)
                 if key is not None and key in (set_keys or ()):
+                    if item in ranges:  # several leaves' ranges for one value: the first
+                        if key in ranged:
+                            continue
+                        ranged.add(key)
                     out.append(Problem(Loc("--set", 0, 0), f"{key}: {message}"))
                 else:
                     where = node.loc or Loc("<mission>")

@@ -23,24 +23,6 @@ def config_problems(exc: Any) -> list[Problem]:
     return [Problem(Loc(p.file, p.line, p.col), p.message) for p in exc.problems]
 
 
-def limit_problems(node: BTNode, limits: Any) -> list[tuple[str, str]]:
-    """``(port, message)`` for every numeric input of ``node`` outside its ``limits``
-    (``(port, low, high, what it is)`` each), as a leaf's ``preflight`` returns them: the
-    mission's value, its input's default or a ``--set``, refused before anything flies.
-    A port not readable before flight (written in flight) is checked then."""
-    out: list[tuple[str, str]] = []
-    for port, lo, hi, what in limits:
-        try:
-            value = node.get_input(port)
-        except Exception:  # noqa: BLE001 - written in flight: checked then
-            continue
-        if value is None or isinstance(value, bool) or not isinstance(value, (int, float)):
-            continue
-        if not (math.isfinite(value) and lo <= value <= hi):
-            out.append((port, f"{port} {value!r}: expected {what}, {lo:g} to {hi:g}"))
-    return out
-
-
 def geofence_config(node: BTNode) -> Any:
     """The rig's safety settings (:class:`drivers.safety.policies.SafetyConfig`) when its
     geofence is on, else None: the running supervisor's, or before flight the rig's own

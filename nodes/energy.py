@@ -18,7 +18,7 @@ from typing import Any
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, ConditionNode, NodeStatus, StatefulActionNode
 from bt_engine.ports import DURATION, FLOAT, STRING, VEC3, input_port
 from bt_engine.registry import register
-from nodes.common import limit_problems, vehicle_of
+from nodes.common import vehicle_of
 
 CATEGORY_ENERGY = "energy"
 #: charge (percent points) a reading must rise by to count as a new battery
@@ -103,11 +103,18 @@ class EnoughEnergy(ConditionNode):
     ports = (
         input_port("target", VEC3, description="where the next task is, x;y;z in m"),
         input_port("home", VEC3, description="where to land afterwards (the pad), x;y;z"),
-        input_port("speed", FLOAT, 0.5, "transit speed, m/s"),
+        input_port("speed", FLOAT, 0.5, "transit speed, m/s", low=0.05, high=3.0),
         input_port("task_time", DURATION, 45.0, "time a task takes before any was timed, s"),
         input_port("landing_time", DURATION, 8.0, "time to land, s"),
-        input_port("reserve", FLOAT, 15.0, "charge to keep at touchdown, %"),
-        input_port("endurance", DURATION, 360.0, "flight time of a full battery until measured, s"),
+        input_port("reserve", FLOAT, 15.0, "charge to keep at touchdown, %", low=0.0, high=90.0),
+        input_port(
+            "endurance",
+            DURATION,
+            360.0,
+            "flight time of a full battery until measured, s",
+            low=10.0,
+            high=36000.0,
+        ),
         input_port(
             "period",
             DURATION,
@@ -116,17 +123,6 @@ class EnoughEnergy(ConditionNode):
             "ticked every tick beside a long action, such as a sweep pass, s",
         ),
     )
-    #: the values the estimate can work with: (port, low, high, what it is)
-    LIMITS = (
-        ("reserve", 0.0, 90.0, "a charge to keep at touchdown in %"),
-        ("speed", 0.05, 3.0, "a transit speed in m/s"),
-        ("endurance", 10.0, 36000.0, "a flight time of a full battery in s"),
-    )
-
-    def preflight(self) -> list[Any]:
-        """A reserve, speed or endurance no flight can have (a 150 % reserve changed the
-        battery again and again for 270 s, then failed), before anything flies."""
-        return list(limit_problems(self, self.LIMITS))
 
     def check(self) -> bool:
         v = vehicle_of(self)
@@ -203,18 +199,19 @@ class ChangeBattery(StatefulActionNode):
     ports = (
         input_port("mode", STRING, "swap", "swap (a fresh battery) or charge (on the pad)"),
         input_port("duration", DURATION, 60.0, "handling time of a swap / least charging time, s"),
-        input_port("target_percent", FLOAT, 95.0, "charge: stop at this charge, %"),
+        input_port(
+            "target_percent", FLOAT, 95.0, "charge: stop at this charge, %", low=1.0, high=100.0
+        ),
         input_port("check_period", DURATION, 60.0, "charge: read the rested charge this often, s"),
         input_port("settle", DURATION, 3.0, "rest before reading the charge, s"),
         input_port("timeout", DURATION, 3600.0, "FAILURE if not done within this time, s"),
     )
-    LIMITS = (("target_percent", 1.0, 100.0, "a charge in %"),)
 
     def preflight(self) -> list[Any]:
         """A charge to stop at that no battery reaches, or a mode that is neither swap nor
         charge (``battery_mode=nuclear`` flew and failed at the first change), before
         anything flies."""
-        out: list[Any] = list(limit_problems(self, self.LIMITS))
+        out: list[Any] = []
         try:
             mode = self.get_input("mode")
         except Exception:  # noqa: BLE001 - written in flight: checked then

@@ -31,7 +31,7 @@ from typing import Any
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
-from nodes.common import is_realtime, limit_problems, vehicle_of
+from nodes.common import is_realtime, vehicle_of
 from nodes.inventory import CATEGORY_INVENTORY, world_of
 from nodes.inventory_log import EMPTY, IDENTIFIED, NOT_SCANNED, UNKNOWN, InventoryLog
 from nodes.perception_feed import FrameFeed
@@ -104,10 +104,17 @@ class SweepPass(StatefulActionNode):
     ports = (
         input_port("pass", STRING, description="pass name (PlanSweep's passes, e.g. A/2)"),
         input_port("gallery", STRING, DEMO, "gallery file (.sqlite) or demo"),
-        input_port("speed", FLOAT, 0.8, "speed along the pass, m/s"),
-        input_port("standoff", FLOAT, 0.45, "distance from the pallet faces, m"),
-        input_port("transit_speed", FLOAT, 1.0, "speed to the pass start, m/s"),
-        input_port("lead", FLOAT, 0.5, "start this far before the first block (a run-up), m"),
+        input_port("speed", FLOAT, 0.8, "speed along the pass, m/s", low=0.02, high=2.0),
+        input_port("standoff", FLOAT, 0.45, "distance from the pallet faces, m", low=0.2, high=1.5),
+        input_port("transit_speed", FLOAT, 1.0, "speed to the pass start, m/s", low=0.05, high=3.0),
+        input_port(
+            "lead",
+            FLOAT,
+            0.5,
+            "start this far before the first block (a run-up), m",
+            low=0.0,
+            high=3.0,
+        ),
         input_port("detector", STRING, "", "detector weights file (empty: the shipped model)"),
         input_port("min_score", FLOAT, None, MIN_SCORE_DOC),
         input_port(
@@ -116,6 +123,8 @@ class SweepPass(StatefulActionNode):
             0.0,
             "lock-step: emulate a host that needs this long per frame (frames arriving "
             "meanwhile are dropped, as in real time), s",
+            low=0.0,
+            high=5.0,
         ),
         input_port(
             "rescan_places",
@@ -130,6 +139,8 @@ class SweepPass(StatefulActionNode):
             0.3,
             "a place the pass could not answer is flown past again at this speed right away "
             "(a few seconds) before it is left for the per-place scan; 0: never, m/s",
+            low=0.0,
+            high=2.0,
         ),
         input_port("second_looks", INT, 4, "at most this many second looks per pass"),
         input_port("timeout", DURATION, 180.0, "FAILURE if the pass is not done within this, s"),
@@ -139,21 +150,6 @@ class SweepPass(StatefulActionNode):
         output_port("answered", INT, "places this pass answered"),
         output_port("rescan", ANY, "places left for the per-place scan (LoopString's queue)"),
     )
-
-    #: the values a pass can fly with: (port, low, high, what it is)
-    LIMITS = (
-        ("speed", 0.02, 2.0, "a speed along the pass in m/s"),
-        ("standoff", 0.2, 1.5, "a stand-off from the faces in m"),
-        ("transit_speed", 0.05, 3.0, "a transit speed in m/s"),
-        ("lead", 0.0, 3.0, "a run-up in m"),
-        ("host_frame_time", 0.0, 5.0, "a time per frame in s"),
-        ("second_look_speed", 0.0, 2.0, "a speed in m/s (0: no second look)"),
-    )
-
-    def preflight(self) -> list[Any]:
-        """Speeds, stand-off, run-up and emulated frame time outside what a pass can fly
-        (from the mission, its inputs or ``--set``), before anything flies."""
-        return list(limit_problems(self, self.LIMITS))
 
     # -- start -------------------------------------------------------------------------------
     def on_start(self) -> NodeStatus:

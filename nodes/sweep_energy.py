@@ -16,12 +16,11 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Any
 
 from bt_engine.node import ConditionNode
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, STRING, VEC3, input_port, output_port
 from bt_engine.registry import register
-from nodes.common import limit_problems, vehicle_of
+from nodes.common import vehicle_of
 from nodes.energy import CATEGORY_ENERGY, measured_rate, steady_percent, travel_m
 from nodes.inventory_log import InventoryLog
 from nodes.sweep_plan import pass_line, sweep_plan_of
@@ -132,8 +131,10 @@ class EnoughEnergyForPass(ConditionNode):
     ports = (
         input_port("pass", STRING, description="the next pass (PlanSweep's passes, e.g. A/2)"),
         input_port("home", VEC3, description="where a battery is changed (the pad), x;y;z"),
-        input_port("speed", FLOAT, 0.8, "speed along a pass, m/s"),
-        input_port("transit_speed", FLOAT, 1.0, "speed between passes and home, m/s"),
+        input_port("speed", FLOAT, 0.8, "speed along a pass, m/s", low=0.02, high=2.0),
+        input_port(
+            "transit_speed", FLOAT, 1.0, "speed between passes and home, m/s", low=0.05, high=3.0
+        ),
         input_port("standoff", FLOAT, 0.45, "the passes' distance from the faces, m"),
         input_port("lead", FLOAT, 0.5, "the passes' run-up, m"),
         input_port(
@@ -145,7 +146,7 @@ class EnoughEnergyForPass(ConditionNode):
         ),
         input_port("landing_time", DURATION, 4.0, "time to land, s"),
         input_port("swap_time", DURATION, 60.0, "handling time of a change, s"),
-        input_port("reserve", FLOAT, 15.0, "charge to keep at touchdown, %"),
+        input_port("reserve", FLOAT, 15.0, "charge to keep at touchdown, %", low=0.0, high=90.0),
         input_port(
             "margin",
             FLOAT,
@@ -153,8 +154,17 @@ class EnoughEnergyForPass(ConditionNode):
             "charge the look-ahead keeps beyond the reserve (about one unplanned second look "
             "and the consumption's noise), so the EnoughEnergy beside a pass does not stop "
             "it where the plan said it fits, %",
+            low=0.0,
+            high=50.0,
         ),
-        input_port("endurance", DURATION, 360.0, "flight time of a full battery until measured, s"),
+        input_port(
+            "endurance",
+            DURATION,
+            360.0,
+            "flight time of a full battery until measured, s",
+            low=10.0,
+            high=36000.0,
+        ),
         input_port(
             "enabled",
             BOOL,
@@ -164,18 +174,6 @@ class EnoughEnergyForPass(ConditionNode):
         ),
         output_port("start_point", ANY, "where the pass starts, x;y;z"),
     )
-    LIMITS = (
-        ("reserve", 0.0, 90.0, "a charge to keep at touchdown in %"),
-        ("margin", 0.0, 50.0, "a charge in %"),
-        ("speed", 0.02, 2.0, "a speed along a pass in m/s"),
-        ("transit_speed", 0.05, 3.0, "a transit speed in m/s"),
-        ("endurance", 10.0, 36000.0, "a flight time of a full battery in s"),
-    )
-
-    def preflight(self) -> list[Any]:
-        """A reserve, margin, speed or endurance the look-ahead cannot plan with, before
-        anything flies."""
-        return list(limit_problems(self, self.LIMITS))
 
     def check(self) -> bool:
         v = vehicle_of(self)

@@ -446,8 +446,7 @@ def test_a_battery_reserve_no_flight_can_keep_is_refused_before_flight(tmp_path,
     args = ["missions/inventory.xml", "--rig", AISLE_RIG, "--out", str(out), "-q"]
     assert main([*args, "--set", "battery_reserve=150"]) == 2
     assert _err_lines(capsys) == [
-        "--set battery_reserve: reserve 150.0: expected a charge to keep at touchdown in %, "
-        "0 to 90",
+        "--set battery_reserve: reserve 150.0: expected 0 to 90 (charge to keep at touchdown, %)",
         "1 problem found; nothing was run.",
     ]
     assert not out.exists()

@@ -186,7 +186,8 @@ def test_bad_sweep_inputs_are_refused_before_anything_flies(tmp_path, capsys):
     code = _fly(out, "places=A-01-1", "sweep_speed=-1", "sweep_standoff=9")
     err = capsys.readouterr().err
     assert code == 2 and not (out / "ticks.jsonl").exists()
-    assert "--set sweep_speed: speed -1.0: expected a speed along the pass" in err
+    assert "--set sweep_speed: speed -1.0: expected 0.02 to 2 (speed along" in err
+    assert err.count("--set sweep_speed") == 1  # said once, though two leaves read it
     assert "--set sweep_standoff: standoff 9.0" in err
 
 
