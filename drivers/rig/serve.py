@@ -47,10 +47,12 @@ def serve_crazyflie(argv: list[str] | None = None) -> int:
     sitl = SitlSession(
         load_rig(args.rig).data, args.seed, host=args.host, port=args.port, feed_mocap=args.mocap
     )
-    sitl.start()
     fed = ", mocap fed to the firmware" if args.mocap else ""
-    print(f"CRTP emulator serving {sitl.uri}{fed} (Ctrl-C to stop)", flush=True)
+    # a Ctrl-C at any point from here, even while the line below is still being printed,
+    # stops the emulator and exits 0
     try:
+        sitl.start()
+        print(f"CRTP emulator serving {sitl.uri}{fed} (Ctrl-C to stop)", flush=True)
         while True:
             time.sleep(args.stats_every or 3600)
             if args.stats_every:
@@ -91,10 +93,10 @@ def serve_aideck(argv: list[str] | None = None) -> int:
         args.host, args.port, args.fps, args.format, args.header,
         make_frame_source(args.renderer, args.seed, world), pose, seed=args.seed,
     )  # fmt: skip
-    print(f"AI-deck emulator on {emu.host}:{emu.port} ({args.format}, {args.fps} fps, "
-          f"{args.renderer}); Ctrl-C to stop", flush=True)  # fmt: skip
-    emu.start()
-    try:
+    try:  # a Ctrl-C at any point from here stops the stream and exits 0
+        print(f"AI-deck emulator on {emu.host}:{emu.port} ({args.format}, {args.fps} fps, "
+              f"{args.renderer}); Ctrl-C to stop", flush=True)  # fmt: skip
+        emu.start()
         while True:
             time.sleep(5.0)
             print(f"clients={emu.clients} frames={emu.frames_sent} bytes={emu.bytes_sent}",
