@@ -90,6 +90,20 @@ def needed_percent(
     return rate_pct_per_s * seconds + reserve_pct, seconds
 
 
+#: the battery's reserve and assumed endurance, as every energy leaf declares them
+RESERVE_PORT = input_port(
+    "reserve", FLOAT, 15.0, "charge to keep at touchdown, %", low=0.0, high=90.0
+)
+ENDURANCE_PORT = input_port(
+    "endurance",
+    DURATION,
+    360.0,
+    "flight time of a full battery until measured, s",
+    low=10.0,
+    high=36000.0,
+)
+
+
 @register
 class EnoughEnergy(ConditionNode):
     """SUCCESS if the battery covers the next task and the way home: flying to ``target``,
@@ -106,15 +120,8 @@ class EnoughEnergy(ConditionNode):
         input_port("speed", FLOAT, 0.5, "transit speed, m/s", low=0.05, high=3.0),
         input_port("task_time", DURATION, 45.0, "time a task takes before any was timed, s"),
         input_port("landing_time", DURATION, 8.0, "time to land, s"),
-        input_port("reserve", FLOAT, 15.0, "charge to keep at touchdown, %", low=0.0, high=90.0),
-        input_port(
-            "endurance",
-            DURATION,
-            360.0,
-            "flight time of a full battery until measured, s",
-            low=10.0,
-            high=36000.0,
-        ),
+        RESERVE_PORT,
+        ENDURANCE_PORT,
         input_port(
             "period",
             DURATION,

@@ -21,7 +21,14 @@ from bt_engine.node import ConditionNode
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, STRING, VEC3, input_port, output_port
 from bt_engine.registry import register
 from nodes.common import vehicle_of
-from nodes.energy import CATEGORY_ENERGY, measured_rate, steady_percent, travel_m
+from nodes.energy import (
+    CATEGORY_ENERGY,
+    ENDURANCE_PORT,
+    RESERVE_PORT,
+    measured_rate,
+    steady_percent,
+    travel_m,
+)
 from nodes.inventory_log import InventoryLog
 from nodes.sweep_plan import pass_line, sweep_plan_of
 
@@ -146,7 +153,7 @@ class EnoughEnergyForPass(ConditionNode):
         ),
         input_port("landing_time", DURATION, 4.0, "time to land, s"),
         input_port("swap_time", DURATION, 60.0, "handling time of a change, s"),
-        input_port("reserve", FLOAT, 15.0, "charge to keep at touchdown, %", low=0.0, high=90.0),
+        RESERVE_PORT,
         input_port(
             "margin",
             FLOAT,
@@ -157,14 +164,7 @@ class EnoughEnergyForPass(ConditionNode):
             low=0.0,
             high=50.0,
         ),
-        input_port(
-            "endurance",
-            DURATION,
-            360.0,
-            "flight time of a full battery until measured, s",
-            low=10.0,
-            high=36000.0,
-        ),
+        ENDURANCE_PORT,
         input_port(
             "enabled",
             BOOL,
