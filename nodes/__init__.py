@@ -14,6 +14,7 @@ from nodes import (  # noqa: F401  (registration)
     perception,
     reactive_scan,
     safety,
+    scan_face,
     sweep,
     sweep_energy,
     sweep_plan,

@@ -37,26 +37,33 @@ def geofence_config(node: BTNode) -> Any:
     return config if getattr(config, "geofence_enabled", False) else None
 
 
-def outside_geofence(node: BTNode, port: str, points: Any, what: str = "") -> list[tuple[str, str]]:
+def geofence_words(config: Any) -> str:
+    """The geofence box in words: ``x -1.5 to 9.2, y -3 to 3, z -0.5 to 2.5 m``."""
+    lo, hi = config.geofence_min_m, config.geofence_max_m
+    return ", ".join(f"{a} {lo[i]:g} to {hi[i]:g}" for i, a in enumerate("xyz")) + " m"
+
+
+def outside_geofence(
+    node: BTNode, port: str, points: Any, what: str = "", margin_m: float = 0.0
+) -> list[tuple[str, str]]:
     """``(port, message)`` for each of ``points`` (x;y;z goals a leaf will fly to) outside
-    the rig's geofence, as a leaf's ``preflight`` returns them: a goal the safety
-    supervisor would call a breach is refused before take-off, not flown into. ``what``
-    replaces the port's name and value in the message."""
+    the rig's geofence (or within ``margin_m`` of its walls), as a leaf's ``preflight``
+    returns them: a goal the safety supervisor would call a breach is refused before
+    take-off, not flown into. ``what`` replaces the port's name and value in the message."""
     config = geofence_config(node)
     if config is None:
         return []
-    lo, hi = config.geofence_min_m, config.geofence_max_m
-    box = ", ".join(f"{a} {lo[i]:g} to {hi[i]:g}" for i, a in enumerate("xyz"))
+    box = geofence_words(config)
     pts = list(points)
     out = []
     for i, p in enumerate(pts):
-        if len(p) != 3 or config.inside(tuple(float(v) for v in p)):
+        if len(p) != 3 or config.inside(tuple(float(v) for v in p), margin_m):
             continue
         shown = ";".join(f"{float(v):g}" for v in p)
         which = what or (
             f"{port} waypoint {i + 1} ({shown})" if len(pts) > 1 else f"{port} {shown}"
         )
-        out.append((port, f"{which}: expected a point inside the rig's geofence ({box} m)"))
+        out.append((port, f"{which}: expected a point inside the rig's geofence ({box})"))
     return out
 
 

@@ -9,7 +9,7 @@ Three leaves, meant to run in this order (``missions/pallet_scan.xml``):
 * ``AlignToPallet`` flies to the scan start the estimate gives (the stand-off distance in
   front of the face, square to it, at the block row's height, a little before the first
   block), looks again from there (closer, so more accurate) and corrects once.
-* ``ScanFace`` runs beside ``DetectBlocks`` (a Parallel): it flies along the face, refits the
+* ``ScanFace`` (:mod:`nodes.scan_face`) runs beside ``DetectBlocks`` (a Parallel): it flies along the face, refits the
   face from every frame DetectBlocks processes and re-plans when the estimate moves; it goes
   past the expected end while blocks are still missing (up to ``extend``), and stops early
   once the blocks are committed.
@@ -31,7 +31,13 @@ from typing import Any
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode
 from bt_engine.ports import ANY, DURATION, FLOAT, INT, STRING, VEC3, input_port, output_port
 from bt_engine.registry import register
-from nodes.common import is_realtime, vehicle_of
+from nodes.common import (
+    geofence_config,
+    geofence_words,
+    is_realtime,
+    outside_geofence,
+    vehicle_of,
+)
 from nodes.perception_session import MIN_SCORE_DOC, PerceptionError, PerceptionSession
 
 CATEGORY_SCAN = "reactive scan"
@@ -41,8 +47,8 @@ STANDOFF_SLACK_M = 0.15  # stand off up to this much further to keep inside the 
 
 _DETECTOR = input_port("detector", STRING, "", "detector weights file (empty: the shipped model)")
 _MIN_SCORE = input_port("min_score", FLOAT, None, MIN_SCORE_DOC)
-_FACE_IN = input_port("face", ANY, description="LocatePallet's face estimate")
-_STANDOFF = input_port(
+FACE_PORT = input_port("face", ANY, description="LocatePallet's face estimate")
+STANDOFF_PORT = input_port(
     "standoff", FLOAT, 0.4, "distance to keep from the face while scanning, m", low=0.1, high=3.0
 )
 _SPEED = input_port(
@@ -50,7 +56,7 @@ _SPEED = input_port(
 )
 
 
-class _Reactive(StatefulActionNode):
+class ReactiveLeaf(StatefulActionNode):
     """What the three leaves share: the session, go-to with a geofence check, looking."""
 
     category = CATEGORY_SCAN
@@ -165,8 +171,23 @@ class _Reactive(StatefulActionNode):
             v.hover()
 
 
+def look_points(
+    place: Any, facing_rad: float, distance_m: float, step_m: float, count: int
+) -> list[tuple[float, float, float]]:
+    """Where ``LocatePallet`` looks from: ``distance_m`` in front of ``place`` (facing
+    ``facing_rad``), then ``step_m`` to either side in turn, ``count`` points in all."""
+    x, y, z = place
+    nx, ny = math.cos(facing_rad), math.sin(facing_rad)
+    lx, ly = -ny, nx
+    out = []
+    for k in range(max(1, count)):
+        u = ((k + 1) // 2) * step_m * (1 if k % 2 else -1) if k else 0.0
+        out.append((x - nx * distance_m + lx * u, y - ny * distance_m + ly * u, z))
+    return out
+
+
 @register
-class LocatePallet(_Reactive):
+class LocatePallet(ReactiveLeaf):
     """Find the pallet face near where the map puts it. Fly to ``look_distance`` in front of
     ``place`` (the mapped centre of the block row, x;y;z), facing ``facing_deg``; hold for
     ``look_time`` while the detector looks; fit the face (:mod:`perception.face`). If no block
@@ -249,15 +270,41 @@ class LocatePallet(_Reactive):
         )
 
     def _look_points(self) -> list[tuple[float, float, float]]:
-        x, y, z = self.prior
-        d, step = self.get_input("look_distance"), self.get_input("search_step")
-        nx, ny = math.cos(self.facing), math.sin(self.facing)
-        lx, ly = -ny, nx
-        out = []
-        for k in range(max(1, self.get_input("search_points"))):
-            u = ((k + 1) // 2) * step * (1 if k % 2 else -1) if k else 0.0
-            out.append((x - nx * d + lx * u, y - ny * d + ly * u, z))
-        return out
+        return look_points(
+            self.prior,
+            self.facing,
+            self.get_input("look_distance"),
+            self.get_input("search_step"),
+            self.get_input("search_points"),
+        )
+
+    def preflight(self) -> list[tuple[str, str]]:
+        """A ``place`` none of whose look points lies inside the rig's geofence (it would
+        take off and fail there), refused before anything flies."""
+        try:
+            place = tuple(float(v) for v in self.get_input("place"))
+            points = look_points(
+                place,
+                math.radians(self.get_input("facing_deg")),
+                self.get_input("look_distance"),
+                self.get_input("search_step"),
+                self.get_input("search_points"),
+            )
+        except Exception:  # noqa: BLE001 - written in flight (an inventory's rows): checked then
+            return []
+        bad = outside_geofence(self, "place", points, "x", GEOFENCE_CLEARANCE_M)
+        if len(bad) < len(points):  # one look point it can fly to is enough
+            return []
+        config = geofence_config(self)
+        shown = ";".join(f"{v:g}" for v in place)
+        return [
+            (
+                "place",
+                f"place {shown}: no look point {self.get_input('look_distance'):g} m in front "
+                f"of it lies inside the rig's geofence ({geofence_words(config)}, "
+                f"{GEOFENCE_CLEARANCE_M:g} m clear of its walls)",
+            )
+        ]
 
     def _next_point(self) -> NodeStatus | None:
         points = self._look_points()
@@ -316,7 +363,7 @@ class LocatePallet(_Reactive):
 
 
 @register
-class AlignToPallet(_Reactive):
+class AlignToPallet(ReactiveLeaf):
     """Fly to the start of the scan the face estimate gives: ``standoff`` in front of the
     face, square to it, at the block row's height, ``lead`` before the first block; look from
     there for ``look_time``, refit and correct once if the start moved by more than
@@ -325,8 +372,8 @@ class AlignToPallet(_Reactive):
 
     bt_id = "AlignToPallet"
     ports = (
-        _FACE_IN,
-        _STANDOFF,
+        FACE_PORT,
+        STANDOFF_PORT,
         input_port("lead", FLOAT, 0.15, "start this far before the first block, m"),
         _SPEED,
         input_port("look_time", DURATION, 0.6, "time to look from the start, s"),
@@ -393,116 +440,3 @@ class AlignToPallet(_Reactive):
         if self.timed_out():
             return self._fail(f"time-out after {self.get_input('timeout'):g} s")
         return RUNNING
-
-
-@register
-class ScanFace(_Reactive):
-    """Fly along the face at ``standoff`` and ``speed`` (run it beside DetectBlocks in a
-    Parallel). Every ``replan_period`` the face is refitted from the frames DetectBlocks
-    processed; the line is re-planned when it moved more than ``replan_tolerance``. At the
-    expected end (``trail`` past the last block) it goes on by up to ``extend`` while fewer
-    than ``blocks`` are committed (``count``) and the last block was not seen yet (once it has
-    passed, going on cannot bring a missed block back: the mission scans again). SUCCESS once ``count`` reaches ``blocks``;
-    FAILURE at the end of the extension, on a refused motion or after ``timeout``."""
-
-    bt_id = "ScanFace"
-    ports = (
-        _FACE_IN,
-        _STANDOFF,
-        input_port("speed", FLOAT, 0.07, "scan speed along the face, m/s", low=0.005, high=2.0),
-        input_port("count", INT, 0, "blocks committed so far (DetectBlocks' count)"),
-        input_port("blocks", INT, 3, "blocks to commit"),
-        input_port("trail", FLOAT, 0.15, "go this far past the last block, m"),
-        input_port("extend", FLOAT, 0.6, "go on by up to this much more while blocks are missing"),
-        input_port("replan_period", DURATION, 0.5, "refit the face this often, s"),
-        input_port("replan_tolerance", FLOAT, 0.03, "re-plan if the line moved this much, m"),
-        input_port("timeout", DURATION, 90.0, "FAILURE if not done within this time, s"),
-        output_port("face_out", ANY, "the face estimate at the end of the scan"),
-    )
-
-    def on_start(self) -> NodeStatus:
-        self.setup_common()
-        face = self.get_input("face")
-        if not hasattr(face, "refit"):
-            return self._not_a_face(face)
-        self.face = face
-        self.tracker = self.session.tracker or self.session.start_tracking()
-        self.extended = self.recorded = False
-        self.replans = 0
-        self.end_s = face.last_s + self.get_input("trail")
-        self.last_fit_s = self.now()
-        self.fitted_sightings = len(self.tracker.sightings)
-        return self._go() or self.on_running()
-
-    def _go(self) -> NodeStatus | None:
-        self.goal = self.face_target(self.face, self.end_s)
-        why = self.fly(self.goal, self.face.facing_rad, self.get_input("speed"), 0.03)
-        return self._fail(why) if why else None
-
-    def _refit(self) -> NodeStatus | None:
-        self.last_fit_s = self.now()
-        if len(self.tracker.sightings) == self.fitted_sightings:
-            return None
-        self.fitted_sightings = len(self.tracker.sightings)
-        face = self.face.refit(self.tracker)
-        if face is None:
-            return None
-        end_s = max(self.end_s, face.last_s + self.get_input("trail"))
-        old, self.face = self.goal, face
-        self.set_output("face_out", face)
-        new = face.point(end_s, self.get_input("standoff"))
-        if self.outside_geofence(new):
-            new = self.face_target(face, end_s)
-        if math.dist(old, new) > self.get_input("replan_tolerance"):
-            self.end_s = end_s
-            self.replans += 1
-            self.ctx.log(f"{self.describe()}: re-planned on the refitted face: {face.describe()}")
-            return self._go()
-        return None
-
-    def on_running(self) -> NodeStatus:
-        if self.get_input("count") >= self.get_input("blocks"):
-            self._done()
-            return SUCCESS
-        why = self.motion_problem()
-        if why:
-            return self._fail(why)
-        if self.now() - self.last_fit_s >= self.get_input("replan_period") - 1e-9:
-            status = self._refit()
-            if status is not None:
-                return status
-        if self.progress is not None and self.progress.reached:
-            f = self.face
-            last_seen = f.hypotheses == 1 and f.saw_block_at(f.last_s)
-            if not self.extended and self.get_input("extend") > 0 and not last_seen:
-                self.extended = True
-                self.end_s += self.get_input("extend")
-                self.ctx.log(
-                    f"{self.describe()}: {self.get_input('count')} of "
-                    f"{self.get_input('blocks')} blocks at the end of the face: going on "
-                    f"{self.get_input('extend'):g} m"
-                )
-                status = self._go()
-                if status is not None:
-                    return status
-            else:
-                self._done()
-                where = "the last block has passed" if last_seen else "end of the scan"
-                return self._fail(
-                    f"{where} ({self.end_s - self.face.last_s:.2f} m past it) with "
-                    f"{self.get_input('count')} of {self.get_input('blocks')} blocks committed"
-                )
-        if self.timed_out():
-            return self._fail(f"time-out after {self.get_input('timeout'):g} s")
-        return RUNNING
-
-    def _done(self) -> None:
-        if not getattr(self, "recorded", False):
-            self.recorded = True
-            self.set_output("face_out", self.face)
-            self.record_face(self.face, "scanned")
-
-    def on_halted(self) -> None:
-        if getattr(self, "face", None) is not None:
-            self._done()  # DetectBlocks finished first: the Parallel halts the scan
-        super().on_halted()

@@ -49,11 +49,32 @@ def test_goals_outside_the_geofence_are_refused_where_the_file_wrote_them(tmp_pa
 
 def test_a_set_goal_outside_the_geofence_is_refused_at_the_set(tmp_path, capsys):
     out = tmp_path / "run"
-    args = ["missions/pallet_scan.xml", "--set", "home=100;0;0", "--out", str(out), "-q"]
-    assert main(args) == 2
+    fixed = ["missions/pallet_scan_fixed.xml", "--out", str(out), "-q"]
+    assert main([*fixed, "--set", "scan_start=8.9;-4;0.255"]) == 2  # read by three GoTos
     err = capsys.readouterr().err.splitlines()
-    assert err == [f"--set home: pose 100;0;0: {BOX}", "1 problem found; nothing was run."]
+    assert err == [
+        f"--set scan_start: pose 8.9;-4;0.255: {BOX}",
+        "1 problem found; nothing was run.",
+    ]
     assert not out.exists()
+
+
+def test_a_pallet_place_no_look_point_can_reach_is_refused_before_flight(tmp_path, capsys):
+    """LocatePallet looks from ``look_distance`` in front of ``place``: a place whose look
+    points all lie outside the geofence took off and failed there ("no look point ...
+    could be flown to")."""
+    out = tmp_path / "run"
+    args = ["missions/pallet_scan.xml", "--out", str(out), "-q"]
+    assert main([*args, "--set", "place=100;0;0.255"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == (
+        "--set place: place 100;0;0.255: no look point 0.75 m in front of it lies inside "
+        "the rig's geofence (x -1.5 to 9.2, y -3 to 3, z -0.5 to 2.5 m, 0.05 m clear of its "
+        "walls)"
+    )
+    assert not out.exists()
+    # the pallet itself may stand beyond the fence, as racks do: its look point is inside
+    assert main(["validate", "missions/pallet_scan.xml", "--set", "place=9.8;0;0.255"]) == 0
 
 
 def test_goals_inside_a_relative_offset_or_a_geofence_turned_off_pass(tmp_path, capsys):
