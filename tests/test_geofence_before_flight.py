@@ -89,3 +89,32 @@ def test_goals_inside_a_relative_offset_or_a_geofence_turned_off_pass(tmp_path, 
     site = ["validate", "missions/inventory.xml", "--rig", "rigs/site.yaml"]
     assert main([*site, "--set", "home=1;-10;9"]) == 2
     assert "--set home: pose 1;-10;9: expected a point inside" in capsys.readouterr().err
+
+
+def test_a_rig_whose_geofence_is_inside_out_or_excludes_its_start_is_refused(tmp_path, capsys):
+    """Each setting was in its own bounds, so ``min_m: [5, 5, 5]`` (above ``max_m`` on two
+    axes) and a start outside the box loaded and flew: a breach at take-off."""
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(
+        "name: inside-out\nlink: sim\nsafety:\n  geofence:\n"
+        "    min_m: [5, 5, 5]\n    max_m: [9.2, 3, 2.5]\n"
+    )
+    assert main(["rig", "check", str(rig)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == (
+        f"{rig}:5:12: safety.geofence: min_m [5.0, 5.0, 5.0] must be below max_m "
+        "[9.2, 3.0, 2.5] on every axis (not on y, z)"
+    ), err
+    rig.write_text("name: far\nlink: sim\nsim:\n  start_m: [20, 0, 0]\n")
+    assert main(["rig", "check", str(rig)]) == 2
+    assert capsys.readouterr().err.splitlines()[0] == (
+        f"{rig}:4:12: sim.start_m [20.0, 0.0, 0.0]: the drone would start outside the "
+        f"geofence (x -1.5 to 9.2, y -3 to 3, z -0.5 to 2.5 m): expected a start inside it"
+    )
+    # the start a --set moves outside is said at the --set; a geofence turned off passes
+    sim = ["rig", "check", "rigs/sim.yaml"]
+    assert main([*sim, "--set", "sim.start_m=[0,-4,0]"]) == 2
+    assert capsys.readouterr().err.startswith("--set sim.start_m [0.0, -4.0, 0.0]: the drone")
+    assert (
+        main([*sim, "--set", "sim.start_m=[0,-4,0]", "--set", "safety.geofence.enabled=false"]) == 0
+    )

@@ -13,7 +13,7 @@ from typing import Any
 
 from drivers.rig.paths import DEFAULT_RIG, REPO_ROOT
 from drivers.rig.schema import RIG_SCHEMA
-from drivers.settings import ConfigError
+from drivers.settings import ConfigError, Marks, SettingProblem, key_parts, problem_at
 from drivers.settings import (
     apply_overrides as _apply,
 )
@@ -79,7 +79,9 @@ def load_rig(path: str | None = None, overrides: dict[str, str] | None = None) -
     The world file is validated too, so a bad world is reported before anything flies.
     """
     path = path or DEFAULT_RIG
-    data = load_yaml_file(path, RIG_SCHEMA, what="rig files")
+    marks: Marks = {}
+    data = load_yaml_file(path, RIG_SCHEMA, marks=marks, what="rig files")
+    _check_rig(data, marks, path, {})
     rig_keys = RIG_SCHEMA.children["world"].children
     world_over = {
         k[len("world.") :]: v
@@ -88,7 +90,67 @@ def load_rig(path: str | None = None, overrides: dict[str, str] | None = None) -
     }
     rest = {k: v for k, v in (overrides or {}).items() if k[len("world.") :] not in world_over}
     data = apply_overrides(data, rest)
+    if rest:
+        _check_rig(data, marks, path, rest)
     rig = Rig(data, path, world_over)
     if rig.kind == "sim":
         rig.load_world()  # world checks (and the scan pallet) before anything flies
     return rig
+
+
+_FENCE = ("safety.geofence.min_m", "safety.geofence.max_m", "safety.geofence.enabled")
+
+
+def rig_problems(data: dict) -> list[tuple[tuple[str, ...], str]]:
+    """``(keys, message)`` for what no single setting shows (``keys``: the settings that make
+    it, located at the first): a geofence box whose minimum is not below its maximum on an
+    axis, or a simulated drone that starts outside it (it would be in breach the moment it
+    took off)."""
+    fence = data["safety"]["geofence"]
+    if not fence["enabled"]:
+        return []
+    lo, hi = fence["min_m"], fence["max_m"]
+    flat = [a for i, a in enumerate("xyz") if not lo[i] < hi[i]]
+    if flat:
+        return [
+            (
+                _FENCE,
+                f"safety.geofence: min_m {list(lo)} must be below max_m {list(hi)} on every "
+                f"axis (not on {', '.join(flat)})",
+            )
+        ]
+    start = data["sim"]["start_m"]
+    if data["link"] == "sim" and not all(lo[i] <= start[i] <= hi[i] for i in range(3)):
+        box = ", ".join(f"{a} {lo[i]:g} to {hi[i]:g}" for i, a in enumerate("xyz"))
+        return [
+            (
+                ("sim.start_m", "link", *_FENCE),
+                f"sim.start_m {list(start)}: the drone would start outside the geofence "
+                f"({box} m): expected a start inside it",
+            )
+        ]
+    return []
+
+
+def _check_rig(data: dict, marks: Marks, path: str, overrides: dict[str, str]) -> None:
+    """Raise :class:`ConfigError` with :func:`rig_problems`, located at the ``--set`` that
+    wrote the key, else where the file wrote it (with the overrides named)."""
+    problems = []
+    for keys, message in rig_problems(data):
+        if any(_related(k, key) for k in overrides for key in keys):
+            problems.append(SettingProblem("--set", 0, 0, message))
+        else:
+            given = ", ".join(f"--set {k}={v}" for k, v in overrides.items())
+            where = problem_at(
+                marks, keys[0], path, message + (f" (with {given})" if given else "")
+            )
+            problems.append(where)
+    if problems:
+        raise ConfigError(problems)
+
+
+def _related(a: str, b: str) -> bool:
+    """True if dotted keys ``a`` and ``b`` are one setting or one holds the other."""
+    pa, pb = key_parts(a), key_parts(b)
+    n = min(len(pa), len(pb))
+    return pa[:n] == pb[:n]
