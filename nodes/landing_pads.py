@@ -18,7 +18,7 @@ from bt_engine.node import FAILURE, SUCCESS, NodeStatus, SyncActionNode
 from bt_engine.ports import STRING, VEC3, input_port, output_port
 from bt_engine.registry import register
 from drivers.settings import ConfigError
-from nodes.common import vehicle_of
+from nodes.common import geofence_config, outside_geofence, vehicle_of
 from nodes.energy import travel_m
 from nodes.inventory import CATEGORY_INVENTORY, world_of
 
@@ -63,7 +63,23 @@ class NearestPad(SyncActionNode):
             world = world_of(self.ctx)
         except ConfigError as exc:
             return [("pads", f"the rig's world cannot be loaded: {exc}")]
-        return [("pads", why) for why in self._unknown(world, text)]
+        unknown = self._unknown(world, text)
+        if unknown or world is None:
+            return [("pads", why) for why in unknown]
+        return self._outside(world, text)
+
+    def _outside(self, world: Any, text: Any) -> list[tuple[str, str]]:
+        """A pad the drone would land on outside the rig's geofence (it would breach it on
+        the way down), as ``(port, message)``."""
+        config = geofence_config(self)
+        if config is None:
+            return []
+        z = 0.5 * (config.geofence_min_m[2] + config.geofence_max_m[2])  # x and y decide
+        out = []
+        for name in pad_names(text):
+            x, y = world.pads()[name]
+            out += outside_geofence(self, "pads", [(x, y, z)], f"pad '{name}' at x {x:g}, y {y:g}")
+        return out
 
     def _unknown(self, world: Any, text: Any) -> list[str]:
         names = pad_names(text)

@@ -118,3 +118,14 @@ def test_a_rig_whose_geofence_is_inside_out_or_excludes_its_start_is_refused(tmp
     assert (
         main([*sim, "--set", "sim.start_m=[0,-4,0]", "--set", "safety.geofence.enabled=false"]) == 0
     )
+
+
+def test_a_landing_pad_outside_the_geofence_is_refused_before_flight(capsys):
+    args = ["validate", "missions/inventory.xml", "--rig", "rigs/site.yaml"]
+    fence = ["--set", "safety.geofence.max_m=[7.9,9,2.5]", "--set", "landing_pads=pad-5;pad-1"]
+    assert main([*args, *fence]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "--set landing_pads: pad 'pad-5' at x 1, y 10: expected a point inside the rig's "
+        "geofence (x 0.1 to 7.9, y -11 to 9, z -0.5 to 2.5 m)",
+        "1 problem found; nothing was run.",
+    ]
