@@ -37,12 +37,6 @@ def geofence_config(node: BTNode) -> Any:
     return config if getattr(config, "geofence_enabled", False) else None
 
 
-def geofence_words(config: Any) -> str:
-    """The geofence box in words: ``x -1.5 to 9.2, y -3 to 3, z -0.5 to 2.5 m``."""
-    lo, hi = config.geofence_min_m, config.geofence_max_m
-    return ", ".join(f"{a} {lo[i]:g} to {hi[i]:g}" for i, a in enumerate("xyz")) + " m"
-
-
 def outside_geofence(
     node: BTNode, port: str, points: Any, what: str = "", margin_m: float = 0.0
 ) -> list[tuple[str, str]]:
@@ -53,7 +47,7 @@ def outside_geofence(
     config = geofence_config(node)
     if config is None:
         return []
-    box = geofence_words(config)
+    box = config.box_words()
     pts = list(points)
     out = []
     for i, p in enumerate(pts):

@@ -33,7 +33,6 @@ from bt_engine.ports import ANY, DURATION, FLOAT, INT, STRING, VEC3, input_port,
 from bt_engine.registry import register
 from nodes.common import (
     geofence_config,
-    geofence_words,
     is_realtime,
     outside_geofence,
     vehicle_of,
@@ -301,7 +300,7 @@ class LocatePallet(ReactiveLeaf):
             (
                 "place",
                 f"place {shown}: no look point {self.get_input('look_distance'):g} m in front "
-                f"of it lies inside the rig's geofence ({geofence_words(config)}, "
+                f"of it lies inside the rig's geofence ({config.box_words()}, "
                 f"{GEOFENCE_CLEARANCE_M:g} m clear of its walls)",
             )
         ]

@@ -13,6 +13,7 @@ from typing import Any
 
 from drivers.rig.paths import DEFAULT_RIG, REPO_ROOT
 from drivers.rig.schema import RIG_SCHEMA
+from drivers.safety.policies import box_words
 from drivers.settings import ConfigError, Marks, SettingProblem, key_parts, problem_at
 from drivers.settings import (
     apply_overrides as _apply,
@@ -121,12 +122,11 @@ def rig_problems(data: dict) -> list[tuple[tuple[str, ...], str]]:
         ]
     start = data["sim"]["start_m"]
     if data["link"] == "sim" and not all(lo[i] <= start[i] <= hi[i] for i in range(3)):
-        box = ", ".join(f"{a} {lo[i]:g} to {hi[i]:g}" for i, a in enumerate("xyz"))
         return [
             (
                 ("sim.start_m", "link", *_FENCE),
                 f"sim.start_m {list(start)}: the drone would start outside the geofence "
-                f"({box} m): expected a start inside it",
+                f"({box_words(lo, hi)}): expected a start inside it",
             )
         ]
     return []
