@@ -74,8 +74,15 @@ class ReactiveLeaf(StatefulActionNode):
         self.progress: Any = None
         self.feed = self.session.feed(self.vehicle, is_realtime(self))
 
-    def _not_a_face(self, face: Any) -> NodeStatus:
-        return self._fail(f"face must be LocatePallet's face output, got {type(face).__name__}")
+    def start_on_face(self) -> NodeStatus | None:
+        """Set up (:meth:`setup_common`) and take the ``face`` input as :attr:`face`; the
+        FAILURE to return if it is not LocatePallet's face output, else None."""
+        self.setup_common()
+        face = self.get_input("face")
+        if not hasattr(face, "refit"):
+            return self._fail(f"face must be LocatePallet's face output, got {type(face).__name__}")
+        self.face = face
+        return None
 
     def outside_geofence(self, p: tuple[float, float, float]) -> str:
         """Why ``p`` may not be flown to ("" if it may)."""
@@ -384,15 +391,13 @@ class AlignToPallet(ReactiveLeaf):
     )
 
     def on_start(self) -> NodeStatus:
-        self.setup_common()
-        face = self.get_input("face")
-        if not hasattr(face, "refit"):
-            return self._not_a_face(face)
+        refused = self.start_on_face()
+        if refused is not None:
+            return refused
         try:
             self.detector = self.session.detector(self.get_input("detector"))
         except PerceptionError as exc:
             return self._fail(str(exc))
-        self.face = face
         self.tracker = self.session.tracker or self.session.start_tracking()
         self.corrected = False
         self.looking_since: float | None = None

@@ -39,15 +39,13 @@ class ScanFace(ReactiveLeaf):
     )
 
     def on_start(self) -> NodeStatus:
-        self.setup_common()
-        face = self.get_input("face")
-        if not hasattr(face, "refit"):
-            return self._not_a_face(face)
-        self.face = face
+        refused = self.start_on_face()
+        if refused is not None:
+            return refused
         self.tracker = self.session.tracker or self.session.start_tracking()
         self.extended = self.recorded = False
         self.replans = 0
-        self.end_s = face.last_s + self.get_input("trail")
+        self.end_s = self.face.last_s + self.get_input("trail")
         self.last_fit_s = self.now()
         self.fitted_sightings = len(self.tracker.sightings)
         return self._go() or self.on_running()
