@@ -129,3 +129,27 @@ def test_a_landing_pad_outside_the_geofence_is_refused_before_flight(capsys):
         "geofence (x 0.1 to 7.9, y -11 to 9, z -0.5 to 2.5 m)",
         "1 problem found; nothing was run.",
     ]
+
+
+def test_a_fleet_drone_starting_outside_the_geofence_is_refused_at_its_line(tmp_path, capsys):
+    """A fleet's drones start on their own pads (the rig's own start does not count): one
+    outside the geofence is said where the fleet file puts it, every drone in one go."""
+    import os
+
+    from helpers import REPO
+
+    text = open(os.path.join(REPO, "fleets", "site_4.yaml")).read().replace("../", REPO + "/")
+    fleet = tmp_path / "fleet.yaml"
+    fleet.write_text(text.replace("{name: cf4, pad: pad-4,", "{name: cf4, start_m: [7.5, -12, 0],"))
+    line = next(n for n, s in enumerate(fleet.read_text().splitlines(), 1) if "cf4" in s)
+    assert main(["fleet", str(fleet), "--check"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith(f"{fleet}:{line}:") and err[0].endswith(
+        "cf4: its start (7.5, -12, 0) is outside the rig's geofence (x 0.1 to 7.9, y -11 to "
+        "10.8, z -0.5 to 2.5 m): expected a start inside it"
+    ), err
+    fence = ["--set", "safety.geofence.min_m=[0.1,-9,-0.5]"]
+    assert main(["fleet", "fleets/site_4.yaml", "--check", *fence]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert [e.split(": ")[1] for e in err[:4]] == ["cf1", "cf2", "cf3", "cf4"], err
+    assert err[-1] == "4 problems found; nothing was run."

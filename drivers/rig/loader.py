@@ -70,7 +70,9 @@ class Rig:
         return os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(self.path)), p))
 
 
-def load_rig(path: str | None = None, overrides: dict[str, str] | None = None) -> Rig:
+def load_rig(
+    path: str | None = None, overrides: dict[str, str] | None = None, own_start: bool = True
+) -> Rig:
     """Load and validate a rig file (None -> the repo's ``rigs/sim.yaml``), apply overrides.
 
     ``world.path`` and ``world.scan_pallet`` are rig settings; any other ``world.KEY`` is a
@@ -78,11 +80,13 @@ def load_rig(path: str | None = None, overrides: dict[str, str] | None = None) -
     applied when the world is loaded, with the world's own checks.
 
     The world file is validated too, so a bad world is reported before anything flies.
+    ``own_start=False`` leaves out the check that ``sim.start_m`` lies inside the geofence
+    (a fleet's drones start on pads of their own, checked where the fleet file names them).
     """
     path = path or DEFAULT_RIG
     marks: Marks = {}
     data = load_yaml_file(path, RIG_SCHEMA, marks=marks, what="rig files")
-    _check_rig(data, marks, path, {})
+    _check_rig(data, marks, path, {}, own_start)
     rig_keys = RIG_SCHEMA.children["world"].children
     world_over = {
         k[len("world.") :]: v
@@ -92,7 +96,7 @@ def load_rig(path: str | None = None, overrides: dict[str, str] | None = None) -
     rest = {k: v for k, v in (overrides or {}).items() if k[len("world.") :] not in world_over}
     data = apply_overrides(data, rest)
     if rest:
-        _check_rig(data, marks, path, rest)
+        _check_rig(data, marks, path, rest, own_start)
     rig = Rig(data, path, world_over)
     if rig.kind == "sim":
         rig.load_world()  # world checks (and the scan pallet) before anything flies
@@ -102,7 +106,7 @@ def load_rig(path: str | None = None, overrides: dict[str, str] | None = None) -
 _FENCE = ("safety.geofence.min_m", "safety.geofence.max_m", "safety.geofence.enabled")
 
 
-def rig_problems(data: dict) -> list[tuple[tuple[str, ...], str]]:
+def rig_problems(data: dict, own_start: bool = True) -> list[tuple[tuple[str, ...], str]]:
     """``(keys, message)`` for what no single setting shows (``keys``: the settings that make
     it, located at the first): a geofence box whose minimum is not below its maximum on an
     axis, or a simulated drone that starts outside it (it would be in breach the moment it
@@ -121,7 +125,8 @@ def rig_problems(data: dict) -> list[tuple[tuple[str, ...], str]]:
             )
         ]
     start = data["sim"]["start_m"]
-    if data["link"] == "sim" and not all(lo[i] <= start[i] <= hi[i] for i in range(3)):
+    inside = all(lo[i] <= start[i] <= hi[i] for i in range(3))
+    if own_start and data["link"] == "sim" and not inside:
         return [
             (
                 ("sim.start_m", "link", *_FENCE),
@@ -132,11 +137,13 @@ def rig_problems(data: dict) -> list[tuple[tuple[str, ...], str]]:
     return []
 
 
-def _check_rig(data: dict, marks: Marks, path: str, overrides: dict[str, str]) -> None:
+def _check_rig(
+    data: dict, marks: Marks, path: str, overrides: dict[str, str], own_start: bool
+) -> None:
     """Raise :class:`ConfigError` with :func:`rig_problems`, located at the ``--set`` that
     wrote the key, else where the file wrote it (with the overrides named)."""
     problems = []
-    for keys, message in rig_problems(data):
+    for keys, message in rig_problems(data, own_start):
         if any(_related(k, key) for k in overrides for key in keys):
             problems.append(SettingProblem("--set", 0, 0, message))
         else:

@@ -18,6 +18,7 @@ from bt_engine.loading import check_mission
 from bt_engine.preflight import check_before_flight
 from bt_engine.registry import REGISTRY
 from bt_engine.spec import Loc, MissionError, Problem
+from drivers.safety.policies import box_words
 from drivers.settings import ConfigError
 from nodes.common import config_problems
 from nodes.fleet.plan import split_places
@@ -56,10 +57,38 @@ def rig_and_world(spec: FleetSpec, common: list[str], seed: int) -> tuple[Any, A
         if "." in key:
             over[key[4:] if key.startswith("rig.") else key] = value
     try:
-        rig = load_rig(spec.rig, over)
-        return rig, rig.load_world(seed)
+        rig = load_rig(spec.rig, over, own_start=False)  # the drones' own starts, below
+        world = rig.load_world(seed)
     except ConfigError as exc:
         raise MissionError(config_problems(exc)) from None
+    problems = start_problems(spec, rig)
+    if problems:
+        raise MissionError(problems)
+    return rig, world
+
+
+def start_problems(spec: FleetSpec, rig: Any) -> list[Problem]:
+    """A drone that would start outside the rig's geofence (a breach the moment it took
+    off), located where the fleet file gives its pad or start."""
+    fence = rig.data["safety"]["geofence"]
+    if not fence["enabled"] or rig.data["link"] != "sim":
+        return []
+    lo, hi = fence["min_m"], fence["max_m"]
+    out = []
+    for d in spec.drones:
+        if all(lo[i] <= d.start_m[i] <= hi[i] for i in range(3)):
+            continue
+        key = f"drones[{d.index}].pad" if d.pad else f"drones[{d.index}].start_m"
+        start = ", ".join(f"{v:g}" for v in d.start_m)
+        on = f" ({d.pad})" if d.pad else ""
+        out.append(
+            Problem(
+                spec.loc(key),
+                f"{d.name}: its start ({start}){on} is outside the rig's geofence "
+                f"({box_words(lo, hi)}): expected a start inside it",
+            )
+        )
+    return out
 
 
 def previous_run(resume: str | None) -> dict | None:
