@@ -29,6 +29,7 @@ from bt_engine.ports import ANY, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from bt_engine.spec import Loc, Problem
 from drivers.settings import ConfigError, did_you_mean
+from nodes.common import geofence_config
 from nodes.expected_stock import (
     ExpectedStock,
     csv_rows,
@@ -46,6 +47,7 @@ from nodes.inventory_log import (
     InventoryLog,
 )
 from nodes.place_evidence import write_place_evidence
+from nodes.rack_geometry import footprints
 
 CATEGORY_INVENTORY = "inventory"
 MAX_PLACES = 10_000
@@ -252,6 +254,18 @@ class InventoryPlan(SyncActionNode):
         return SUCCESS
 
 
+#: a look point must be this far inside the geofence's walls (LocatePallet's clearance)
+LOOK_POINT_CLEARANCE_M = 0.05
+
+
+def look_point(place: Any, distance_m: float) -> tuple[float, float, float]:
+    """The point ``distance_m`` in front of ``place``'s block row, where the drone looks
+    at it from (rounded to 0.1 mm)."""
+    f = math.radians(place.look_deg)
+    x, y, z = place.row_m
+    return (round(x - math.cos(f) * distance_m, 4), round(y - math.sin(f) * distance_m, 4), z)
+
+
 @register
 class LookUpPlace(SyncActionNode):
     """Where a named place is in the world's map: ``row`` is the centre of its block row
@@ -278,14 +292,14 @@ class LookUpPlace(SyncActionNode):
         """A literal ``place`` the rig's world does not have is refused before anything
         flies, with a "did you mean" (as InventoryPlan's places). A place read from the
         blackboard is only known in flight: the tick checks it."""
-        if self.input_entry("place") is not None:
-            return []
         try:
             world = world_of(self.ctx)
         except ConfigError as exc:
             return [("place", f"the rig's world cannot be loaded: {exc}")]
         if world is None:  # no rig: nothing to check against
             return []
+        if self.input_entry("place") is not None:
+            return self._look_point_problems(world)
         name = str(self.get_input("place") or "").strip()
         names = list(world.places)
         if name in world.places:
@@ -301,6 +315,38 @@ class LookUpPlace(SyncActionNode):
         hint = did_you_mean(name, names) or f" (places: {names[0]} .. {names[-1]})"
         return [("place", f"unknown place '{name}'{hint}")]
 
+    def _look_point_problems(self, world: Any) -> list[tuple[str, str]]:
+        """A ``look_distance`` that puts the look points of the world's places inside a
+        rack or outside the rig's geofence (every rescan would fail in the air), said once
+        with the first such place, before anything flies."""
+        try:
+            d = float(self.get_input("look_distance"))
+        except Exception:  # noqa: BLE001 - written in flight: checked then
+            return []
+        if not math.isfinite(d):
+            return []
+        racks = footprints(world)
+        fence = geofence_config(self)
+        bad: list[str] = []
+        for place in world.places.values():
+            p = look_point(place, d)
+            inside = [r.name for r in racks if r.distance((p[0], p[1])) <= 0.0]
+            if inside:
+                bad.append(f"{place.name} at ({p[0]:.2f}, {p[1]:.2f}): inside rack {inside[0]}")
+            elif fence is not None and not fence.inside(p, LOOK_POINT_CLEARANCE_M):
+                bad.append(f"{place.name} at ({p[0]:.2f}, {p[1]:.2f}): outside the geofence")
+        if not bad:
+            return []
+        n = len(world.places)
+        return [
+            (
+                "look_distance",
+                f"look_distance {d:g}: the look points of {len(bad)} of the world's {n} places "
+                f"would lie inside a rack or outside the rig's geofence, where no rescan can "
+                f"fly (first: {bad[0]})",
+            )
+        ]
+
     def tick_impl(self) -> NodeStatus:
         world = world_of(self.ctx)
         name = self.get_input("place").strip()
@@ -311,12 +357,7 @@ class LookUpPlace(SyncActionNode):
         self.set_output("row", tuple(round(v, 4) for v in place.row_m))
         self.set_output("facing_deg", place.look_deg)
         self.set_output("level", place.level)
-        f = math.radians(place.look_deg)
-        d = self.get_input("look_distance")
-        x, y, z = place.row_m
-        self.set_output(
-            "look_point", (round(x - math.cos(f) * d, 4), round(y - math.sin(f) * d, 4), z)
-        )
+        self.set_output("look_point", look_point(place, self.get_input("look_distance")))
         return SUCCESS
 
 

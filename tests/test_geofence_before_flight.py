@@ -153,3 +153,30 @@ def test_a_fleet_drone_starting_outside_the_geofence_is_refused_at_its_line(tmp_
     err = capsys.readouterr().err.splitlines()
     assert [e.split(": ")[1] for e in err[:4]] == ["cf1", "cf2", "cf3", "cf4"], err
     assert err[-1] == "4 problems found; nothing was run."
+
+
+def test_a_look_distance_that_puts_look_points_in_a_rack_or_outside_is_refused(capsys):
+    """The inventory's rescans fly to each place's look point (LookUpPlace): a
+    ``look_distance`` that puts them outside the geofence (or inside the rack across the
+    aisle) failed every rescan in the air."""
+    args = ["validate", "missions/inventory.xml", "--rig", "rigs/site.yaml"]
+    assert main([*args, "--set", "look_distance=3"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == (
+        "--set look_distance: look_distance 3: the look points of 72 of the world's 144 "
+        "places would lie inside a rack or outside the rig's geofence, where no rescan can "
+        "fly (first: B-01-1 at (0.05, 7.70): outside the geofence)"
+    ), err
+    from types import SimpleNamespace
+
+    from drivers.rig.loader import load_rig
+    from nodes.inventory import LookUpPlace, look_point
+    from nodes.rack_geometry import footprints
+
+    world = load_rig("rigs/site.yaml").load_world(0)
+    # 2.5 m from rack A's faces is still in the 3 m aisle; 3.3 m is inside rack B
+    p = look_point(world.places["A-01-1"], 3.3)
+    assert [r.name for r in footprints(world) if r.distance(p[:2]) <= 0.0] == ["B"]
+    node = SimpleNamespace(get_input=lambda name: 3.3, ctx=SimpleNamespace(resources={}))
+    ((port, message),) = LookUpPlace._look_point_problems(node, world)
+    assert port == "look_distance" and "inside rack B" in message
