@@ -24,7 +24,7 @@ import re
 from typing import Any
 
 from bt_engine.files import read_bytes
-from bt_engine.node import FAILURE, SUCCESS, NodeStatus, SyncActionNode
+from bt_engine.node import FAILURE, SUCCESS, BTNode, NodeStatus, SyncActionNode
 from bt_engine.ports import ANY, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from bt_engine.spec import Loc, Problem
@@ -210,7 +210,9 @@ class InventoryPlan(SyncActionNode):
         """Unknown places, a missing world or an unreadable list, expected stock or resumed
         inventory, before anything flies."""
         try:
-            _, problems = self._resolve()
+            places, problems = self._resolve()
+            if not problems:  # what the other leaves' checks look at (reach_problems)
+                self.ctx.resources[PLANNED_PLACES] = list(places)
             problems += self._expected()[1]
             InventoryLog.of(self.ctx)
         except ConfigError as exc:
@@ -254,6 +256,9 @@ class InventoryPlan(SyncActionNode):
         return SUCCESS
 
 
+#: ``ctx.resources`` key: the places InventoryPlan's pre-flight check resolved (the
+#: places the mission is to answer), for the other leaves' checks
+PLANNED_PLACES = "planned_places"
 #: a look point must be this far inside the geofence's walls (LocatePallet's clearance)
 LOOK_POINT_CLEARANCE_M = 0.05
 
@@ -264,6 +269,42 @@ def look_point(place: Any, distance_m: float) -> tuple[float, float, float]:
     f = math.radians(place.look_deg)
     x, y, z = place.row_m
     return (round(x - math.cos(f) * distance_m, 4), round(y - math.sin(f) * distance_m, 4), z)
+
+
+def reach_problems(node: BTNode, world: Any, port: str, why: str) -> list[tuple[str, str]]:
+    """``(port, message)`` when the distance in ``node``'s input ``port`` puts the points
+    that far in front of the places to answer (:data:`PLANNED_PLACES`, else all the world's:
+    their look points, a sweep's pass lines)
+    inside a rack or outside the rig's geofence (``why``: what then fails in the air), said
+    once with the first such place, before anything flies."""
+    try:
+        d = float(node.get_input(port))
+    except Exception:  # noqa: BLE001 - written in flight: checked then
+        return []
+    if not math.isfinite(d):
+        return []
+    racks = footprints(world)
+    fence = geofence_config(node)
+    bad: list[str] = []
+    names = node.ctx.resources.get(PLANNED_PLACES) if node.ctx is not None else None
+    names = [n for n in (names or world.places) if n in world.places]
+    for place in (world.places[n] for n in names):
+        p = look_point(place, d)
+        inside = [r.name for r in racks if r.distance((p[0], p[1])) <= 0.0]
+        if inside:
+            bad.append(f"{place.name} at ({p[0]:.2f}, {p[1]:.2f}): inside rack {inside[0]}")
+        elif fence is not None and not fence.inside(p, LOOK_POINT_CLEARANCE_M):
+            bad.append(f"{place.name} at ({p[0]:.2f}, {p[1]:.2f}): outside the geofence")
+    if not bad:
+        return []
+    return [
+        (
+            port,
+            f"{port} {d:g}: the points {d:g} m in front of {len(bad)} of the "
+            f"{len(names)} places to answer would lie inside a rack or outside the rig's "
+            f"geofence, where {why} (first: {bad[0]})",
+        )
+    ]
 
 
 @register
@@ -316,36 +357,7 @@ class LookUpPlace(SyncActionNode):
         return [("place", f"unknown place '{name}'{hint}")]
 
     def _look_point_problems(self, world: Any) -> list[tuple[str, str]]:
-        """A ``look_distance`` that puts the look points of the world's places inside a
-        rack or outside the rig's geofence (every rescan would fail in the air), said once
-        with the first such place, before anything flies."""
-        try:
-            d = float(self.get_input("look_distance"))
-        except Exception:  # noqa: BLE001 - written in flight: checked then
-            return []
-        if not math.isfinite(d):
-            return []
-        racks = footprints(world)
-        fence = geofence_config(self)
-        bad: list[str] = []
-        for place in world.places.values():
-            p = look_point(place, d)
-            inside = [r.name for r in racks if r.distance((p[0], p[1])) <= 0.0]
-            if inside:
-                bad.append(f"{place.name} at ({p[0]:.2f}, {p[1]:.2f}): inside rack {inside[0]}")
-            elif fence is not None and not fence.inside(p, LOOK_POINT_CLEARANCE_M):
-                bad.append(f"{place.name} at ({p[0]:.2f}, {p[1]:.2f}): outside the geofence")
-        if not bad:
-            return []
-        n = len(world.places)
-        return [
-            (
-                "look_distance",
-                f"look_distance {d:g}: the look points of {len(bad)} of the world's {n} places "
-                f"would lie inside a rack or outside the rig's geofence, where no rescan can "
-                f"fly (first: {bad[0]})",
-            )
-        ]
+        return reach_problems(self, world, "look_distance", "no rescan can fly")
 
     def tick_impl(self) -> NodeStatus:
         world = world_of(self.ctx)

@@ -32,7 +32,7 @@ from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulAction
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from nodes.common import is_realtime, vehicle_of
-from nodes.inventory import CATEGORY_INVENTORY, world_of
+from nodes.inventory import CATEGORY_INVENTORY, reach_problems, world_of
 from nodes.inventory_log import EMPTY, IDENTIFIED, NOT_SCANNED, UNKNOWN, InventoryLog
 from nodes.perception_feed import FrameFeed
 from nodes.perception_session import (
@@ -150,6 +150,17 @@ class SweepPass(StatefulActionNode):
         output_port("answered", INT, "places this pass answered"),
         output_port("rescan", ANY, "places left for the per-place scan (LoopString's queue)"),
     )
+
+    def preflight(self) -> list[tuple[str, str]]:
+        """A ``standoff`` that puts the pass lines inside a rack or outside the rig's
+        geofence (every pass would fail in the air), before anything flies."""
+        try:
+            world = world_of(self.ctx)
+        except Exception:  # noqa: BLE001 - a bad world is said by the rig's own checks
+            return []
+        if world is None or not world.places:
+            return []
+        return reach_problems(self, world, "standoff", "no pass can fly")
 
     # -- start -------------------------------------------------------------------------------
     def on_start(self) -> NodeStatus:

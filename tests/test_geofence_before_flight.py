@@ -163,10 +163,32 @@ def test_a_look_distance_that_puts_look_points_in_a_rack_or_outside_is_refused(c
     assert main([*args, "--set", "look_distance=3"]) == 2
     err = capsys.readouterr().err.splitlines()
     assert err[0] == (
-        "--set look_distance: look_distance 3: the look points of 72 of the world's 144 "
-        "places would lie inside a rack or outside the rig's geofence, where no rescan can "
-        "fly (first: B-01-1 at (0.05, 7.70): outside the geofence)"
+        "--set look_distance: look_distance 3: the points 3 m in front of 72 of the 144 "
+        "places to answer would lie inside a rack or outside the rig's geofence, where no "
+        "rescan can fly (first: B-01-1 at (0.05, 7.70): outside the geofence)"
     ), err
+    # a geofence around aisle 2 alone: the sweep's lines and the look points of aisle 1
+    # are outside it, which matters only when aisle 1 is to be answered
+    aisle_2 = ["--set", "safety.geofence.min_m=[3.5,-11,-0.5]", "--set", "sim.start_m=[6,-10,0]"]
+    assert main([*args, *aisle_2]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert "SweepPass 'pass': standoff 0.45: the points 0.45 m in front of 72 of the" in err[0]
+    assert "LookUpPlace 'look_up': look_distance 0.75: the points" in err[1]
+    from types import SimpleNamespace
+
+    from drivers.rig.loader import load_rig
+    from nodes.inventory import PLANNED_PLACES, reach_problems
+
+    over = {"safety.geofence.min_m": "[3.5,-11,-0.5]", "sim.start_m": "[6,-10,0]"}
+    rig = load_rig("rigs/site.yaml", over)
+    world = rig.load_world(0)
+    aisle_2_places = [n for n in world.places if n[0] in "CD"]
+    for planned, problems in ((None, 1), (aisle_2_places, 0)):
+        resources = {"rig": rig, PLANNED_PLACES: planned}
+        node = SimpleNamespace(
+            get_input=lambda name: 0.45, ctx=SimpleNamespace(resources=resources)
+        )
+        assert len(reach_problems(node, world, "standoff", "no pass can fly")) == problems
     from types import SimpleNamespace
 
     from drivers.rig.loader import load_rig
