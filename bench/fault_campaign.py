@@ -5,7 +5,9 @@ The faults a rig can schedule are ``campaigns/faults.yaml``, run by the campaign
 run folder, a crashed or hung run recorded as such). The fault is injected at a random
 (seeded) mission time through the rig's ``faults.*`` settings, except:
 
-* ``geofence``: the geofence's far x wall is moved to a random x on the way to the pallet;
+* ``geofence``: the geofence's far x wall stands 5-8 cm beyond the scan line and a gust of
+  3-4 m/s pushes the drone towards it while it aligns and scans (a wall drawn across the
+  way to the pallet, as this row once did, is refused before flight now);
 * ``camera_stall``: the rig's own ``pallet`` renderer streams (as in the default rig), then
   the camera stops delivering frames.
 
@@ -60,7 +62,7 @@ FAULT_TYPES: dict[str, str] = {
     "camera_stall": "camera stops (report only)",
     "battery_sag": "battery sags 0.5-1.0 V",
     "gust": "gust up to 3 m/s per axis, 1-4 s",
-    "geofence": "geofence x wall at 1-8.5 m",
+    "geofence": "x wall 5-8 cm past the scan line, gust towards it",
     "leaf_exception": "GoTo raises RuntimeError",
     "sigint": "SIGINT 0.1-2.8 s after start",
     "sigterm": "SIGTERM 0.1-2.8 s after start",
