@@ -147,6 +147,11 @@ LOOP = wrap(
 )
 
 
+# The watchdog's TickOverrun is raised asynchronously in the tick thread; when it lands
+# inside a weakref callback CPython prints it as "ignored" (pytest: an unraisable-exception
+# warning) and the watchdog raises it again in the same tick (bt_engine/watchdog.py): the
+# test checks the outcome, the warning is that first, lost attempt.
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
 def test_a_tick_that_never_returns_is_stopped_by_the_watchdog_and_the_drone_lands(
     tmp_path,
 ) -> None:
