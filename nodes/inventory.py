@@ -281,8 +281,9 @@ def reach_problems(node: BTNode, world: Any, port: str, why: str) -> list[tuple[
         d = float(node.get_input(port))
     except Exception:  # noqa: BLE001 - written in flight: checked then
         return []
-    if not math.isfinite(d):
-        return []
+    decl = next((q for q in getattr(type(node), "ports", ()) if q.name == port), None)
+    if not math.isfinite(d) or (decl is not None and decl.out_of_range(d) is not None):
+        return []  # the range check says it
     racks = footprints(world)
     fence = geofence_config(node)
     bad: list[str] = []
@@ -320,7 +321,14 @@ class LookUpPlace(SyncActionNode):
         output_port("row", ANY, "centre of the place's block row, x;y;z in m"),
         output_port("facing_deg", FLOAT, "drone yaw that faces the pallet, degrees"),
         output_port("level", INT, "rack level (1 = lowest)"),
-        input_port("look_distance", FLOAT, 0.75, "distance in front of the face for look_point, m"),
+        input_port(
+            "look_distance",
+            FLOAT,
+            0.75,
+            "distance in front of the face for look_point, m",
+            low=0.1,
+            high=5.0,
+        ),
         output_port(
             "look_point",
             ANY,

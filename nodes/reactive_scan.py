@@ -298,6 +298,9 @@ class LocatePallet(ReactiveLeaf):
             )
         except Exception:  # noqa: BLE001 - written in flight (an inventory's rows): checked then
             return []
+        distance = next(p for p in type(self).ports if p.name == "look_distance")
+        if distance.out_of_range(self.get_input("look_distance")) is not None:
+            return []  # the range check says it
         bad = outside_geofence(self, "place", points, "x", GEOFENCE_CLEARANCE_M)
         if len(bad) < len(points):  # one look point it can fly to is enough
             return []
