@@ -27,7 +27,7 @@ Usage::
     .venv/bin/python bench/inventory_campaign.py --seeds 20 --workers 2 --json rows.json
     .venv/bin/python bench/inventory_campaign.py --seeds 2 --set world.stock.empty_places=4
     .venv/bin/python bench/inventory_campaign.py --solo rigs/site.yaml --seeds 10 --first-seed 200
-    .venv/bin/python bench/inventory_campaign.py --fleet fleets/site_4.yaml --seeds 10 --min-speed 5
+    .venv/bin/python bench/inventory_campaign.py --fleet fleets/site_4.yaml --seeds 10 --workers 1 --min-speed 5
 """
 
 from __future__ import annotations
@@ -204,7 +204,11 @@ def main() -> int:
     ap.add_argument("--fleet", default=os.path.join(REPO, "fleets", "aisle_2.yaml"))
     ap.add_argument("--solo", metavar="RIG", help="one drone: missions/inventory.xml on RIG")
     ap.add_argument(
-        "--min-speed", type=float, default=10.0, help="target: x real time in lock-step"
+        "--min-speed",
+        type=float,
+        default=None,
+        help="a target for the runs' x real time (none by default: with --workers 2 each run "
+        "has a share of the cores; the fleet's lock-step speed is bench/fleet_speed.py's)",
     )
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--first-seed", type=int, default=0)
@@ -276,7 +280,9 @@ def main() -> int:
         ("places per hour per drone (median)", round(statistics.median(r["places_per_hour_per_drone"] for r in rows), 1), f">= {ANCHOR_PLACES_PER_HOUR} (anchor)", statistics.median(r["places_per_hour_per_drone"] for r in rows) >= ANCHOR_PLACES_PER_HOUR),
         ("places per hour per drone (all seeds)", round(pooled, 1), f">= {ANCHOR_PLACES_PER_HOUR}", pooled >= ANCHOR_PLACES_PER_HOUR),
         ("places per hour per drone (lowest)", round(min(r["places_per_hour_per_drone"] for r in rows), 1), "", None),
-        ("speed, x real time (median)", round(statistics.median(r["realtime_x"] for r in rows), 2), f">= {args.min_speed:g}", statistics.median(r["realtime_x"] for r in rows) >= args.min_speed),
+        ("speed, x real time (median)", round(statistics.median(r["realtime_x"] for r in rows), 2),
+         f">= {args.min_speed:g}" if args.min_speed is not None else f"none ({args.workers} runs at a time)",
+         None if args.min_speed is None else statistics.median(r["realtime_x"] for r in rows) >= args.min_speed),
     ]  # fmt: skip
     for what, value, target, ok in checks:
         mark = "" if ok is None else ("  met" if ok else "  NOT MET")
