@@ -224,3 +224,24 @@ def test_a_battery_change_forgets_what_was_measured_on_the_old_battery():
     assert later and all(s[2] == s[1][1] for s in later)  # kept at any age on this battery
     assert measured_rate(m.ctx, later[0][0]) is None  # the default age limit
     assert seen[-1][1] is None  # the swap forgot it
+
+
+def test_the_sweep_look_ahead_uses_a_consumption_measured_minutes_ago(tmp_path):
+    """EnoughEnergyForPass plans with the rate measured on this battery, not the assumed
+    endurance, however old the measurement (a rescan can take minutes)."""
+    from helpers import sim_mission
+
+    from nodes.energy import RATE_KEY
+
+    xml = """<root BTCPP_format="4"><BehaviorTree ID="M"><Sequence>
+      <InventoryPlan places="all" queue="{todo}"/>
+      <TakeOff height="0.5" takeoff_point="{home}"/>
+      <PlanSweep places="{todo}" passes="{passes}"/>
+      <EnoughEnergyForPass name="look_ahead" pass="A/1" home="{home}"/>
+    </Sequence></BehaviorTree></root>"""
+    m, run, _ = sim_mission(xml, rig="rigs/site.yaml", overrides={"battery.initial_soc": 0.4})
+    m.ctx.resources["run_dir"] = str(tmp_path)
+    m.ctx.resources[RATE_KEY] = (-120.0, 0.2)  # 12 %/min, measured two minutes before
+    result = run.run(max_time_s=60)
+    assert result.status == "FAILURE"  # not enough charge for the sweep: change first
+    assert "at 12.00 %/min (measured)" in result.reason, result.reason
