@@ -43,7 +43,14 @@ from nodes.perception_session import (
 )
 from nodes.place_evidence import write_place_evidence
 from nodes.sweep_identify import Identifications
-from nodes.sweep_plan import footprints, geofence_inside, pass_line, route, sweep_plan_of
+from nodes.sweep_plan import (
+    footprints,
+    geofence_inside,
+    pass_end_problems,
+    pass_line,
+    route,
+    sweep_plan_of,
+)
 
 FIXED_YAW = 2
 #: The sweep's own acceptance of an answer the gallery's thresholds left unknown only on the
@@ -153,14 +160,16 @@ class SweepPass(StatefulActionNode):
 
     def preflight(self) -> list[tuple[str, str]]:
         """A ``standoff`` that puts the pass lines inside a rack or outside the rig's
-        geofence (every pass would fail in the air), before anything flies."""
+        geofence (every pass would fail in the air), or a pass whose run-up or tail lies
+        outside the geofence, before anything flies."""
         try:
             world = world_of(self.ctx)
         except Exception:  # noqa: BLE001 - a bad world is said by the rig's own checks
             return []
         if world is None or not world.places:
             return []
-        return reach_problems(self, world, "standoff", "no pass can fly")
+        out = reach_problems(self, world, "standoff", "no pass can fly")
+        return out or pass_end_problems(self, world)
 
     # -- start -------------------------------------------------------------------------------
     def on_start(self) -> NodeStatus:

@@ -22,8 +22,8 @@ from typing import Any
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode, SyncActionNode
 from bt_engine.ports import ANY, DURATION, FLOAT, INT, VEC3, input_port, output_port
 from bt_engine.registry import register
-from nodes.common import outside_geofence, vehicle_of
-from nodes.inventory import CATEGORY_INVENTORY, world_of
+from nodes.common import geofence_config, outside_geofence, vehicle_of
+from nodes.inventory import CATEGORY_INVENTORY, PLANNED_PLACES, world_of
 from nodes.rack_geometry import (  # noqa: F401 - importable from here as before
     CLEARANCE_M,
     CORNER_EXTRA_M,
@@ -141,6 +141,41 @@ def pass_line(
         )
 
     return at(spec.rows[names[0]], -(half + lead)), at(spec.rows[names[-1]], half + PASS_TAIL_M)
+
+
+def pass_end_problems(node: Any, world: Any) -> list[tuple[str, str]]:
+    """``(port, message)`` for a pass of the places to answer (:data:`PLANNED_PLACES`) that
+    would start or end outside the rig's geofence: its run-up (``node``'s ``lead``) and
+    tail past a rack's end blocks, at ``standoff``, as :func:`plan_passes` orders them
+    from a simulated drone's start (a real drone's start is known only once it flies).
+    The drone would fly there and breach the fence; refused before anything flies."""
+    fence = geofence_config(node)
+    names = node.ctx.resources.get(PLANNED_PLACES)
+    rig = node.ctx.resources.get("rig")
+    data = getattr(rig, "data", None)
+    if fence is None or not names or not isinstance(data, dict) or data.get("link") != "sim":
+        return []
+    try:
+        standoff, lead = float(node.get_input("standoff")), float(node.get_input("lead"))
+    except Exception:  # noqa: BLE001 - written in flight: checked then
+        return []
+    if not (math.isfinite(standoff) and math.isfinite(lead)):
+        return []
+    start = tuple(float(v) for v in data["sim"]["start_m"])
+    plan = plan_passes([n for n in names if n in world.places], world, start)  # type: ignore[arg-type]
+    for name in plan.order:
+        for p in pass_line(plan.passes[name], standoff, lead):
+            if not fence.inside(p, 0.05):
+                return [
+                    (
+                        "lead",
+                        f"pass {name} would start or end at ({p[0]:.2f}, {p[1]:.2f}), outside "
+                        f"the rig's geofence ({fence.box_words()}, 0.05 m clear of its walls): "
+                        f"its run-up (lead {lead:g} m) and tail ({PASS_TAIL_M:g} m) past the "
+                        "rack's end blocks must lie inside it",
+                    )
+                ]
+    return []
 
 
 def route_length(ctx: Any, a: tuple[float, ...], b: tuple[float, ...]) -> float:

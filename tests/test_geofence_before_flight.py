@@ -202,3 +202,19 @@ def test_a_look_distance_that_puts_look_points_in_a_rack_or_outside_is_refused(c
     node = SimpleNamespace(get_input=lambda name: 3.3, ctx=SimpleNamespace(resources={}))
     ((port, message),) = LookUpPlace._look_point_problems(node, world)
     assert port == "look_distance" and "inside rack B" in message
+
+
+def test_a_pass_whose_run_up_leaves_the_geofence_is_refused_before_flight(capsys):
+    """A pass starts ``lead`` before a rack's end block: with the fence 20 cm closer to
+    rack A's end than the site's, the drone would fly the run-up of pass A/1 across it."""
+    args = ["validate", "missions/inventory.xml", "--rig", "rigs/site.yaml"]
+    tight = ["--set", "safety.geofence.min_m=[0.1,-8.6,-0.5]", "--set", "sim.start_m=[1,-8,0]"]
+    assert main([*args, *tight]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].endswith(
+        "SweepPass 'pass': pass A/1 would start or end at (0.40, -8.81), outside the rig's "
+        "geofence (x 0.1 to 7.9, y -8.6 to 10.8, z -0.5 to 2.5 m, 0.05 m clear of its "
+        "walls): its run-up (lead 0.5 m) and tail (0.3 m) past the rack's end blocks must "
+        "lie inside it"
+    ), err
+    assert len(err) == 2  # one line, then the count
