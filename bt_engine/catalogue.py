@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import re
 import textwrap
-from typing import Any, Literal
+from typing import Literal
 
 from lxml import etree
 
@@ -166,11 +166,6 @@ def groot_palette(registry: Registry, include_builtins: bool = False) -> str:
     )
 
 
-def range_text(p: Any) -> str | None:
-    """A port's declared range as words (``0.01 to 3``, ``at least 0``), or None."""
-    return range_words(getattr(p, "low", None), getattr(p, "high", None))
-
-
 def port_line(p: Port) -> str:
     """One-line description of a port for text output."""
     req = (
@@ -182,7 +177,7 @@ def port_line(p: Port) -> str:
     )
     arrow = {"input": "in ", "output": "out", "inout": "i/o"}[p.direction]
     desc = f" - {plain_text(p.description)}" if p.description else ""
-    span = range_text(p)
+    span = range_words(p.low, p.high)
     req += f"; {span}" if span else ""
     return f"{arrow} {p.name}: {p.type.name} ({req}){desc}"
 
@@ -268,7 +263,7 @@ def _md_node(m: NodeModel) -> list[str]:
             d = _shown_default(p)
             d = "*required*" if p.required else ("" if d is None else f"`{d}`")
             desc = markdown_text(p.description).replace("|", "\\|")
-            span = range_text(p)
+            span = range_words(p.low, p.high)
             desc += f" ({span})" if span else ""
             out.append(f"| `{p.name}` | {p.direction} | {_cell(t)} | {_cell(d)} | {desc} |")
         out.append("")

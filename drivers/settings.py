@@ -200,6 +200,18 @@ def key_parts(dotted: str) -> list[str]:
     return _INDEX.sub(r".\1", dotted).split(".")
 
 
+def written_by(key: str, overrides: Any) -> bool:
+    """True if a ``--set`` key of ``overrides`` wrote ``key`` or a part of it
+    (``stock.empty_places`` wrote ``stock``; ``stock`` wrote ``stock.not_enrolled[0]``)."""
+    mine = key_parts(key)
+    for k in overrides:
+        theirs = key_parts(k)
+        n = min(len(mine), len(theirs))
+        if mine[:n] == theirs[:n]:
+            return True
+    return False
+
+
 def _index_problem(part: str, length: int, name: str) -> str | None:
     """Why ``part`` is no index of the list ``name`` of ``length`` items (None: it is)."""
     items = f"{name} has {length} item{'s' if length != 1 else ''}" + (

@@ -8,7 +8,6 @@ Every motion has a time-out; a halted motion leaves the drone holding position.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 from bt_engine.node import (
     FAILURE,
@@ -181,11 +180,6 @@ class _Motion(StatefulActionNode):
         return self.get_input("pos_threshold"), yaw
 
 
-def _port(node: BTNode, name: str) -> Any:
-    """The declaration of ``node``'s port ``name``."""
-    return next(p for p in type(node).ports if p.name == name)
-
-
 def _start_point(node: BTNode) -> tuple[float, float, float]:
     """Where the drone stands before flight: a simulated rig's ``sim.start_m`` (its
     vehicle reads the origin until the simulation steps); raises for a real drone, whose
@@ -220,7 +214,7 @@ class TakeOff(_Motion):
             x, y, z = _start_point(self)
         except Exception:  # noqa: BLE001 - no start known, or written in flight: checked then
             return []
-        if _port(self, "height").out_of_range(height) is not None:  # the range check says it
+        if self.port_decl("height").out_of_range(height) is not None:  # the range check says it
             return []
         what = f"height {height:g} (the climb ends at z {z + height:g} m)"
         return outside_geofence(self, "height", [(x, y, z + height)], what)

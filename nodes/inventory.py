@@ -281,7 +281,7 @@ def reach_problems(node: BTNode, world: Any, port: str, why: str) -> list[tuple[
         d = float(node.get_input(port))
     except Exception:  # noqa: BLE001 - written in flight: checked then
         return []
-    decl = next((q for q in getattr(type(node), "ports", ()) if q.name == port), None)
+    decl = node.port_decl(port)
     if not math.isfinite(d) or (decl is not None and decl.out_of_range(d) is not None):
         return []  # the range check says it
     racks = footprints(world)

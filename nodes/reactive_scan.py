@@ -34,7 +34,6 @@ from bt_engine.registry import register
 from nodes.common import (
     geofence_config,
     is_realtime,
-    outside_geofence,
     vehicle_of,
 )
 from nodes.perception_session import MIN_SCORE_DOC, PerceptionError, PerceptionSession
@@ -298,13 +297,11 @@ class LocatePallet(ReactiveLeaf):
             )
         except Exception:  # noqa: BLE001 - written in flight (an inventory's rows): checked then
             return []
-        distance = next(p for p in type(self).ports if p.name == "look_distance")
-        if distance.out_of_range(self.get_input("look_distance")) is not None:
+        if self.port_decl("look_distance").out_of_range(self.get_input("look_distance")):
             return []  # the range check says it
-        bad = outside_geofence(self, "place", points, "x", GEOFENCE_CLEARANCE_M)
-        if len(bad) < len(points):  # one look point it can fly to is enough
-            return []
         config = geofence_config(self)
+        if config is None or any(config.inside(p, GEOFENCE_CLEARANCE_M) for p in points):
+            return []  # one look point it can fly to is enough
         shown = ";".join(f"{v:g}" for v in place)
         return [
             (

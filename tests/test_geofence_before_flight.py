@@ -186,7 +186,9 @@ def test_a_look_distance_that_puts_look_points_in_a_rack_or_outside_is_refused(c
     for planned, problems in ((None, 1), (aisle_2_places, 0)):
         resources = {"rig": rig, PLANNED_PLACES: planned}
         node = SimpleNamespace(
-            get_input=lambda name: 0.45, ctx=SimpleNamespace(resources=resources)
+            get_input=lambda name: 0.45,
+            port_decl=lambda name: None,
+            ctx=SimpleNamespace(resources=resources),
         )
         assert len(reach_problems(node, world, "standoff", "no pass can fly")) == problems
     from types import SimpleNamespace
@@ -199,7 +201,9 @@ def test_a_look_distance_that_puts_look_points_in_a_rack_or_outside_is_refused(c
     # 2.5 m from rack A's faces is still in the 3 m aisle; 3.3 m is inside rack B
     p = look_point(world.places["A-01-1"], 3.3)
     assert [r.name for r in footprints(world) if r.distance(p[:2]) <= 0.0] == ["B"]
-    node = SimpleNamespace(get_input=lambda name: 3.3, ctx=SimpleNamespace(resources={}))
+    node = SimpleNamespace(
+        get_input=lambda name: 3.3, port_decl=lambda name: None, ctx=SimpleNamespace(resources={})
+    )
     ((port, message),) = LookUpPlace._look_point_problems(node, world)
     assert port == "look_distance" and "inside rack B" in message
 

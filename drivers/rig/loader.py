@@ -13,8 +13,8 @@ from typing import Any
 
 from drivers.rig.paths import DEFAULT_RIG, REPO_ROOT
 from drivers.rig.schema import RIG_SCHEMA
-from drivers.safety.policies import box_words
-from drivers.settings import ConfigError, Marks, SettingProblem, key_parts, problem_at
+from drivers.safety.policies import SafetyConfig
+from drivers.settings import ConfigError, Marks, SettingProblem, problem_at, written_by
 from drivers.settings import (
     apply_overrides as _apply,
 )
@@ -111,10 +111,10 @@ def rig_problems(data: dict, own_start: bool = True) -> list[tuple[tuple[str, ..
     it, located at the first): a geofence box whose minimum is not below its maximum on an
     axis, or a simulated drone that starts outside it (it would be in breach the moment it
     took off)."""
-    fence = data["safety"]["geofence"]
-    if not fence["enabled"]:
+    fence = SafetyConfig.from_dict(data["safety"])
+    if not fence.geofence_enabled:
         return []
-    lo, hi = fence["min_m"], fence["max_m"]
+    lo, hi = fence.geofence_min_m, fence.geofence_max_m
     flat = [a for i, a in enumerate("xyz") if not lo[i] < hi[i]]
     if flat:
         return [
@@ -125,13 +125,12 @@ def rig_problems(data: dict, own_start: bool = True) -> list[tuple[tuple[str, ..
             )
         ]
     start = data["sim"]["start_m"]
-    inside = all(lo[i] <= start[i] <= hi[i] for i in range(3))
-    if own_start and data["link"] == "sim" and not inside:
+    if own_start and data["link"] == "sim" and not fence.inside(tuple(start)):
         return [
             (
                 ("sim.start_m", "link", *_FENCE),
                 f"sim.start_m {list(start)}: the drone would start outside the geofence "
-                f"({box_words(lo, hi)}): expected a start inside it",
+                f"({fence.box_words()}): expected a start inside it",
             )
         ]
     return []
@@ -144,7 +143,7 @@ def _check_rig(
     wrote the key, else where the file wrote it (with the overrides named)."""
     problems = []
     for keys, message in rig_problems(data, own_start):
-        if any(_related(k, key) for k in overrides for key in keys):
+        if any(written_by(key, overrides) for key in keys):
             problems.append(SettingProblem("--set", 0, 0, message))
         else:
             given = ", ".join(f"--set {k}={v}" for k, v in overrides.items())
@@ -154,10 +153,3 @@ def _check_rig(
             problems.append(where)
     if problems:
         raise ConfigError(problems)
-
-
-def _related(a: str, b: str) -> bool:
-    """True if dotted keys ``a`` and ``b`` are one setting or one holds the other."""
-    pa, pb = key_parts(a), key_parts(b)
-    n = min(len(pa), len(pb))
-    return pa[:n] == pb[:n]

@@ -128,8 +128,10 @@ class SafetyConfig:
         return from_settings(cls, data, policies=pol)
 
     def box_words(self) -> str:
-        """The geofence box in words (:func:`box_words`)."""
-        return box_words(self.geofence_min_m, self.geofence_max_m)
+        """The geofence box in words: ``x -1.5 to 9.2, y -3 to 3, z -0.5 to 2.5 m`` (what a
+        geofence message says)."""
+        lo, hi = self.geofence_min_m, self.geofence_max_m
+        return ", ".join(f"{a} {lo[i]:g} to {hi[i]:g}" for i, a in enumerate("xyz")) + " m"
 
     def inside(self, p: tuple[float, float, float], margin_m: float = 0.0) -> bool:
         """True if ``p`` is inside the geofence box shrunk by ``margin_m``."""
@@ -188,9 +190,3 @@ def safety_schema() -> Field:
         },
     )
     return spec
-
-
-def box_words(lo: Any, hi: Any) -> str:
-    """A box from corner ``lo`` to ``hi`` in words: ``x -1.5 to 9.2, y -3 to 3, z -0.5 to
-    2.5 m`` (what a geofence message says)."""
-    return ", ".join(f"{a} {lo[i]:g} to {hi[i]:g}" for i, a in enumerate("xyz")) + " m"

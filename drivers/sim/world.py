@@ -20,8 +20,8 @@ from drivers.settings import (
     Marks,
     SettingProblem,
     apply_overrides,
-    key_parts,
     problem_at,
+    written_by,
 )
 from drivers.settings_yaml import load_yaml_file
 from drivers.sim.racks import (
@@ -391,18 +391,6 @@ def _world_problems(data: dict) -> list[tuple[str, str]]:
     return problems
 
 
-def _written_by(key: str, overrides: dict[str, str]) -> bool:
-    """True if a ``--set`` key wrote ``key`` or a part of it (``stock.empty_places`` wrote
-    ``stock``; ``stock`` wrote ``stock.not_enrolled[0]``)."""
-    mine = key_parts(key)
-    for k in overrides:
-        theirs = key_parts(k)
-        n = min(len(mine), len(theirs))
-        if mine[:n] == theirs[:n]:
-            return True
-    return False
-
-
 def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0) -> World:
     """Load, validate and build the world at ``path``; ``overrides`` are ``--set`` style
     keys of the world file (``scan_slot.y_m``), reported as ``world.KEY``; ``seed`` draws
@@ -430,7 +418,7 @@ def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0
         for key, message in _world_problems(data):
             if message in before:
                 continue
-            if _written_by(key, overrides):
+            if written_by(key, overrides):
                 problems.append(SettingProblem("--set", 0, 0, f"world.{key}: {message}"))
             else:
                 given = ", ".join(f"--set world.{k}={v}" for k, v in overrides.items())

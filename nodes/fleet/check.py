@@ -18,7 +18,7 @@ from bt_engine.loading import check_mission
 from bt_engine.preflight import check_before_flight
 from bt_engine.registry import REGISTRY
 from bt_engine.spec import Loc, MissionError, Problem
-from drivers.safety.policies import box_words
+from drivers.safety.policies import SafetyConfig
 from drivers.settings import ConfigError
 from nodes.common import config_problems
 from nodes.fleet.plan import split_places
@@ -70,13 +70,12 @@ def rig_and_world(spec: FleetSpec, common: list[str], seed: int) -> tuple[Any, A
 def start_problems(spec: FleetSpec, rig: Any) -> list[Problem]:
     """A drone that would start outside the rig's geofence (a breach the moment it took
     off), located where the fleet file gives its pad or start."""
-    fence = rig.data["safety"]["geofence"]
-    if not fence["enabled"] or rig.data["link"] != "sim":
+    fence = SafetyConfig.from_dict(rig.data["safety"])
+    if not fence.geofence_enabled or rig.data["link"] != "sim":
         return []
-    lo, hi = fence["min_m"], fence["max_m"]
     out = []
     for d in spec.drones:
-        if all(lo[i] <= d.start_m[i] <= hi[i] for i in range(3)):
+        if fence.inside(d.start_m):
             continue
         key = f"drones[{d.index}].pad" if d.pad else f"drones[{d.index}].start_m"
         start = ", ".join(f"{v:g}" for v in d.start_m)
@@ -85,7 +84,7 @@ def start_problems(spec: FleetSpec, rig: Any) -> list[Problem]:
             Problem(
                 spec.loc(key),
                 f"{d.name}: its start ({start}){on} is outside the rig's geofence "
-                f"({box_words(lo, hi)}): expected a start inside it",
+                f"({fence.box_words()}): expected a start inside it",
             )
         )
     return out
