@@ -61,6 +61,10 @@ def test_fixed_places_and_overrides():
         ({"stock.fixed.A-01-1": "999A"}, "'999A' is not a pallet side of this world"),
         ({"stock.empty_places": "0", "pallet_pool.count": "10"}, "pool has only"),
         ({"stock.not_enrolled_places": "5"}, "not-enrolled pallet asked"),
+        (
+            {"stock.not_enrolled": "[115]", "stock.not_enrolled_places": "2"},
+            "only 1 can have one (1 not-enrolled pallet free)",
+        ),
     ],
 )
 def test_a_stock_the_world_cannot_fill_is_refused(overrides, message):

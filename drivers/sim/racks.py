@@ -520,7 +520,8 @@ def stock_problems(data: dict, places: list[Place]) -> list[tuple[str, str]]:
             (
                 "stock.not_enrolled_places",
                 f"{n_unknown} places with a not-enrolled pallet asked but only "
-                f"{min(fill, spare_unknown)} can have one ({spare_unknown} not-enrolled pallets free)",
+                f"{min(fill, spare_unknown)} can have one ({spare_unknown} not-enrolled "
+                f"{'pallet' if spare_unknown == 1 else 'pallets'} free)",
             )
         )
     spare_known = len([i for i in enrolled if i not in used])
