@@ -24,6 +24,12 @@ MAX_ATTRIBUTES = 256
 ERROR, WARNING = "error", "warning"
 
 
+def plural(n: int, word: str, many: str | None = None) -> str:
+    """``n`` and ``word`` in the number ``n`` asks for: ``1 place``, ``3 places``
+    (``many``: an irregular plural, e.g. ``plural(2, "child", "children")``)."""
+    return f"{n} {word if n == 1 else (many or word + 's')}"
+
+
 def nesting_message(depth: int, how: str = "") -> str:
     """The problem of a node nested ``depth`` levels deep (more than MAX_NESTING_DEPTH)."""
     return (

@@ -34,6 +34,7 @@ from bt_engine.spec import (
     NodeSpec,
     Problem,
     nesting_message,
+    plural,
 )
 from bt_engine.validate_expansion import _ExpansionChecks
 from bt_engine.validate_warnings import KNOWN_ENTRIES, _WarningChecks
@@ -61,10 +62,6 @@ def check_script(code: str) -> str | None:
         where = f" at column {exc.column + 1}" if exc.column >= 0 else ""
         return f"{exc.message if hasattr(exc, 'message') else exc}{where}"
     return None
-
-
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}" + ("" if n == 1 else "s")
 
 
 def _parsed(code: Any):
@@ -171,9 +168,9 @@ class _Validator(_ExpansionChecks, _WarningChecks):
             lo, hi = 0, 0
         if n < lo or (hi is not None and n > hi):
             if hi == lo:
-                want = _plural(lo, "child") if lo else "no children"
+                want = plural(lo, "child", "children") if lo else "no children"
             elif hi is None:
-                want = f"at least {_plural(lo, 'child')}"
+                want = f"at least {plural(lo, 'child', 'children')}"
             else:
                 want = f"{lo} to {hi} children"
             kind = {CONTROL: "control", DECORATOR: "decorator"}.get(model.kind, model.kind.lower())

@@ -5,7 +5,7 @@ schema) and checked as the command that reads it would before anything flies."""
 from __future__ import annotations
 
 from bt_engine.plugins import FileKind
-from bt_engine.spec import Loc, MissionError, Problem
+from bt_engine.spec import Loc, MissionError, Problem, plural
 from drivers.rig.loader import load_rig
 from drivers.rig.schema import RIG_SCHEMA
 from drivers.settings import ConfigError
@@ -60,7 +60,7 @@ def check_fleet_file(
         lines = check_fleet(path, sets, seed)
     except MissionError as exc:
         return exc.problems
-    return [], f"{len(lines)} drones; " + ", ".join(lines)
+    return [], f"{plural(len(lines), 'drone')}; " + ", ".join(lines)
 
 
 #: btrun's file kinds besides missions (:class:`~bt_engine.plugins.FileKind`).

@@ -27,7 +27,7 @@ from bt_engine.files import read_bytes
 from bt_engine.node import FAILURE, SUCCESS, BTNode, NodeStatus, SyncActionNode
 from bt_engine.ports import ANY, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
-from bt_engine.spec import Loc, Problem
+from bt_engine.spec import Loc, Problem, plural
 from drivers.settings import ConfigError, did_you_mean
 from nodes.common import geofence_config
 from nodes.expected_stock import (
@@ -245,9 +245,13 @@ class InventoryPlan(SyncActionNode):
         log.expected = stock
         done = len(places) - len(todo)
         self.ctx.log(
-            f"inventory: {len(places)} places planned"
+            f"inventory: {plural(len(places), 'place')} planned"
             + (f", {done} already answered (resumed)" if done else "")
-            + (f"; expected stock {stock.path} ({len(stock.places)} places)" if stock else "")
+            + (
+                f"; expected stock {stock.path} ({plural(len(stock.places), 'place')})"
+                if stock
+                else ""
+            )
         )
         log.write()
         self.set_output("queue", todo)

@@ -27,7 +27,7 @@ from collections.abc import Callable
 from typing import Any
 
 from bt_engine.files import atomic_write_text, read_text
-from bt_engine.spec import Loc, Problem
+from bt_engine.spec import Loc, Problem, plural
 from nodes import discrepancy
 from nodes.expected_stock import ExpectedStock
 
@@ -393,7 +393,7 @@ class InventoryLog:
         s = self.run_summary()
         if not s["places"]:
             return []
-        parts = [f"{s['places']} places"]
+        parts = [plural(s["places"], "place")]
         for key in ("identified", "unknown", "empty", "not_identified", "not_scanned"):
             if s["status"].get(key):
                 parts.append(f"{s['status'][key]} {key.replace('_', ' ')}")
@@ -414,7 +414,7 @@ class InventoryLog:
             if left and self.sink is None:  # a fleet's drone: the fleet prints its own
                 mission = _mission_of(self.run_dir) or "MISSION"
                 out.append(
-                    f"{len(left)} places not answered: continue with "
+                    f"{plural(len(left), 'place')} not answered: continue with "
                     f"btrun {mission} --resume {self.run_dir}"
                 )
         return out

@@ -31,6 +31,7 @@ from typing import Any
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode
 from bt_engine.ports import ANY, BOOL, DURATION, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
+from bt_engine.spec import plural
 from nodes.common import is_realtime, vehicle_of
 from nodes.inventory import CATEGORY_INVENTORY, reach_problems, world_of
 from nodes.inventory_log import EMPTY, IDENTIFIED, NOT_SCANNED, UNKNOWN, InventoryLog
@@ -268,7 +269,7 @@ class SweepPass(StatefulActionNode):
         if self.progress.failed:
             return self._fail(self.progress.reason or "motion refused")
         self.ctx.log(
-            f"sweep {name}: {len(todo)} places, {todo[0]} .. {todo[-1]}, "
+            f"sweep {name}: {plural(len(todo), 'place')}, {todo[0]} .. {todo[-1]}, "
             f"at {self.get_input('speed'):g} m/s"
         )
         return RUNNING

@@ -22,6 +22,7 @@ from typing import Any
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeStatus, StatefulActionNode, SyncActionNode
 from bt_engine.ports import ANY, DURATION, FLOAT, INT, VEC3, input_port, output_port
 from bt_engine.registry import register
+from bt_engine.spec import plural
 from nodes.common import geofence_config, outside_geofence, vehicle_of
 from nodes.inventory import CATEGORY_INVENTORY, PLANNED_PLACES, world_of
 from nodes.rack_geometry import (  # noqa: F401 - importable from here as before
@@ -237,7 +238,7 @@ class PlanSweep(SyncActionNode):
         plan = plan_passes(places, world, start)
         self.ctx.resources["sweep_plan"] = plan
         self.ctx.log(
-            f"sweep: {len(places)} places in {len(plan.order)} passes "
+            f"sweep: {plural(len(places), 'place')} in {plural(len(plan.order), 'pass', 'passes')} "
             f"({', '.join(plan.order[:8])}{' ...' if len(plan.order) > 8 else ''})"
         )
         self.set_output("passes", list(plan.order))

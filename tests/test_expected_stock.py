@@ -343,7 +343,7 @@ def test_without_an_expected_stock_nothing_changes(tmp_path):
     log.record({"place": "A-01-1", "answer": "101A", "status": "identified"})
     assert not (tmp_path / "discrepancies.csv").exists()
     assert "discrepancies" not in log.run_summary()
-    assert log.result_lines()[0].startswith("inventory: 1 places")
+    assert log.result_lines()[0].startswith("inventory: 1 place, 1 identified")
 
 
 # -- verification against the expected pallet ----------------------------------------------

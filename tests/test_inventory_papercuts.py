@@ -11,8 +11,9 @@ import os
 from helpers import REPO
 
 from bt_engine.cli import main
+from bt_engine.spec import plural
 from nodes.fleet.run import _print
-from nodes.inventory_log import FORMAT, grade
+from nodes.inventory_log import FORMAT, InventoryLog, grade
 
 RIG = os.path.join(REPO, "rigs", "aisle.yaml")
 MISSION = os.path.join(REPO, "missions", "inventory.xml")
@@ -262,7 +263,7 @@ def test_a_fleet_resume_flies_with_the_runs_settings_and_places(tmp_path, capsys
     assert main(["fleet", FLEET, "--check", "--resume", old]) == 0
     said = capsys.readouterr().out
     # one place left: one drone flies it, the other stays on its pad
-    assert "1 places" in said and "no place to fly" in said, said
+    assert "cf1: 1 place," in said and "no place to fly" in said, said
     # the run's settings are checked again: a bad one stored there is refused
     record["set"].append("world.stock.empty_places=-2")
     with open(os.path.join(old, "fleet.json"), "w", encoding="utf-8") as f:
@@ -274,7 +275,7 @@ def test_a_fleet_resume_flies_with_the_runs_settings_and_places(tmp_path, capsys
     with open(os.path.join(old, "fleet.json"), "w", encoding="utf-8") as f:
         json.dump(record, f)
     assert main(["fleet", FLEET, "--check", "--resume", old, "--set", "places=all"]) == 0
-    assert "1 places" not in capsys.readouterr().out
+    assert "1 place," not in capsys.readouterr().out
     # the checks of a resume are made by --check too
     assert main(["fleet", FLEET, "--check", "--resume", old, "--seed", "5"]) == 2
     assert f"{old} flew seed 0, not 5" in capsys.readouterr().err
@@ -299,3 +300,14 @@ def test_a_fleet_run_records_its_places_for_the_resume(tmp_path) -> None:
     assert record["places"] == ["A-01-1", "A-02-1"]
     assert "world.stock.empty_places=1" in record["set"]
     assert not any(item.startswith("places=") for item in record["set"])
+
+
+def test_counts_of_one_are_said_in_the_singular(tmp_path):
+    """'1 places' and '1 drones' were printed: a count of one now takes the singular."""
+    assert [plural(n, "place") for n in (0, 1, 2)] == ["0 places", "1 place", "2 places"]
+    assert plural(1, "pass", "passes") == "1 pass" and plural(3, "pass", "passes") == "3 passes"
+    assert plural(2, "child", "children") == "2 children"
+    log = InventoryLog(str(tmp_path))
+    log.plan(["A-01-1", "A-01-2"])
+    log.record({"place": "A-01-1", "answer": "101A", "status": "identified"})
+    assert log.result_lines()[0].startswith("inventory: 2 places, 1 identified")

@@ -17,7 +17,7 @@ from bt_engine.files import read_text
 from bt_engine.loading import check_mission
 from bt_engine.preflight import check_before_flight
 from bt_engine.registry import REGISTRY
-from bt_engine.spec import Loc, MissionError, Problem
+from bt_engine.spec import Loc, MissionError, Problem, plural
 from drivers.safety.policies import SafetyConfig
 from drivers.settings import ConfigError
 from nodes.common import config_problems
@@ -236,7 +236,7 @@ def check_fleet(
         # once a drone has a problem, no other drone's check builds a gallery for nothing
         found = check_before_flight(mission, spec.rig, sets, seed, loads=not problems)
         problems += [p for p in found if p not in problems]
-        lines.append(f"{d.name}: " + (f"{len(mine)} places" if mine is not None else "ok"))
+        lines.append(f"{d.name}: " + (plural(len(mine), "place") if mine is not None else "ok"))
     if problems:
         raise MissionError(problems)
     return lines

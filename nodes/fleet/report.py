@@ -8,6 +8,8 @@ import math
 import os
 from typing import Any
 
+from bt_engine.spec import plural
+
 COLOURS = ("#1565c0", "#c62828", "#2e7d32", "#6a1b9a")
 
 
@@ -92,7 +94,7 @@ def write_fleet_report(
         "#1a7f37}.FAILURE,.ABORTED{color:#c62828}img{max-width:100%}.wide{overflow-x:auto}"
         "</style></head><body>",
         f"<h1>fleet {esc(summary['fleet'])}: <span class='{esc(status)}'>{esc(status)}</span></h1>",
-        f"<p>{len(summary['drones'])} drones, seed {summary['seed']}, "
+        f"<p>{plural(len(summary['drones']), 'drone')}, seed {summary['seed']}, "
         f"{summary['mission_time_s']:.1f} s mission time, {summary['wall_time_s']:.1f} s wall.</p>",
         answer_section(summary),  # the merged inventory's answer first, as the console's
         "<h2>Drones</h2><table><tr><th class=l>drone</th><th class=l>status</th>"

@@ -31,7 +31,7 @@ from bt_engine.run_cmd import (
     release,
     run_dir_problem,
 )
-from bt_engine.spec import Loc, MissionError, Problem
+from bt_engine.spec import Loc, MissionError, Problem, plural
 from drivers.safety.airspace import Airspace, SeparationGuard
 from drivers.safety.policies import SafetyConfig
 from nodes.fleet.check import (
@@ -122,7 +122,7 @@ def run(args: Any) -> int:
     With ``--check``: the checks alone (exit 0: every input is fit to fly)."""
     if getattr(args, "check", False):
         lines = check_fleet(args.fleet, args.set, args.seed, args.resume)
-        print(f"{args.fleet}: ok ({len(lines)} drones; " + ", ".join(lines) + ")")
+        print(f"{args.fleet}: ok ({plural(len(lines), 'drone')}; " + ", ".join(lines) + ")")
         return 0
     spec = load_fleet(args.fleet)
     previous = previous_run(args.resume)
@@ -268,7 +268,9 @@ def _fly(
             if not getattr(fleet.clock, "is_simulated", False)
             else f"lock-step, seed {seed}"
         )
-        print(f"btrun fleet: {spec.data['name']}: {len(runs)} drones ({mode}); run folder {out}")
+        print(
+            f"btrun fleet: {spec.data['name']}: {plural(len(runs), 'drone')} ({mode}); run folder {out}"
+        )
     wall0 = time.perf_counter()
     try:
         results = fleet.run(args.max_time or spec.data["max_time_s"])
@@ -365,7 +367,7 @@ def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
     ends with the command that continues it."""
     speed = summary["mission_time_s"] / summary["wall_time_s"] if summary["wall_time_s"] else 0.0
     print(
-        f"fleet {summary['fleet']}: {summary['status']} ({len(summary['drones'])} drones, "
+        f"fleet {summary['fleet']}: {summary['status']} ({plural(len(summary['drones']), 'drone')}, "
         f"{summary['mission_time_s']:.1f} s mission time, {summary['wall_time_s']:.1f} s wall, "
         f"{speed:.0f}x real time)"
     )
@@ -379,7 +381,7 @@ def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
         for line in discrepancy_lines(inv, out):  # the counts per category lead
             print(line)
         parts = [f"{v} {k.replace('_', ' ')}" for k, v in inv["status"].items()]
-        line = f"inventory: {inv['places']} places, " + ", ".join(parts)
+        line = f"inventory: {plural(inv['places'], 'place')}, " + ", ".join(parts)
         if inv.get("carried_over"):
             line += f" ({inv['carried_over']} carried over from the resumed run)"
         print(line)
@@ -404,6 +406,6 @@ def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
     left = (inv or {}).get("not_scanned_places") or []
     statuses = [d["status"] for d in summary["drones"].values()]
     if left or "ABORTED" in statuses:
-        why = f"{len(left)} places not answered" if left else "interrupted"
+        why = f"{plural(len(left), 'place')} not answered" if left else "interrupted"
         print(f"{why}: continue with btrun fleet {fleet_file} --resume {out}")
     sys.stdout.flush()

@@ -22,6 +22,7 @@ import os
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from bt_engine.spec import plural
 from nodes.report.metrics import action_spans, motion_metrics, short_labels, telemetry_arrays
 
 
@@ -168,7 +169,7 @@ def answer_section(summary: dict) -> str:
     if inv.get("places"):
         status = inv.get("status") or {}
         counts = ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in status.items() if n)
-        line = f"inventory: {inv['places']} places, {counts}"
+        line = f"inventory: {plural(inv['places'], 'place')}, {counts}"
         if "right" in inv:
             line += (
                 f"; against the simulator {inv['right']} right, {inv.get('unknown', 0)} "

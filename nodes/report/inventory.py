@@ -12,6 +12,8 @@ from __future__ import annotations
 import html
 import os
 
+from bt_engine.spec import plural
+
 GRADE_COLOURS = {
     "right": "#4caf50",
     "wrong": "#e53935",
@@ -77,7 +79,7 @@ def plot_racks(run_dir: str, inv: dict, name: str = "inventory.png") -> str | No
         )
     else:
         handles = [Patch(color=c, label=g) for g, c in ANSWER_COLOURS.items()]
-        title = f"{inv.get('places', 0)} places"
+        title = plural(inv.get("places", 0), "place")
     ax.legend(
         handles=handles,
         loc="upper center",
