@@ -98,6 +98,15 @@ class PreparedRun:
     summary: dict | None = None
 
 
+def real_time_words(mission_s: float, wall_s: float) -> str:
+    """How many times real time a run went: ``1.3x real time`` (one decimal below 10, where
+    the decimal matters), ``8x real time``; ``-`` for a run that took no wall time."""
+    if wall_s <= 0.0:
+        return "- x real time"
+    speed = mission_s / wall_s
+    return f"{speed:.1f}x real time" if speed < 9.95 else f"{speed:.0f}x real time"
+
+
 def wall_echo(stream: TextIO | None = None) -> Callable[[str], None]:
     """A printer of messages stamped with the wall time since now (``[wall   1.2 s] ...``),
     for work outside the mission clock (models and galleries loading before the first
@@ -444,11 +453,11 @@ def finish(run: PreparedRun, runner: Runner, result: RunResult, echo: bool = Tru
         return 0 if result.status == "SUCCESS" else 1
     for line in [*summary.get("errors", ()), *errors]:
         print(f"btrun: {line}", file=sys.stderr)
-    speed = result.mission_time_s / result.wall_time_s if result.wall_time_s > 0 else 0.0
     print(
         f"{result.status}: {result.reason} "
         f"({result.ticks} ticks, {result.mission_time_s:.2f} s mission time, "
-        f"{result.wall_time_s:.2f} s wall, {speed:.0f}x real time)"
+        f"{result.wall_time_s:.2f} s wall, "
+        f"{real_time_words(result.mission_time_s, result.wall_time_s)})"
     )
     for line in headlines:
         print(line)

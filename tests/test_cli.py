@@ -44,6 +44,18 @@ def test_run_writes_summary_and_tick_log(yaw_run):
     assert "SUCCESS" in printed and "run folder:" in printed and "x real time" in printed
 
 
+def test_the_speed_keeps_its_decimal_below_10x():
+    """The site fleet ran at 1.3x and was printed as '1x real time' (and 1.6x as '2x'):
+    below 10x the decimal is what tells runs apart."""
+    from bt_engine.run_cmd import real_time_words
+
+    assert real_time_words(85.2, 65.4) == "1.3x real time"
+    assert real_time_words(85.2, 53.0) == "1.6x real time"
+    assert real_time_words(395.2, 54.5) == "7.3x real time"
+    assert real_time_words(300.0, 10.0) == "30x real time"
+    assert real_time_words(1.0, 0.0) == "- x real time"
+
+
 def test_same_seed_same_tick_log_different_seed_differs(tmp_path):
     logs = []
     for name, seed in (("a", "5"), ("b", "5"), ("c", "6")):

@@ -28,6 +28,7 @@ from bt_engine.run_cmd import (
     finish,
     make_runner,
     prepare,
+    real_time_words,
     release,
     run_dir_problem,
 )
@@ -365,11 +366,10 @@ def _summary(
 def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
     """The fleet's console lines; an interrupted run (or places left without an answer)
     ends with the command that continues it."""
-    speed = summary["mission_time_s"] / summary["wall_time_s"] if summary["wall_time_s"] else 0.0
     print(
         f"fleet {summary['fleet']}: {summary['status']} ({plural(len(summary['drones']), 'drone')}, "
         f"{summary['mission_time_s']:.1f} s mission time, {summary['wall_time_s']:.1f} s wall, "
-        f"{speed:.0f}x real time)"
+        f"{real_time_words(summary['mission_time_s'], summary['wall_time_s'])})"
     )
     for name, d in summary["drones"].items():
         print(
