@@ -274,3 +274,160 @@ def test_a_link_the_guard_cannot_open_is_a_located_error(tmp_path) -> None:
     assert proc.returncode == 2, proc.stderr
     assert "Traceback" not in proc.stderr
     assert "rigs/sitl.yaml:1:1:" in proc.stderr and "udp://127.0.0.1:9" in proc.stderr
+
+
+def _watch_guard(rest_silence_s: float = 10.0):
+    """A guard in watch mode (no link) on a socket pair, driven by hand: its loop's steps are
+    called with explicit times, so the test decides when the machine was paused."""
+    import socket as _socket
+
+    from drivers.guard.server import Guard, GuardSettings
+
+    ours, theirs = _socket.socketpair(_socket.AF_UNIX, _socket.SOCK_SEQPACKET)
+    settings = GuardSettings(run_dir="/nonexistent", mission_pid=0, rest_silence_s=rest_silence_s)
+    return Guard(theirs, settings), ours
+
+
+def _turn(guard, now: float) -> str | None:
+    """One turn of the guard's loop at ``now`` (what Guard.run does after its select)."""
+    guard.note_resume(now)
+    guard._read(now)
+    return guard.why_take_over(now)
+
+
+def _run(guard, start: float, end: float) -> tuple[float, str | None]:
+    """The guard's loop every 5 ms from ``start`` to ``end``: (when, why) of a take-over, or
+    (end, None)."""
+    t = start
+    while t < end:
+        t = min(end, t + 0.005)
+        why = _turn(guard, t)
+        if why is not None:
+            return t, why
+    return end, None
+
+
+def test_a_pause_of_the_whole_machine_is_not_the_mission_process_s_silence() -> None:
+    """The site fleet was killed once by its own guard ('silent for 10.00 s (limit 10 s)')
+    on a host that had stalled: the guard, woken before the mission process, counted the
+    pause as the mission's silence. A gap in the guard's own loop is not held against the
+    mission process; it gets RESUME_GRACE_S to speak, then silence counts as before."""
+    from drivers.guard.server import RESUME_GRACE_S
+    from drivers.guard.wire import encode
+
+    guard, mission = _watch_guard(rest_silence_s=10.0)
+    t0 = guard.started
+    guard.last_loop = t0
+    assert _turn(guard, t0 + 0.005) is None
+    # the machine pauses for 30 s; the guard wakes first and finds nothing on the socket
+    assert _turn(guard, t0 + 30.0) is None
+    assert guard.stalls == 1 and guard.longest_stall_s == pytest.approx(29.995)
+    # within the grace the mission process speaks: it is in charge again
+    assert _turn(guard, t0 + 30.0 + RESUME_GRACE_S / 2) is None
+    mission.send(encode(["hb", 7, None, None, 12.0]))
+    now = t0 + 30.0 + RESUME_GRACE_S * 0.9
+    assert _turn(guard, now) is None and guard.last_rx == now
+    # silence while the guard runs (its loop every 5 ms) still ends the run at the limit
+    t, why = _run(guard, now, now + 11.0)
+    assert why is not None and "silent for 10.0" in why and t == pytest.approx(now + 10.0, abs=0.01)
+    assert guard.stalls == 1
+
+
+def test_after_a_pause_a_silent_mission_process_is_taken_over_once_the_grace_is_out() -> None:
+    from drivers.guard.server import RESUME_GRACE_S
+
+    guard, _mission = _watch_guard(rest_silence_s=10.0)
+    t0 = guard.started
+    guard.last_loop = t0
+    assert _turn(guard, t0 + 30.0) is None  # paused: the grace starts
+    t, why = _run(guard, t0 + 30.0, t0 + 40.0)
+    assert why is not None and why.startswith("the mission process was silent")
+    assert t == pytest.approx(t0 + 30.0 + RESUME_GRACE_S, abs=0.01)
+
+
+def test_after_a_pause_a_tick_s_running_time_gets_the_grace_too() -> None:
+    """A heartbeat said one tick had run 5 s of its 22 s; a 30 s pause is not 35 s of tick."""
+    from drivers.guard.server import RESUME_GRACE_S
+    from drivers.guard.wire import encode
+
+    guard, mission = _watch_guard(rest_silence_s=1000.0)
+    t0 = guard.started
+    guard.last_loop = t0
+    mission.send(encode(["hb", 3, 5.0, 22.0, 1.0]))
+    assert _turn(guard, t0 + 0.005) is None
+    assert _turn(guard, t0 + 30.0) is None
+    t, why = _run(guard, t0 + 30.0, t0 + 40.0)
+    assert why is not None and why.startswith("tick 3 has been running")
+    assert t == pytest.approx(t0 + 30.0 + RESUME_GRACE_S, abs=0.01)
+    # without a pause the same tick is taken over when its time is out, as before
+    guard, mission = _watch_guard(rest_silence_s=1000.0)
+    t0 = guard.started
+    mission.send(encode(["hb", 3, 5.0, 22.0, 1.0]))
+    guard.last_loop = t0
+    t, why = _run(guard, t0, t0 + 20.0)
+    assert why is not None and why.startswith("tick 3") and t == pytest.approx(t0 + 17.0, abs=0.01)
+    assert guard.stalls == 0
+
+
+def _guard_pid(parent: int) -> int | None:
+    """The pid of ``parent``'s guard process (``python -m drivers.guard``), once started."""
+    for name in os.listdir("/proc"):
+        if not name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{name}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{name}/cmdline", "rb") as f:
+                cmd = f.read()
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == parent and b"drivers.guard" in cmd:
+            return int(name)
+    return None
+
+
+@pytest.mark.slow  # a real btrun and its guard, both stopped for 2 s of wall time
+def test_a_run_whose_machine_pauses_longer_than_the_silence_limit_goes_on(tmp_path) -> None:
+    """Both processes stopped (as a paused virtual machine is) for twice the silence limit,
+    the guard continued first: the run goes on and ends as it would have, the pause in the
+    guard's figures. Before, the guard took over at once and killed the run."""
+    run_dir = str(tmp_path / "run")
+    proc = subprocess.Popen(
+        [*BTRUN, "missions/pallet_scan.xml", "--set", "guard.rest_silence_s=1"]
+        + ["--out", run_dir, "--quiet", "--no-report"],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    log = os.path.join(run_dir, "ticks.jsonl")
+
+    def flying() -> bool:
+        try:
+            with open(log, "rb") as f:
+                f.seek(max(0, os.path.getsize(log) - 4000))
+                last = f.read().splitlines()[-2]
+            return json.loads(last).get("t", 0) > 8.0
+        except (OSError, IndexError, ValueError):
+            return False
+
+    try:
+        wait_until(flying, 120, "8 s of mission in the tick log", 0.02)
+        guard = wait_until(lambda: _guard_pid(proc.pid), 10, "the guard process")
+        os.kill(guard, signal.SIGSTOP)
+        os.kill(proc.pid, signal.SIGSTOP)
+        time.sleep(2.0)  # the pause itself: wall time is what is being tested
+        os.kill(guard, signal.SIGCONT)
+        time.sleep(0.05)
+        os.kill(proc.pid, signal.SIGCONT)
+        _out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGCONT)
+            proc.kill()
+            proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    summary = _summary(run_dir)
+    assert summary["status"] == "SUCCESS"
+    assert summary["guard"]["took_over"] is False
+    assert summary["guard"]["stalls"] >= 1 and summary["guard"]["longest_stall_s"] > 1.9

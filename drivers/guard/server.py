@@ -63,6 +63,12 @@ TELEMETRY_FIELDS = (
 
 #: A drone below this height with its motors off is on the ground.
 GROUND_Z_M = 0.08
+#: The guard's loop comes round every 5 ms; a longer gap than this means the guard itself
+#: did not run (the host paused the machine or starved the guard, or it was stopped).
+STALL_S = 0.25
+#: After such a gap the mission process, most likely paused with the guard, has at least this
+#: long to be heard from before its silence (or a tick's running time) is held against it.
+RESUME_GRACE_S = 0.5
 
 
 @dataclass
@@ -112,6 +118,9 @@ class Guard:
         self.forward_times: deque[float] = deque(maxlen=50_000)
         self.counts = {"setpoints": 0, "extposes": 0, "heartbeats": 0, "telemetry": 0}
         self._next_health = 0.0
+        self.last_loop = self.started
+        #: gaps in the guard's own loop (see :data:`STALL_S`): how many, and the longest (s)
+        self.stalls, self.longest_stall_s = 0, 0.0
 
     # ------------------------------------------------------------------ messages in
     def _send(self, message: list[Any]) -> None:
@@ -208,6 +217,27 @@ class Guard:
             return False
         return bool(t.motors_running) or t.z_m > GROUND_Z_M
 
+    def note_resume(self, now: float) -> None:
+        """Called at every turn of the loop, before reading. After a gap in the guard's own
+        loop longer than :data:`STALL_S` (the machine paused, the guard starved or stopped),
+        what the guard did not see is not held against the mission process: it gets
+        :data:`RESUME_GRACE_S` of the guard's running time to be heard from (its messages
+        from before the gap are read first). Without this, a pause of the whole machine
+        longer than the silence limit ended a healthy run: the guard, woken first, found
+        the limit passed before the mission process could speak. A mission process that
+        stays silent while the guard runs is taken over as before."""
+        gap, self.last_loop = now - self.last_loop, now
+        if gap <= STALL_S:
+            return
+        self.stalls += 1
+        self.longest_stall_s = max(self.longest_stall_s, gap)
+        limit = self.s.silence_s if self.airborne() else self.s.rest_silence_s
+        self.last_rx = max(self.last_rx, now - limit + min(limit, RESUME_GRACE_S))
+        hb = self.last_hb
+        if hb is not None and len(hb) >= 4 and hb[2] is not None and hb[3] is not None:
+            left = max(float(hb[3]) - float(hb[2]), 0.0)  # the tick's time left at that beat
+            self.last_hb_rx = max(self.last_hb_rx, now - left + min(left, RESUME_GRACE_S))
+
     def why_take_over(self, now: float) -> str | None:
         """The reason to take over now, or None while the mission process is in charge."""
         if self.mission_gone and not self.said_bye and self.airborne():
@@ -233,12 +263,14 @@ class Guard:
 
     def run(self) -> int:
         """Serve until the mission process says goodbye (or the guard took over); exit code."""
+        self.last_loop = time.monotonic()  # the hello (and a link's connection) came before
         while True:
             try:
                 select.select([self.sock], [], [], 0.005)
             except (OSError, ValueError):
                 self.mission_gone = True
             now = time.monotonic()
+            self.note_resume(now)
             self._read(now)
             self._pump_link(now)
             why = self.why_take_over(now)
@@ -371,6 +403,8 @@ class Guard:
             "mode": "link" if self.link is not None else "watch",
             "took_over": self.took_over is not None,
             **self.counts,
+            "stalls": self.stalls,
+            "longest_stall_s": round(self.longest_stall_s, 3),
         }
         if lat:
             out["setpoint_latency_ms"] = {
