@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import children, cmdline
 
 from perception import gallery_index as gi
 from perception import gallery_math as gm
@@ -342,23 +343,6 @@ for _ in _enrolled_sides(s.world_path(), sides, s.detector(), s.embedder(), s.ca
 """
 
 
-def _children(pid: int) -> set[int]:
-    """The live child processes of ``pid`` (Linux /proc)."""
-    import os
-
-    out = set()
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as f:
-                    fields = f.read().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid and fields[0] != "Z":
-                out.add(int(entry))
-    return out
-
-
 @pytest.mark.slow
 @pytest.mark.skipif(not hasattr(__import__("os"), "pidfd_open"), reason="Linux pidfds")
 def test_a_killed_build_leaves_no_worker_behind():
@@ -383,7 +367,7 @@ def test_a_killed_build_leaves_no_worker_behind():
     try:
         assert select.select([proc.stdout], [], [], 120)[0], "the build did not start"
         assert proc.stdout.readline() == b"enrolling\n"  # type: ignore[union-attr]
-        workers = {p for p in _children(proc.pid) if "spawn_main" in _cmdline(p)}
+        workers = {p for p in children(proc.pid) if "spawn_main" in cmdline(p)}
         assert len(workers) == 2, "the build did not run on two workers"
         fds = [os.pidfd_open(p) for p in workers]  # readable once the process has ended
         proc.send_signal(signal.SIGKILL)
@@ -402,11 +386,3 @@ def test_a_killed_build_leaves_no_worker_behind():
             except ProcessLookupError:
                 pass
             os.close(fd)
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as f:
-            return f.read().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return ""

@@ -18,7 +18,7 @@ import sys
 import time
 
 import pytest
-from helpers import REPO, bench_module, leaf_plugin_env, wait_until
+from helpers import REPO, bench_module, children, cmdline, leaf_plugin_env, wait_until
 
 BTRUN = [sys.executable, "-c", "from bt_engine.cli import main; raise SystemExit(main())"]
 
@@ -371,19 +371,7 @@ def test_after_a_pause_a_tick_s_running_time_gets_the_grace_too() -> None:
 
 def _guard_pid(parent: int) -> int | None:
     """The pid of ``parent``'s guard process (``python -m drivers.guard``), once started."""
-    for name in os.listdir("/proc"):
-        if not name.isdigit():
-            continue
-        try:
-            with open(f"/proc/{name}/stat") as f:
-                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
-            with open(f"/proc/{name}/cmdline", "rb") as f:
-                cmd = f.read()
-        except (OSError, ValueError, IndexError):
-            continue
-        if ppid == parent and b"drivers.guard" in cmd:
-            return int(name)
-    return None
+    return next((p for p in children(parent) if "drivers.guard" in cmdline(p)), None)
 
 
 @pytest.mark.slow  # a real btrun and its guard, both stopped for 2 s of wall time
@@ -400,25 +388,14 @@ def test_a_run_whose_machine_pauses_longer_than_the_silence_limit_goes_on(tmp_pa
         stderr=subprocess.PIPE,
         text=True,
     )
-    log = os.path.join(run_dir, "ticks.jsonl")
-
-    def flying() -> bool:
-        try:
-            with open(log, "rb") as f:
-                f.seek(max(0, os.path.getsize(log) - 4000))
-                last = f.read().splitlines()[-2]
-            return json.loads(last).get("t", 0) > 8.0
-        except (OSError, IndexError, ValueError):
-            return False
-
     try:
-        wait_until(flying, 120, "8 s of mission in the tick log", 0.02)
+        wait_until(lambda: _airborne_in(run_dir), 120, "the take-off", 0.02)
         guard = wait_until(lambda: _guard_pid(proc.pid), 10, "the guard process")
         os.kill(guard, signal.SIGSTOP)
         os.kill(proc.pid, signal.SIGSTOP)
         time.sleep(2.0)  # the pause itself: wall time is what is being tested
         os.kill(guard, signal.SIGCONT)
-        time.sleep(0.05)
+        time.sleep(0.05)  # the guard first, as after a machine's pause: it wakes first
         os.kill(proc.pid, signal.SIGCONT)
         _out, err = proc.communicate(timeout=120)
     finally:

@@ -231,12 +231,24 @@ class Guard:
             return
         self.stalls += 1
         self.longest_stall_s = max(self.longest_stall_s, gap)
-        limit = self.s.silence_s if self.airborne() else self.s.rest_silence_s
+        limit = self._silence_limit()
         self.last_rx = max(self.last_rx, now - limit + min(limit, RESUME_GRACE_S))
+        clock = self._tick_clock()
+        if clock is not None:
+            left = max(clock[2] - clock[1], 0.0)  # the tick's time left at that beat
+            self.last_hb_rx = max(self.last_hb_rx, now - left + min(left, RESUME_GRACE_S))
+
+    def _silence_limit(self) -> float:
+        """How long the mission process may be silent: airborne, or on the ground."""
+        return self.s.silence_s if self.airborne() else self.s.rest_silence_s
+
+    def _tick_clock(self) -> tuple[Any, float, float] | None:
+        """(the tick, seconds it had run, its limit) at the last heartbeat; None between
+        ticks."""
         hb = self.last_hb
         if hb is not None and len(hb) >= 4 and hb[2] is not None and hb[3] is not None:
-            left = max(float(hb[3]) - float(hb[2]), 0.0)  # the tick's time left at that beat
-            self.last_hb_rx = max(self.last_hb_rx, now - left + min(left, RESUME_GRACE_S))
+            return hb[1], float(hb[2]), float(hb[3])
+        return None
 
     def why_take_over(self, now: float) -> str | None:
         """The reason to take over now, or None while the mission process is in charge."""
@@ -245,18 +257,19 @@ class Guard:
         if self.mission_gone or self.said_bye:
             return "the mission process ended with the drone flying" if self.airborne() else None
         silent = now - self.last_rx
-        limit = self.s.silence_s if self.airborne() else self.s.rest_silence_s
+        limit = self._silence_limit()
         if silent > limit:
             return (
                 f"the mission process was silent for {silent:.2f} s (limit {limit:g} s): "
                 "blocked or stopped"
             )
-        hb = self.last_hb
-        if hb is not None and len(hb) >= 4 and hb[2] is not None and hb[3] is not None:
-            running = float(hb[2]) + (now - self.last_hb_rx)
-            if running > float(hb[3]):
+        clock = self._tick_clock()
+        if clock is not None:
+            tick, ran, limit = clock
+            running = ran + (now - self.last_hb_rx)
+            if running > limit:
                 return (
-                    f"tick {hb[1]} has been running for {running:.1f} s (limit {hb[3]:g} s) "
+                    f"tick {tick} has been running for {running:.1f} s (limit {limit:g} s) "
                     "and the tick watchdog could not end it"
                 )
         return None
