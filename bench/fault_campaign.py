@@ -179,8 +179,10 @@ def drone_state(uri: str) -> dict[str, Any]:
     from cflib.crazyflie.syncLogger import SyncLogger
 
     cflib.crtp.init_drivers()
-    cache = tempfile.mkdtemp(prefix="btrun-check-toc-")
-    with SyncCrazyflie(uri, cf=Crazyflie(rw_cache=cache)) as scf:
+    with (
+        tempfile.TemporaryDirectory(prefix="btrun-check-toc-") as cache,
+        SyncCrazyflie(uri, cf=Crazyflie(rw_cache=cache)) as scf,
+    ):
         conf = LogConfig("check", 20)
         conf.add_variable("stateEstimate.z", "float")
         conf.add_variable("supervisor.info", "uint16_t")
