@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import json
 import os
 import statistics
 import sys
@@ -65,6 +66,14 @@ def fly(mission: str, out: str, record: bool) -> tuple[float, float, int]:
     return wall, spent[0], ticks
 
 
+def _log(run_dir: str) -> tuple[dict, bytes]:
+    """A run's tick log as (header without its wall-clock ``started``, the ticks' bytes)."""
+    with open(os.path.join(run_dir, "ticks.jsonl"), "rb") as f:
+        header = json.loads(f.readline())["header"]
+        header.pop("started", None)
+        return header, f.read()
+
+
 def run(mission: str, rounds: int) -> dict:
     """Fly ``mission`` warm-up + ``rounds`` x (with, without); print and return the figures."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -79,10 +88,7 @@ def run(mission: str, rounds: int) -> dict:
                 walls[record].append(wall)
                 if record:
                     spent.append(rec_s)
-        same = (
-            open(os.path.join(tmp, "with-0", "ticks.jsonl"), "rb").read()
-            == open(os.path.join(tmp, "without-0", "ticks.jsonl"), "rb").read()
-        )
+        same = _log(os.path.join(tmp, "with-0")) == _log(os.path.join(tmp, "without-0"))
         size = os.path.getsize(os.path.join(tmp, "with-0", "run.mcap"))
     with_s, without_s = statistics.median(walls[True]), statistics.median(walls[False])
     rec_s = statistics.median(spent)

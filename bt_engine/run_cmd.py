@@ -34,7 +34,7 @@ from bt_engine.summary import (
     result_lines,
     write_summary,
 )
-from bt_engine.ticklog import TickLog
+from bt_engine.ticklog import TickLog, started_now
 
 
 def _run_dir(args) -> str:
@@ -231,6 +231,7 @@ def prepare(
         "rig_arg": args.rig,
         "sets": list(args.set),
         "rate_hz": args.rate,
+        "started": started_now(),
         "before_flight": before_flight,
         "nodes": [
             [n.path, r.label, r.depth, list(r.last_flags)]

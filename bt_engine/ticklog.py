@@ -11,6 +11,8 @@ import hashlib
 import json
 import math
 import os
+import time
+from datetime import datetime
 from typing import IO, Any
 
 from bt_engine.files import NotRegularFile, open_regular
@@ -24,6 +26,25 @@ VALUE_LIMIT_BYTES = 16_384
 MESSAGES_PER_TICK = 100
 #: Past this many bytes the log keeps only tick, time and status per line (and says so).
 LOG_LIMIT_BYTES = 256 * 1024 * 1024
+
+
+def started_now() -> str:
+    """The wall-clock time now, as a run records its start (``started`` in the tick log's
+    header and in ``fleet.json``): ISO 8601 in UTC to the second, ``2026-11-27T14:20:01Z``."""
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+
+
+def started_at(record: Any) -> float | None:
+    """A run record's (a tick log header's, ``fleet.json``'s) ``started`` in seconds since
+    1970; None when it has none, or it is not an ISO 8601 time with its zone."""
+    text = record.get("started") if isinstance(record, dict) else None
+    if not isinstance(text, str) or len(text) > 40:
+        return None
+    try:
+        when = datetime.fromisoformat(text)
+    except ValueError:
+        return None
+    return when.timestamp() if when.tzinfo is not None else None
 
 
 def to_jsonable(value: Any, depth: int = 0) -> Any:
@@ -180,6 +201,7 @@ _HEADER_KEYS: dict[str, tuple[Any, str]] = {
         "a list of KEY=VALUE strings",
     ),
     "rate_hz": (lambda v: v is None or type(v) in (int, float), "a number or null"),
+    "started": (lambda v: isinstance(v, str), "an ISO 8601 time"),
     "nodes": (
         lambda v: isinstance(v, list) and all(_node_row(n) for n in v),
         "a list of [path, label, depth, flags]",

@@ -44,6 +44,25 @@ def test_run_writes_summary_and_tick_log(yaw_run):
     assert "SUCCESS" in printed and "run folder:" in printed and "x real time" in printed
 
 
+def test_the_tick_log_header_says_when_the_run_started(yaw_run):
+    """A run folder named with --out (or copied) has no date in its name and its files'
+    times are those of the last write or of the copy: the header keeps the start."""
+    import time
+
+    from bt_engine.ticklog import read_log, started_at
+
+    _rc, out, _printed = yaw_run
+    header, _ = read_log(str(out / "ticks.jsonl"), header_only=True)
+    started = started_at(header)
+    assert started is not None and header["started"].endswith("Z")
+    s = json.loads((out / "summary.json").read_text())
+    assert started <= time.time() and time.time() - started < 3600
+    assert started <= os.path.getmtime(out / "summary.json") - s["wall_time_s"] + 1.5
+    assert started_at({"started": "2026-11-27T14:20:01Z"}) == 1795789201.0
+    for bad in ("2026-11-27T14:20:01", "yesterday", 5, "9" * 50):
+        assert started_at({"started": bad}) is None
+
+
 def test_the_speed_keeps_its_decimal_below_10x():
     """The site fleet ran at 1.3x and was printed as '1x real time' (and 1.6x as '2x'):
     below 10x the decimal is what tells runs apart."""

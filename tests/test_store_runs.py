@@ -126,3 +126,29 @@ def test_a_solo_run_records_into_the_default_sqlite_store(tmp_path, monkeypatch)
         assert run["status"] == "SUCCESS" and run["mission"] == MISSION and run["seed"] == 0
         rows = s.rows("inv-1")
         assert [r["place"] for r in rows] == ["A-01-1"] and rows[0]["drone"] == "aisle"
+
+
+def test_a_run_folder_without_a_date_keeps_its_start(tmp_path, capsys) -> None:
+    """A folder named with --out, or copied, has no stamp in its name, and its files' times
+    are the copy's: the store's import and the console's run list take the tick log
+    header's ``started`` (a fleet: fleet.json's), not the files' times."""
+    from nodes.console.paths import RunsRoot
+    from nodes.console.runs import run_info
+
+    root = tmp_path / "runs"
+    run = _run_folder(root / "night-shift", [("A-01-1", "3A", "identified")])
+    with open(os.path.join(run, "ticks.jsonl"), "w") as f:
+        header = {"mission": MISSION, "seed": 4, "started": "2026-11-01T08:00:00Z"}
+        f.write(json.dumps({"header": header}) + "\n")
+    fleet = _run_folder(root / "copied-fleet", [("A-01-2", "5B", "identified")])
+    with open(os.path.join(fleet, "fleet.json"), "w") as f:
+        json.dump({"fleet": FLEET, "seed": 1, "started": "2026-11-02T08:00:00+00:00"}, f)
+    when = {"night-shift": 1793520000.0, "copied-fleet": 1793606400.0}
+    for name, started in when.items():
+        assert run_info(RunsRoot(str(root)), name)["started"] == started
+    store = f"sqlite:///{tmp_path}/site.sqlite"
+    assert main(["inventory", "import", run, fleet, "--store", store]) == 0
+    capsys.readouterr()
+    assert main(["inventory", "runs", "--store", store, "--json"]) == 0
+    runs = json.loads(capsys.readouterr().out)
+    assert {r["run"]: r["started"] for r in runs} == when

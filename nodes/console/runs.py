@@ -15,6 +15,7 @@ import re
 import time
 from typing import Any
 
+from bt_engine.ticklog import started_at
 from nodes.console.files import read_header, read_json, read_review
 from nodes.console.paths import NAME, PathRefused, RunsRoot
 from nodes.inventory_log import EMPTY, UNKNOWN, InventoryError, grade, read_inventory
@@ -127,17 +128,21 @@ def needs_review(row: dict) -> bool:
     )
 
 
-def _start_time(name: str, run_dir: str, header_mtime: float) -> float:
-    """The run's start, seconds since 1970: the folder name's stamp (``-YYYYMMDD-HHMMSS``),
-    else ``fleet.json``'s time, else the tick log's."""
+def _start_time(name: str, run_dir: str, fleet: Any, header: dict, ticks: str) -> float:
+    """The run's start, seconds since 1970: ``started`` in ``fleet.json`` (a fleet) or the
+    tick log's header, else the folder name's stamp (``-YYYYMMDD-HHMMSS``, local time), else
+    ``fleet.json``'s or the tick log's file time (the time of a copy, not of the run)."""
+    started = started_at(fleet) or started_at(header)
+    if started is not None:
+        return started
     m = STAMP.search(name)
     if m:
         try:
             return time.mktime(time.strptime(m.group(1) + m.group(2), "%Y%m%d%H%M%S"))
         except (ValueError, OverflowError):
             pass
-    fleet = os.path.join(run_dir, "fleet.json")
-    return _mtime(fleet) if os.path.exists(fleet) else header_mtime
+    fleet_json = os.path.join(run_dir, "fleet.json")
+    return _mtime(fleet_json) if os.path.exists(fleet_json) else _mtime(ticks)
 
 
 def layout_of(rows: list[dict], planned: list[str], summary: Any, world: Any) -> dict:
@@ -277,7 +282,7 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
         "kind": "fleet" if fleet is not None or drones.get("") is None else "run",
         "mission": os.path.basename(mission) if isinstance(mission, str) else "",
         "status": run_status(run_dir, summary),
-        "started": _start_time(name, run_dir, _mtime(first)),
+        "started": _start_time(name, run_dir, fleet, header, first),
         "modified": max(_mtime(run_dir), _mtime(os.path.join(run_dir, "inventory.json"))),
         "places": places_n,
         "answered": answered,

@@ -33,6 +33,7 @@ from bt_engine.run_cmd import (
     run_dir_problem,
 )
 from bt_engine.spec import Loc, MissionError, Problem, plural
+from bt_engine.ticklog import started_now
 from drivers.safety.airspace import Airspace, SeparationGuard
 from drivers.safety.policies import SafetyConfig
 from nodes.fleet.check import (
@@ -148,6 +149,7 @@ def run(args: Any) -> int:
             {
                 "fleet": os.path.abspath(spec.path),
                 "seed": seed,
+                "started": started_now(),
                 "set": [item for item in common if item.partition("=")[0] != "places"],
                 "places": merged.planned if shares is not None else None,
             },

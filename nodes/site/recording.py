@@ -18,6 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 from bt_engine.files import read_text
+from bt_engine.ticklog import started_at
 from store import default_url, disabled
 from store.recorder import RunRecorder, start_recorder
 
@@ -53,12 +54,16 @@ def _text(v: Any) -> str | None:
     return v if isinstance(v, str) and v else None
 
 
-def _started(run_dir: str) -> float | None:
-    """When an imported run started: the ``-YYYYMMDD-HHMMSS`` of its default folder name,
-    else the oldest of its record files' times."""
+def _started(run_dir: str, header: dict, fleet: dict) -> float | None:
+    """When an imported run started: its tick log header's ``started`` (a fleet:
+    ``fleet.json``'s), else the ``-YYYYMMDD-HHMMSS`` of its default folder name, else the
+    oldest of its record files' times."""
     import re
     import time
 
+    started = started_at(fleet or header)
+    if started is not None:
+        return started
     m = re.search(r"(\d{8}-\d{6})$", run_id(run_dir))
     if m:
         try:
@@ -93,7 +98,7 @@ def run_info(run_dir: str, imported: bool = False) -> dict[str, Any]:
         seed = header.get("seed")
     info["seed"] = seed if type(seed) is int else None
     if imported:
-        info["started"] = _started(run_dir)
+        info["started"] = _started(run_dir, header, fleet)
     return info
 
 
