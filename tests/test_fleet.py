@@ -131,7 +131,7 @@ def _ticks(out, drone: str) -> list[dict]:
 
 
 @pytest.mark.slow
-def test_a_fleet_is_deterministic_and_merges_its_inventory(tmp_path, monkeypatch):
+def test_a_fleet_is_deterministic_and_merges_its_inventory(tmp_path, monkeypatch, capsys):
     from drivers.safety.airspace import Airspace
 
     room, add = {}, Airspace.add
@@ -142,7 +142,10 @@ def test_a_fleet_is_deterministic_and_merges_its_inventory(tmp_path, monkeypatch
 
     monkeypatch.setattr(Airspace, "add", add_and_see)
     args = ["--set", "places=A-02-1;A-07-1", "--seed", "3"]
-    a, b = _fly(tmp_path, "a", args), _fly(tmp_path, "b", args)
+    a = _fly(tmp_path, "a", args)
+    printed = capsys.readouterr().out  # each drone's line counts its places (one of one)
+    assert printed.count(" s, 1 of 1 place answered)") == 2
+    b = _fly(tmp_path, "b", args)
     # the airspace has each drone's geofence (rigs/aisle.yaml's box, less its margin)
     assert room["cf1"]((1.0, 0.0, 1.0)) and not room["cf1"]((1.0, 0.0, 2.4))
     assert a["_code"] == 0 and a["status"] == "SUCCESS"
@@ -197,7 +200,7 @@ def test_a_drone_that_loses_its_link_lands_and_the_other_finishes(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.sitl
-def test_a_sitl_fleet_runs_one_emulator_per_drone(tmp_path):
+def test_a_sitl_fleet_runs_one_emulator_per_drone(tmp_path, capsys):
     """Two drones through the real cflib and their own CRTP emulators on loopback (real time)."""
     mission = tmp_path / "hop.xml"
     mission.write_text(
@@ -213,6 +216,8 @@ def test_a_sitl_fleet_runs_one_emulator_per_drone(tmp_path):
     )
     out = tmp_path / "run"
     assert main(["fleet", str(path), "--out", str(out), "-q", "--no-report"]) == 0
+    printed = capsys.readouterr().out  # a mission without an inventory: no place counts
+    assert "places answered" not in printed and "  cf1: SUCCESS:" in printed
     s = json.loads((out / "summary.json").read_text())
     for name in ("cf1", "cf2"):
         d = s["drones"][name]

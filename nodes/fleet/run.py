@@ -374,9 +374,10 @@ def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
         f"{real_time_words(summary['mission_time_s'], summary['wall_time_s'])})"
     )
     for name, d in summary["drones"].items():
+        places = f", {d['answered']} of {plural(d['places'], 'place')} answered"
         print(
-            f"  {name}: {d['status']}: {d['reason']} ({d['mission_time_s']:.1f} s, "
-            f"{d['answered']} of {d['places']} places answered)"
+            f"  {name}: {d['status']}: {d['reason']} ({d['mission_time_s']:.1f} s"
+            f"{places if summary.get('inventory') else ''})"
         )
     inv = summary.get("inventory")
     if inv:
