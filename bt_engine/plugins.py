@@ -84,7 +84,11 @@ class RunTarget(Protocol):
 
     def run_summary(self, platform: Platform, hooks: list[Any]) -> dict[str, Any]:
         """The target's part of ``summary.json`` once the run is over (e.g. ``sim``: ground
-        truth, ``safety``: what the supervisor did), by key."""
+        truth, ``safety``: what the supervisor did), by key.
+
+        Optional: ``progress() -> int``, a count of bounded work a lock-step tick may do
+        (btrun's simulator: pallet faces textured); the tick watchdog's budget then counts
+        from its last change."""
 
 
 @dataclass(frozen=True)

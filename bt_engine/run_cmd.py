@@ -333,6 +333,7 @@ def make_runner(run: PreparedRun) -> Runner:
             else None
         ),
         on_give_up=give_up,
+        progress=getattr(run.target, "progress", None),
     )
 
 

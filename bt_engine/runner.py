@@ -85,6 +85,8 @@ class Runner:
             flushed, :attr:`result` set) and the main thread may never come back; ``btrun``
             writes summary.json and ends the process. None: the run is concluded the same
             way and the main thread, if it returns, finds it ended.
+        progress: lock-step: a count of bounded work a long tick does (textures made); the
+            watchdog's budget counts from its last change (:class:`TickWatchdog`).
     """
 
     def __init__(
@@ -98,6 +100,7 @@ class Runner:
         tick_budget_s: float | None = None,
         at_rest: Callable[[], bool] | None = None,
         on_give_up: Callable[[Runner], Any] | None = None,
+        progress: Callable[[], int] | None = None,
     ) -> None:
         if not rate_hz > 0:
             raise ValueError(f"tick rate must be > 0 Hz, got {rate_hz}")
@@ -115,6 +118,7 @@ class Runner:
         self.tick_budget_s = tick_budget_s
         self.at_rest = at_rest
         self.on_give_up = on_give_up
+        self.progress = progress
         self.watchdog: TickWatchdog | None = None
         #: set once the watchdog gave up on the main thread; done once that ending is over
         self._given_up = threading.Event()
@@ -267,6 +271,7 @@ class Runner:
                 rest_budget_s=REST_TICK_BUDGET_S,
                 on_give_up=self._give_up,
                 give_up_s=min(GIVE_UP_S, self.tick_budget_s),
+                progress=self.progress,
             )
         _LIVE.add(self)
         if PENDING_INTERRUPTS:  # a signal arrived while btrun was still loading

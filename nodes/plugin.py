@@ -78,8 +78,10 @@ class RigTarget:
             land_max_s=g["land_max_s"],
             tick_limit_s=2 * budget + g["tick_grace_s"],
             rest_tick_limit_s=2 * max(budget, REST_TICK_BUDGET_S) + g["tick_grace_s"],
-            # lock-step: the watchdog's budget stretches on a busy host; so does this limit
+            # lock-step: the watchdog's budget stretches on a busy host and counts from a
+            # tick's last progress; so does this limit
             tick_limit_scale=busy_factor if getattr(self, "lock_step", False) else None,
+            progress=self.progress if getattr(self, "lock_step", False) else None,
         )
 
     def finished(self, summary_written: bool = True) -> None:
@@ -138,6 +140,15 @@ class RigTarget:
     def at_rest(self, platform: Platform) -> bool:
         """On the ground (not flying): a long tick there harms nothing."""
         return not platform.vehicle.is_flying
+
+    def progress(self) -> int:
+        """Bounded work a lock-step tick may do: the pallet faces textured so far, each
+        once (the first frame facing a larger site's racks makes a hundred, 0.1 s each). The
+        tick watchdog and the guard count a lock-step tick's time from its last progress;
+        real time keeps its budgets."""
+        from perception.synth.texture_lookahead import textures_made
+
+        return textures_made()
 
     def run_summary(self, platform: Platform, hooks: list[Any]) -> dict[str, Any]:
         """``sim`` (simulator ground truth) or ``vehicle`` (a real drone), and ``safety``."""

@@ -42,3 +42,68 @@ def test_a_slow_tick_on_a_busy_host(monkeypatch, real_time, fires):
     assert bool(stops) == fires
     if fires:
         assert "within 0.1 s" in stops[0]
+
+
+def _tick_with_progress(real_time: bool, progress_for_s: float, tick_s: float) -> list[str]:
+    """One tick of ``tick_s`` whose bounded work (a counter) grows every 20 ms for its
+    first ``progress_for_s``; budget 0.1 s. The reasons the watchdog stopped it for."""
+    count = [0]
+    stops: list[str] = []
+    w = wd.TickWatchdog(
+        0.1, real_time=real_time, request_stop=stops.append, progress=lambda: count[0]
+    )
+    try:
+        w.start_tick(1)
+        start = time.monotonic()
+        try:
+            while (now := time.monotonic()) < start + tick_s:
+                if now < start + progress_for_s:
+                    count[0] += 1  # a face textured
+                time.sleep(0.02)
+        except wd.TickOverrun:
+            pass
+        w.end_tick()
+    finally:
+        w.close()
+    return stops
+
+
+def test_a_lock_step_tick_that_makes_progress_is_not_a_hang():
+    """The first frame facing a larger site's racks textured over 10 s of pallet faces in
+    one lock-step tick, and the watchdog stopped a healthy run: the budget now counts from
+    the tick's last progress (bounded work: each face once)."""
+    assert _tick_with_progress(False, progress_for_s=0.6, tick_s=0.65) == []  # 6 budgets
+    # progress that stops: a hang from then on, stopped a budget later
+    stops = _tick_with_progress(False, progress_for_s=0.3, tick_s=1.0)
+    assert len(stops) == 1 and "within 0.1 s" in stops[0]
+    # real time keeps its budget: a drone is waiting
+    assert len(_tick_with_progress(True, progress_for_s=0.6, tick_s=0.65)) == 1
+
+
+def test_the_guard_counts_a_lock_step_tick_from_its_last_progress(monkeypatch):
+    """The guard process gets the tick's running time in each heartbeat: with progress,
+    from its last change (the guard's own limit is two budgets and a grace)."""
+    from drivers.guard.client import GuardClient
+
+    count = [0]
+    client = GuardClient("/nonexistent", progress=lambda: count[0])
+    sent: list[list] = []
+    monkeypatch.setattr(client, "send", lambda msg: sent.append(msg) or True)
+    clock = [100.0]
+    monkeypatch.setattr("drivers.guard.client.time.monotonic", lambda: clock[0])
+    client.before_tick(1.0)  # the tick starts at 100 s
+    clock[0], count[0] = 130.0, 5  # 30 s in, textures made: running counts from here
+    client._send_beat()
+    clock[0] = 131.5
+    client._send_beat()
+    clock[0] = 140.0  # no progress since 130 s
+    client._send_beat()
+    running = [m[2] for m in sent if m[0] == "hb"]
+    assert running[-3:] == [0.0, 1.5, 10.0]
+    plain = GuardClient("/nonexistent")
+    monkeypatch.setattr(plain, "send", lambda msg: sent.append(msg) or True)
+    clock[0] = 200.0
+    plain.before_tick(1.0)
+    clock[0] = 230.0
+    plain._send_beat()
+    assert sent[-1][2] == 30.0  # without progress: from the tick's start, as before

@@ -40,6 +40,8 @@ class _Textures:
         self._queued: set[int] = set()
         self._thread: threading.Thread | None = None
         self._closed = False
+        #: textures made so far (on any thread): a lock-step tick's progress
+        self.made = 0
 
     def close(self, timeout_s: float = 10.0) -> None:
         """Drop what is queued and let the worker finish the texture it is making (at the
@@ -89,11 +91,14 @@ class _Textures:
                 self._lock.notify()
 
     def _make(self, quad: Quad, event: threading.Event) -> None:
+        made = False
         try:
             quad.levels  # noqa: B018
+            made = True
         finally:
             with self._lock:
                 self._making.pop(id(quad), None)
+                self.made += made
             event.set()
 
     def _run(self) -> None:
@@ -116,6 +121,12 @@ class _Textures:
 
 _TEXTURES = _Textures()
 atexit.register(_TEXTURES.close)  # before Python finalises: no worker left inside OpenCV
+
+
+def textures_made() -> int:
+    """How many quad textures this process has made (the pallets' relief faces, about
+    0.1 s each): work that only the world's size bounds, each face once."""
+    return _TEXTURES.made
 
 
 def _look_ahead(objects: list[Quad], near: np.ndarray, rel: np.ndarray, reach_m: float) -> None:
