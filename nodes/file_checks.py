@@ -14,6 +14,7 @@ from drivers.sim.world_schema import WORLD_SCHEMA
 from nodes.common import config_problems
 from nodes.fleet.check import check_fleet
 from nodes.fleet.spec import FLEET_SCHEMA
+from nodes.gallery.enrol_scan import enrolment_note
 
 
 def _overrides(sets: list[str]) -> tuple[dict[str, str], list[Problem]]:
@@ -37,18 +38,22 @@ def check_rig(path: str, sets: list[str], seed: int | None) -> list[Problem]:
     return []
 
 
-def check_world(path: str, sets: list[str], seed: int | None) -> list[Problem]:
+def check_world(
+    path: str, sets: list[str], seed: int | None
+) -> list[Problem] | tuple[list[Problem], str]:
     """A world file with ``--set`` overrides of its keys (``racks[0].depth_m=1.1``; a
-    ``world.`` in front is allowed, as on a rig) and the stock of ``seed`` (default 0)."""
+    ``world.`` in front is allowed, as on a rig) and the stock of ``seed`` (default 0);
+    with no problem, what a user should know of its demo gallery's enrolment, if anything."""
     overrides, problems = _overrides(sets)
     if problems:
         return problems
     keys = {k.removeprefix("world."): v for k, v in overrides.items()}
     try:
-        load_world(path, keys, seed or 0)
+        world = load_world(path, keys, seed or 0)
     except ConfigError as exc:
         return config_problems(exc)
-    return []
+    note = enrolment_note(world.data)
+    return ([], f"note: {note}") if note else []
 
 
 def check_fleet_file(

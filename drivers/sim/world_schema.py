@@ -19,6 +19,26 @@ SLOT = M(
         "facing_deg": F("float", 180.0, "direction the shown face looks to (deg, 180 = -x)"),
     }
 )
+#: Where the demo gallery enrols every pallet side unless the world says otherwise
+#: (``enrolment_slot``): the centre of the enrolled face, facing -x. The shipped worlds keep
+#: their racks and hall clear of it (the site's is just behind rack D, by the hall's edge).
+ENROLMENT_SLOT = {"x_m": 9.30, "y_m": 0.0, "facing_deg": 180.0}
+ENROLMENT = M(
+    {
+        "x_m": F("float", ENROLMENT_SLOT["x_m"], "x of the centre of the enrolled face (m)"),
+        "y_m": F("float", ENROLMENT_SLOT["y_m"], "y of the centre of the enrolled face (m)"),
+        "facing_deg": F(
+            "float",
+            ENROLMENT_SLOT["facing_deg"],
+            "direction the enrolled face looks to (deg, 180 = -x)",
+        ),
+    },
+    doc="where the demo gallery enrols every pallet side: alone on a stand (its blocks at "
+    "0.255 m), scanned from 0.40 m in front of it. Choose a spot that looks like where the "
+    "world's pallets are seen: the same lamps above, the same kind of background behind "
+    "(a wall, a rack's back). A rack standing on the spot is left out of the enrolment "
+    "scans, and the spot then looks unlike the aisles (docs/inventory.md)",
+)
 # Pallet looks (perception.synth.looks names them; tests/test_rig_world.py checks the lists
 # agree): the wood's tone, a paint, and ageing since enrolment.
 WOODS = ("auto", "fresh", "pale", "yellowed", "orange", "brown", "grey", "silver", "dark", "wet")
@@ -118,6 +138,7 @@ WORLD_SCHEMA = M(
             "str", "3A", "identity (pallet id + side) at the scan slot, or none (empty slot)"
         ),
         "scan_slot": SLOT,
+        "enrolment_slot": ENROLMENT,
         "placement_error": M(
             {
                 "lateral_m": F("float", 0.0, "along the face, drawn in +-this (m)", min=0.0),

@@ -33,9 +33,12 @@ import numpy as np
 
 from bt_engine.interrupts import interrupt_pending
 from nodes.gallery.enrol_scan import (
+    CANONICAL_SLOT,
     _canonical_scan,
     clear_racks,
     enrolment_frames,
+    enrolment_note,
+    enrolment_slot,
     look_overrides,
     scan_blocks,
     unaged,
@@ -86,9 +89,12 @@ def demo_gallery_path(
     data = load_world(world_path, look_overrides(overrides)).data
     h.update(appearance_key(data))
     racks = data.get("racks") or []
-    kept = clear_racks(racks, data["pallet_geometry"])
+    slot = enrolment_slot(data)
+    kept = clear_racks(racks, data["pallet_geometry"], slot)
     if len(kept) < len(racks):  # the racks left out of the enrolment scan (none: as before)
         h.update(repr(sorted(r["name"] for r in racks if r not in kept)).encode())
+    if slot != CANONICAL_SLOT:  # a world's own enrolment slot (none: the keys as before)
+        h.update(repr(sorted(slot.items())).encode())
     h.update(repr(sorted((camera or {}).items())).encode())
     h.update(f"{detector.model_version}|{embedder.model_version}|{ENROL_VERSION}".encode())
     return os.path.join(cache_dir(), "galleries", f"demo-{h.hexdigest()[:16]}.sqlite")
@@ -315,10 +321,14 @@ def ensure_demo_gallery(
         except (ImportError, OSError):  # no flock here: each builds its own (still atomic)
             pass
         if not os.path.exists(path):
-            identities = load_world(world_path, look_overrides(overrides)).enrolled_identities()
+            world = load_world(world_path, look_overrides(overrides))
+            identities = world.enrolled_identities()
             log(
                 f"building the demo gallery ({len(identities)} pallet sides of "
                 f"{os.path.basename(world_path)}) in {path}"
             )
+            note = enrolment_note(world.data)
+            if note:
+                log(f"  note: {note}")
             build_gallery(path, world_path, identities, detector, embedder, camera, log, overrides)
     return path

@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from drivers.sim.world_schema import ENROLMENT_SLOT
+
 ENROL_SPEED_MPS = 0.1  # camera speed along the scan line while enrolling
 ENROL_RATE_HZ = 15.0
 #: frames fed to the block sequencer while each block crosses its window (left of the image
@@ -32,48 +34,93 @@ COMMIT_PX = 24.0
 MAX_GAP_FRAMES = 6
 
 
-#: Where every side is enrolled, whatever the world's slots say: the face centre at
-#: (9.30, 0.0), facing -x, the block row at 0.255 m (on a stand), seen from a line 0.40 m in
-#: front of it from 0.75 m right of the centre to 0.65 m left (blocks enter left of the image
-#: centre and leave right of it, as the block sequencer needs).
-CANONICAL_SLOT = {"x_m": 9.30, "y_m": 0.0, "facing_deg": 180.0}
+#: Where every side is enrolled unless the world sets ``enrolment_slot``: the face centre
+#: at (9.30, 0.0), facing -x, the block row at 0.255 m (on a stand), seen from a line
+#: 0.40 m in front of it from 0.75 m right of the centre to 0.65 m left (blocks enter left
+#: of the image centre and leave right of it, as the block sequencer needs).
+CANONICAL_SLOT = ENROLMENT_SLOT
 CANONICAL_ROW_Z_M = 0.255
-CANONICAL_LINE = {"x_m": 8.90, "y_from_m": -0.75, "y_to_m": 0.65, "yaw_deg": 0.0}
+#: the scan line's distance in front of the enrolled face, and its ends: from this far to
+#: the camera's right of the face centre to this far to its left (m)
+SCAN_DISTANCE_M = 0.40
+SCAN_FROM_RIGHT_M = 0.75
+SCAN_TO_LEFT_M = 0.65
+
+
+def enrolment_slot(data: dict) -> dict:
+    """The world's enrolment slot (``enrolment_slot``, else :data:`CANONICAL_SLOT`)."""
+    slot = data.get("enrolment_slot")
+    return dict(slot) if isinstance(slot, dict) else dict(CANONICAL_SLOT)
+
+
+def enrolment_line(slot: dict) -> tuple[float, float, float, float, float]:
+    """The enrolment scan line in front of ``slot``: (x, y) where it starts, (x, y) where it
+    ends, the camera's yaw (deg): facing the face, moving to the camera's left."""
+    n = _unit(slot["facing_deg"])  # the way the face looks
+    yaw_deg = (slot["facing_deg"] + 180.0) % 360.0
+    ahead = _unit(yaw_deg)
+    left = (-ahead[1], ahead[0])
+    cx = slot["x_m"] + n[0] * SCAN_DISTANCE_M
+    cy = slot["y_m"] + n[1] * SCAN_DISTANCE_M
+    return (
+        cx - left[0] * SCAN_FROM_RIGHT_M,
+        cy - left[1] * SCAN_FROM_RIGHT_M,
+        cx + left[0] * SCAN_TO_LEFT_M,
+        cy + left[1] * SCAN_TO_LEFT_M,
+        yaw_deg,
+    )
+
+
+def _unit(deg: float) -> tuple[float, float]:
+    """The unit vector ``deg`` from +x, exact along the axes (sin(180 deg) is 1.2e-16 in
+    floats: the canonical line's ends stay the numbers they were written as)."""
+    r = math.radians(deg)
+    return round(math.cos(r), 15) + 0.0, round(math.sin(r), 15) + 0.0
 
 
 def canonical_world_data(data: dict, identity: str) -> dict:
-    """The world of an enrolment scan: ``identity`` alone in the canonical slot (its
-    pallet, the world's geometry, lighting, floor and racks, but for a rack standing where
-    the enrolled pallet does: :func:`clear_racks`; no other pallet, no obstacle, no
-    placement error), as it looked when enrolled (no ageing)."""
+    """The world of an enrolment scan: ``identity`` alone in the enrolment slot
+    (:func:`enrolment_slot`: its pallet, the world's geometry, lighting, floor and racks,
+    but for a rack standing where the enrolled pallet does: :func:`clear_racks`; no other
+    pallet, no obstacle, no placement error), as it looked when enrolled (no ageing)."""
     g = data["pallet_geometry"]
     out = dict(data)  # what changes is replaced below, the rest is shared (a pool of
     # thousands of pallets: a deep copy per side took a second)
     pallet_id = identity[:-1]
     out["pallets"] = [p for p in data["pallets"] if str(p["id"]) == pallet_id]
     base_z = CANONICAL_ROW_Z_M - g["board_m"] - g["block_height_m"] / 2.0
-    out["scan_slot"] = dict(CANONICAL_SLOT, z_m=base_z)
+    slot = enrolment_slot(data)
+    out["scan_slot"] = dict(slot, z_m=base_z)
     out["scan_pallet"] = identity
     out["row_slots"] = []
     out["obstacles"] = []
-    out["racks"] = clear_racks(data.get("racks") or [], g)
+    out["racks"] = clear_racks(data.get("racks") or [], g, slot)
     for key in ("placement_error", "placement_offset"):
         out[key] = {k: 0.0 for k in out.get(key, {})}
-    out["scan_line"] = dict(CANONICAL_LINE, z_m=CANONICAL_ROW_Z_M)
+    x0, y0, x1, y1, yaw_deg = enrolment_line(slot)
+    out["scan_line"] = {
+        "x_m": x0,
+        "y_from_m": y0,
+        "y_to_m": y1,
+        "z_m": CANONICAL_ROW_Z_M,
+        "yaw_deg": yaw_deg,
+        "x_to_m": x1,
+    }
     return unaged(out)
 
 
-def clear_racks(racks: list[dict], geometry: dict) -> list[dict]:
-    """The racks that leave the canonical slot free. The slot is a fixed place on the
-    floor; a world may put a rack there (a third aisle at x 9-10 m did), and its steel
+def clear_racks(racks: list[dict], geometry: dict, slot: dict | None = None) -> list[dict]:
+    """The racks that leave the enrolment slot (``slot``, default :data:`CANONICAL_SLOT`)
+    free. A world may put a rack there (a third aisle at x 9-10 m did), and its steel
     then stood inside and around the enrolled pallet, hid its blocks from the scan line,
     and enrolled those views (142 of 234 places right). A rack whose footprint overlaps
     the enrolled pallet's is left out of the enrolment scan; the others stay, so the
     worlds whose slot is clear enrol as before."""
-    f = math.radians(CANONICAL_SLOT["facing_deg"])
+    slot = slot or CANONICAL_SLOT
+    f = math.radians(slot["facing_deg"])
     n, right = (math.cos(f), math.sin(f)), (-math.sin(f), math.cos(f))
     half, width = geometry["length_m"] / 2.0, geometry["width_m"]
-    cx, cy = CANONICAL_SLOT["x_m"], CANONICAL_SLOT["y_m"]
+    cx, cy = slot["x_m"], slot["y_m"]
     pallet = [
         (cx + right[0] * a - n[0] * d, cy + right[1] * a - n[1] * d)
         for a, d in ((-half, 0.0), (half, 0.0), (half, width), (-half, width))
@@ -81,6 +128,24 @@ def clear_racks(racks: list[dict], geometry: dict) -> list[dict]:
     from drivers.sim.racks import rack_footprint
 
     return [rack for rack in racks if not _overlap(pallet, rack_footprint(rack))]
+
+
+def enrolment_note(data: dict) -> str:
+    """What a user should know of where the world's demo gallery is enrolled: the racks
+    standing on the enrolment slot, which its scans leave out ('' if none)."""
+    racks = data.get("racks") or []
+    slot = enrolment_slot(data)
+    kept = clear_racks(racks, data["pallet_geometry"], slot)
+    left_out = [str(r["name"]) for r in racks if r not in kept]
+    if not left_out:
+        return ""
+    where = f"({slot['x_m']:.2f}, {slot['y_m']:.2f})"
+    return (
+        f"the demo gallery's enrolment slot {where} stands on rack {', '.join(left_out)}, "
+        "left out of its enrolment scans: the pallets are enrolled in a spot unlike the "
+        "aisles, and many will be answered unknown; set enrolment_slot to a free spot that "
+        "looks like the aisles (docs/inventory.md)"
+    )
 
 
 def _overlap(p: list[tuple[float, float]], q: list[tuple[float, float]]) -> bool:
@@ -119,7 +184,7 @@ def look_overrides(overrides: dict[str, str] | None) -> dict[str, str]:
     with them so that the world they make passes its checks (a longer ``not_enrolled``
     list with more ``not_enrolled_places``); only ``not_enrolled`` changes the gallery
     (:func:`appearance_key`)."""
-    keep = ("pallet_look.", "pallet_pool.", "pallet_geometry.", "stock.")
+    keep = ("pallet_look.", "pallet_pool.", "pallet_geometry.", "stock.", "enrolment_slot.")
     return {k: v for k, v in (overrides or {}).items() if k.startswith(keep)}
 
 
@@ -152,21 +217,29 @@ def _canonical_scan(
     world = World(data, world_path)
     line = data["scan_line"]
     renderer = PalletRenderer(world, camera, np.random.default_rng(seed))
-    key = tuple(line[k] for k in ("x_m", "y_from_m", "y_to_m", "z_m", "yaw_deg"))
+    key = tuple(line[k] for k in ("x_m", "y_from_m", "x_to_m", "y_to_m", "z_m", "yaw_deg"))
     return renderer, _scan_poses(*key)
 
 
 @lru_cache(maxsize=8)
-def _scan_poses(x_m: float, y0: float, y1: float, z_m: float, yaw_deg: float) -> tuple[Any, ...]:
-    """The poses of a scan line (frozen: every side of a build shares them)."""
+def _scan_poses(
+    x0: float, y0: float, x1: float, y1: float, z_m: float, yaw_deg: float
+) -> tuple[Any, ...]:
+    """The poses of a scan line from (x0, y0) to (x1, y1), one per frame (frozen: every
+    side of a build shares them)."""
     from drivers.vehicle.types import Pose
 
     yaw = math.radians(yaw_deg)
     quaternion = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
-    step = math.copysign(ENROL_SPEED_MPS / ENROL_RATE_HZ, y1 - y0)
-    n = int(abs(y1 - y0) / abs(step)) + 1
+    length = math.hypot(x1 - x0, y1 - y0)
+    ux, uy = (x1 - x0) / length, (y1 - y0) / length
+    step = ENROL_SPEED_MPS / ENROL_RATE_HZ
+    n = int(length / step) + 1
     return tuple(
-        Pose(x_m, y0 + k * step, z_m, yaw, quaternion, k / ENROL_RATE_HZ, "enrol") for k in range(n)
+        Pose(
+            x0 + k * step * ux, y0 + k * step * uy, z_m, yaw, quaternion, k / ENROL_RATE_HZ, "enrol"
+        )
+        for k in range(n)
     )
 
 
