@@ -8,6 +8,7 @@ import sys
 from bt_engine.mission import Mission, declared_inputs
 from bt_engine.plugins import load_target
 from bt_engine.run_cmd import parse_sets, wall_echo
+from bt_engine.run_inputs import mission_time_limit
 from bt_engine.spec import Loc, MissionError, Problem
 
 
@@ -15,11 +16,14 @@ def check_before_flight(
     spec, rig: str | None, sets: list[str], seed: int = 0, loads: bool = True
 ) -> list[Problem]:
     """What ``btrun run`` checks before take-off, without building a platform or flying:
-    the ``--set`` items against the mission's inputs, the rig and world files (through the
-    plug-in) and every node's pre-flight check (:meth:`bt_engine.mission.Mission.preflight`)
-    with the rig's resources (its world); ``loads=False`` leaves out the checks that load
-    models or build a gallery. Returns every located problem."""
+    the ``--set`` items against the mission's inputs (and its time limit, ``max_time``),
+    the rig and world files (through the plug-in) and every node's pre-flight check
+    (:meth:`bt_engine.mission.Mission.preflight`) with the rig's resources (its world);
+    ``loads=False`` leaves out the checks that load models or build a gallery. Returns
+    every located problem."""
     bb, overrides, problems = parse_sets(sets, declared_inputs(spec), spec.file)
+    _limit, limit_problem = mission_time_limit(spec, bb)  # --set max_time=0 is refused too
+    problems += [limit_problem] if limit_problem is not None else []
     try:
         target = load_target(rig, overrides)
     except MissionError as exc:

@@ -431,6 +431,12 @@ def test_a_mission_sets_its_own_time_limit(tmp_path, capsys) -> None:
         "--set max_time: the mission's time limit must be a time in s > 0, got 'soon'"
     ), err
     assert not (tmp_path / "x").exists()
+    # btrun validate and btrun fleet --check say the same (validate said "ok")
+    assert main(["validate", "--set", "max_time=0", str(mission)]) == 2
+    assert _err_lines(capsys)[0].endswith("must be a time in s > 0, got 0")
+    fleet = os.path.join(REPO, "fleets", "aisle_2.yaml")
+    assert main(["fleet", fleet, "--check", "--set", "max_time=-3"]) == 2
+    assert _err_lines(capsys)[0].endswith("must be a time in s > 0, got -3")
     for name, limit in (("inventory", 3600.0), ("inventory_per_place", 7200.0)):
         for suffix in (".xml", ".yaml"):  # both formats say the same
             spec = load_spec(os.path.join(REPO, "missions", name + suffix))
