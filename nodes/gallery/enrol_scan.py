@@ -98,6 +98,7 @@ def canonical_world_data(data: dict, identity: str) -> dict:
     for key in ("placement_error", "placement_offset"):
         out[key] = {k: 0.0 for k in out.get(key, {})}
     x0, y0, x1, y1, yaw_deg = enrolment_line(slot)
+    # the world schema's scan line (x_m, y_from_m .. y_to_m) and where it ends along x
     out["scan_line"] = {
         "x_m": x0,
         "y_from_m": y0,
@@ -143,7 +144,7 @@ def enrolment_note(data: dict) -> str:
     return (
         f"the demo gallery's enrolment slot {where} stands on rack {', '.join(left_out)}, "
         "left out of its enrolment scans: the pallets are enrolled in a spot unlike the "
-        "aisles, and many will be answered unknown; set enrolment_slot to a free spot that "
+        "aisles, and many may be answered unknown; set enrolment_slot to a free spot that "
         "looks like the aisles (docs/inventory.md)"
     )
 
