@@ -261,3 +261,23 @@ def test_the_next_inventory_flies_with_the_reviewed_gallery(runs, tmp_path):
     assert main([*args, "--out", str(out), "-q", "--no-report", "--store", "none"]) == 0
     row = json.load(open(out / "inventory.json"))["rows"][0]
     assert (row["place"], row["answer"], row["status"]) == (place, "SEEN-1", "identified")
+
+
+def test_an_accuracy_short_of_all_is_never_shown_as_100_percent(runs, tmp_path):
+    """A four-aisle fleet's 287 right of 288 was shown as "100 %" (a whole percentage), in
+    the run list and on the run's page: one decimal, and 100 % only when every place was."""
+    run_dir = os.path.join(runs, FLEET)
+    copy = tmp_path / "runs"
+    shutil.copytree(run_dir, copy / FLEET, ignore=shutil.ignore_patterns("review.*"))
+    summary = copy / FLEET / "summary.json"
+    s = json.loads(summary.read_text())
+    s["inventory"]["accuracy"] = round(287 / 288, 4)
+    summary.write_text(json.dumps(s))
+    with console(str(copy)) as server, browser_page() as page:
+        page.goto(server.url + "/")
+        row = page.locator(f'#runs tr[data-run="{FLEET}"]')
+        row.wait_for()
+        assert row.locator("td").all_inner_texts()[5] == "99.7 %"
+        page.goto(f"{server.url}/runs/{FLEET}")
+        wait_for(lambda: "accuracy in simulation 99.7 %" in page.inner_text("body"))
+        assert not page.errors

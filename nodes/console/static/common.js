@@ -66,6 +66,14 @@ function fmtTime(epochS) {
   return `${d.getFullYear()}-${p(d.getMonth() + 1)}-${p(d.getDate())} ${p(d.getHours())}:${p(d.getMinutes())}`;
 }
 
+function pct(share) {
+  // 0.9965 -> "99.7 %": one decimal, and "100 %" only when every place was right (a
+  // whole-number percentage showed 287 of 288 as 100 %)
+  if (typeof share !== "number") return "";
+  if (share >= 1) return "100 %";
+  return `${Math.min(99.9, Math.round(1000 * share) / 10).toFixed(1)} %`;
+}
+
 function fileUrl(run, rel) {
   return `/files/${encodeURIComponent(run)}/${rel.split("/").map(encodeURIComponent).join("/")}`;
 }

@@ -23,7 +23,7 @@ async function indexPage() {
       el("td", {}, r.mission),
       el("td", { class: `status status-${r.status}` }, r.status),
       el("td", { class: "num" }, `${r.answered}/${r.places}`),
-      el("td", { class: "num" }, r.accuracy === null || r.accuracy === undefined ? "" : `${(100 * r.accuracy).toFixed(0)} %`),
+      el("td", { class: "num" }, pct(r.accuracy)),
       el("td", {}, disc || (r.exceptions ? "" : "")),
       el("td", { class: "num" }, r.exceptions ? `${r.exceptions - Math.min(r.reviewed, r.exceptions)} of ${r.exceptions}` : "0"),
       el("td", {}, fmtTime(r.started)));
@@ -243,7 +243,7 @@ function summaryLine() {
   for (const r of i.rows) counts[r.status] = (counts[r.status] || 0) + 1;
   const parts = Object.entries(counts).map(([k, n]) => `${n} ${k.replace("_", " ")}`);
   return `${i.rows.length} of ${i.places} places answered` + (parts.length ? `: ${parts.join(", ")}` : "") +
-    (typeof i.accuracy === "number" ? ` - accuracy in simulation ${(100 * i.accuracy).toFixed(0)} %` : "");
+    (typeof i.accuracy === "number" ? ` - accuracy in simulation ${pct(i.accuracy)}` : "");
 }
 
 function renderRun() {
