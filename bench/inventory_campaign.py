@@ -47,6 +47,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, REPO)
 
 ANCHOR_PLACES_PER_HOUR = 1300  # an autonomous inventory drone: 8,000 places in about 6 hours
+SITE_PLACES = 144  # a site (issue 27): the pace target applies from this many places on
 
 
 def fly_seed(job: tuple[str, int, str, list[str]]) -> dict:
@@ -269,6 +270,11 @@ def main() -> int:
     )
     pooled = total / hours if hours else 0.0
     print(f"\n{len(rows)} runs in {wall:.0f} s ({args.workers} workers)")
+    # the pace target is a site's (144 places or more, issue 27): on a 16-place aisle the
+    # take-off and the way back weigh more, and only its accuracy is held to a target
+    site = min(r["places"] for r in rows) >= SITE_PLACES
+    median_pace = statistics.median(r["places_per_hour_per_drone"] for r in rows)
+    pace_target = f">= {ANCHOR_PLACES_PER_HOUR}" if site else "none (not a site of 144+ places)"
     checks = [
         ("places answered right", f"{right}/{total} = {100 * right / max(total, 1):.1f} %", ">= 97 %", right >= 0.97 * total),
         ("wrong identities accepted", sum(r["wrong"] for r in rows), "0", sum(r["wrong"] for r in rows) == 0),
@@ -277,8 +283,8 @@ def main() -> int:
         ("separation violations", sum(r["violations"] for r in rows), "0", all(r["violations"] == 0 for r in rows)),
         ("closest approach (m)", min((r["closest_m"] for r in rows if r["closest_m"] is not None), default=None), ">= 0.5", None),
         ("battery changes; every place once, none skipped", f"{sum(r['swaps'] for r in rows)}, {all(r['in_order'] for r in rows)}", "every one", all(r["in_order"] for r in rows)),
-        ("places per hour per drone (median)", round(statistics.median(r["places_per_hour_per_drone"] for r in rows), 1), f">= {ANCHOR_PLACES_PER_HOUR} (anchor)", statistics.median(r["places_per_hour_per_drone"] for r in rows) >= ANCHOR_PLACES_PER_HOUR),
-        ("places per hour per drone (all seeds)", round(pooled, 1), f">= {ANCHOR_PLACES_PER_HOUR}", pooled >= ANCHOR_PLACES_PER_HOUR),
+        ("places per hour per drone (median)", round(median_pace, 1), pace_target, median_pace >= ANCHOR_PLACES_PER_HOUR if site else None),
+        ("places per hour per drone (all seeds)", round(pooled, 1), pace_target, pooled >= ANCHOR_PLACES_PER_HOUR if site else None),
         ("places per hour per drone (lowest)", round(min(r["places_per_hour_per_drone"] for r in rows), 1), "", None),
         ("speed, x real time (median)", round(statistics.median(r["realtime_x"] for r in rows), 2),
          f">= {args.min_speed:g}" if args.min_speed is not None else f"none ({args.workers} runs at a time)",
