@@ -22,7 +22,9 @@ A lock-step simulation cannot drift while the tree is stuck (its clock does not 
 step 2 does not apply there; steps 1 and 3 do. There only a hang matters, and a tick that
 does bounded work the world's size sets is not one (the first frame facing a larger site's
 racks textures a hundred pallet faces, 0.1 s each): with ``progress`` the budget counts
-from the tick's last progress instead of its start.
+from the tick's last progress instead of its start. The count is bounded (each face is made
+once, by the tick or by the renderer's look-ahead thread), so a real hang is still caught,
+at most that bounded work later.
 
 An operator interrupt (Ctrl-C, SIGTERM) makes the budget short (:meth:`TickWatchdog.hurry`):
 a stuck tick is then ended about a second after it, whatever the budget, at rest or not.
