@@ -11,6 +11,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import time
 from datetime import datetime
 from typing import IO, Any
@@ -45,6 +46,24 @@ def started_at(record: Any) -> float | None:
     except ValueError:
         return None
     return when.timestamp() if when.tzinfo is not None else None
+
+
+def run_started(name: str, *records: Any) -> float | None:
+    """When a run started, seconds since 1970: the first of ``records`` (``fleet.json``, a
+    tick log header) that says (:func:`started_at`), else the ``-YYYYMMDD-HHMMSS`` stamp
+    of a default run folder's ``name`` (local time, as ``btrun`` names it); None if
+    neither tells (a folder named with ``--out``, from before runs recorded their start)."""
+    for record in records:
+        started = started_at(record)
+        if started is not None:
+            return started
+    m = re.search(r"(\d{8}-\d{6})$", name)
+    if m:
+        try:
+            return time.mktime(time.strptime(m.group(1), "%Y%m%d-%H%M%S"))
+        except (ValueError, OverflowError):
+            pass
+    return None
 
 
 def to_jsonable(value: Any, depth: int = 0) -> Any:

@@ -15,7 +15,7 @@ import re
 import time
 from typing import Any
 
-from bt_engine.ticklog import started_at
+from bt_engine.ticklog import run_started
 from nodes.console.files import read_header, read_json, read_review
 from nodes.console.paths import NAME, PathRefused, RunsRoot
 from nodes.inventory_log import EMPTY, UNKNOWN, InventoryError, grade, read_inventory
@@ -32,7 +32,6 @@ MAX_RUNS = 500
 #: statuses and discrepancy categories an operator reviews
 REVIEW_STATUSES = ("unknown", "not_identified", "unverified", "mismatch")
 PLACE_CODE = re.compile(r"^([A-Za-z]+)-(\d+)-(\d+)$")
-STAMP = re.compile(r"(\d{8})-(\d{6})$")
 
 
 def drone_dirs(run_dir: str) -> dict[str, str]:
@@ -129,18 +128,12 @@ def needs_review(row: dict) -> bool:
 
 
 def _start_time(name: str, run_dir: str, fleet: Any, header: dict, ticks: str) -> float:
-    """The run's start, seconds since 1970: ``started`` in ``fleet.json`` (a fleet) or the
-    tick log's header, else the folder name's stamp (``-YYYYMMDD-HHMMSS``, local time), else
-    ``fleet.json``'s or the tick log's file time (the time of a copy, not of the run)."""
-    started = started_at(fleet) or started_at(header)
+    """The run's start, seconds since 1970: :func:`bt_engine.ticklog.run_started` (its
+    recorded start, else its default folder name's stamp), else ``fleet.json``'s or the
+    tick log's file time (the time of a copy, not of the run)."""
+    started = run_started(name, fleet, header)
     if started is not None:
         return started
-    m = STAMP.search(name)
-    if m:
-        try:
-            return time.mktime(time.strptime(m.group(1) + m.group(2), "%Y%m%d%H%M%S"))
-        except (ValueError, OverflowError):
-            pass
     fleet_json = os.path.join(run_dir, "fleet.json")
     return _mtime(fleet_json) if os.path.exists(fleet_json) else _mtime(ticks)
 

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 from bt_engine.files import read_text
-from bt_engine.ticklog import started_at
+from bt_engine.ticklog import run_started
 from store import default_url, disabled
 from store.recorder import RunRecorder, start_recorder
 
@@ -55,21 +55,12 @@ def _text(v: Any) -> str | None:
 
 
 def _started(run_dir: str, header: dict, fleet: dict) -> float | None:
-    """When an imported run started: its tick log header's ``started`` (a fleet:
-    ``fleet.json``'s), else the ``-YYYYMMDD-HHMMSS`` of its default folder name, else the
-    oldest of its record files' times."""
-    import re
-    import time
-
-    started = started_at(fleet or header)
+    """When an imported run started: :func:`bt_engine.ticklog.run_started` (its recorded
+    start, else its default folder name's stamp), else the oldest of its record files'
+    times."""
+    started = run_started(run_id(run_dir), fleet, header)
     if started is not None:
         return started
-    m = re.search(r"(\d{8}-\d{6})$", run_id(run_dir))
-    if m:
-        try:
-            return time.mktime(time.strptime(m.group(1), "%Y%m%d-%H%M%S"))
-        except (ValueError, OverflowError):
-            pass
     times = []
     for name in ("fleet.json", "ticks.jsonl", "inventory.json"):
         try:
