@@ -86,9 +86,9 @@ class RunTarget(Protocol):
         """The target's part of ``summary.json`` once the run is over (e.g. ``sim``: ground
         truth, ``safety``: what the supervisor did), by key.
 
-        Optional: ``progress() -> int``, a count of bounded work a lock-step tick may do
-        (btrun's simulator: pallet faces textured); the tick watchdog's budget then counts
-        from its last change."""
+        Optional: ``progress() -> float | None``, when (``time.monotonic()``) a lock-step
+        tick last did bounded work (btrun's simulator: a pallet face textured); the tick
+        watchdog's budget then counts from then."""
 
 
 @dataclass(frozen=True)

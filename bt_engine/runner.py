@@ -85,8 +85,8 @@ class Runner:
             flushed, :attr:`result` set) and the main thread may never come back; ``btrun``
             writes summary.json and ends the process. None: the run is concluded the same
             way and the main thread, if it returns, finds it ended.
-        progress: lock-step: a count of bounded work a long tick does (textures made); the
-            watchdog's budget counts from its last change (:class:`TickWatchdog`).
+        progress: lock-step: when (``time.monotonic()``) a long tick last did bounded work
+            (a texture made); the watchdog's budget counts from then (:class:`TickWatchdog`).
     """
 
     def __init__(
@@ -100,7 +100,7 @@ class Runner:
         tick_budget_s: float | None = None,
         at_rest: Callable[[], bool] | None = None,
         on_give_up: Callable[[Runner], Any] | None = None,
-        progress: Callable[[], int] | None = None,
+        progress: Callable[[], float | None] | None = None,
     ) -> None:
         if not rate_hz > 0:
             raise ValueError(f"tick rate must be > 0 Hz, got {rate_hz}")

@@ -22,7 +22,7 @@ A lock-step simulation cannot drift while the tree is stuck (its clock does not 
 step 2 does not apply there; steps 1 and 3 do. There only a hang matters, and a tick that
 does bounded work the world's size sets is not one (the first frame facing a larger site's
 racks textures a hundred pallet faces, 0.1 s each): with ``progress`` the budget counts
-from the tick's last progress instead of its start. The count is bounded (each face is made
+from the tick's last progress instead of its start. The work is bounded (each face is made
 once, by the tick or by the renderer's look-ahead thread), so a real hang is still caught,
 at most that bounded work later.
 
@@ -107,8 +107,8 @@ class TickWatchdog:
             thread did not return within ``give_up_s`` after step 1 (step 3).
         give_up_s: seconds from step 1 to step 3 (default: ``budget_s``, so a tick is given
             up two budgets after it began).
-        progress: lock-step only: a count of bounded work done (textures made) that grows
-            while a long tick makes progress; the budget then counts from its last change.
+        progress: lock-step only: when (``time.monotonic()``) a long tick last did bounded
+            work (a texture made), None before any; the budget then counts from then.
     """
 
     def __init__(
@@ -122,7 +122,7 @@ class TickWatchdog:
         rest_budget_s: float = 600.0,
         on_give_up: Callable[[str], Any] | None = None,
         give_up_s: float | None = None,
-        progress: Callable[[], int] | None = None,
+        progress: Callable[[], float | None] | None = None,
     ) -> None:
         if not budget_s > 0:
             raise ValueError(f"tick budget must be > 0 s, got {budget_s}")
@@ -151,7 +151,6 @@ class TickWatchdog:
         self._raised_at = 0.0
         self._stuck_called = False
         self.progress = None if real_time else progress
-        self._progress: tuple[int, float] | None = None  # (count, when it last changed)
         self._thread = threading.Thread(target=self._loop, name="tick-watchdog", daemon=True)
         self._thread.start()
 
@@ -180,25 +179,17 @@ class TickWatchdog:
         if self._thread is not threading.current_thread():  # closed by its own give-up
             self._thread.join(timeout=1.0)
 
-    def _note_progress(self, now: float) -> None:
-        """Read ``progress`` and keep when it last changed."""
-        if self.progress is None:
-            return
-        try:
-            count = int(self.progress())
-        except Exception:  # noqa: BLE001 - read mid-update: no progress this time
-            return
-        if self._progress is None or count != self._progress[0]:
-            self._progress = (count, now)
-
     def _budget(self, started: float, now: float) -> tuple[float, float, str]:
         """(seconds allowed, measured from, why) for the tick that began at ``started``."""
         hurry = self._hurry
         if hurry is not None:
             since, budget, why = hurry
             return budget, max(since, started), why
-        if self._progress is not None:  # lock-step: from the tick's last progress
-            started = max(started, self._progress[1])
+        if self.progress is not None:  # lock-step: from the tick's last progress
+            try:
+                started = max(started, self.progress() or started)
+            except Exception:  # noqa: BLE001 - read mid-update: from the tick's start
+                pass
         budget = self.budget_s
         if now - started > budget and self.at_rest is not None:
             try:
@@ -214,7 +205,6 @@ class TickWatchdog:
             with self._lock:
                 started, tick, target = self._started, self._tick, self._target
             now = time.monotonic()
-            self._note_progress(now)
             if started is None:
                 continue
             if self._fired_at is None:

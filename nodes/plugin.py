@@ -141,14 +141,14 @@ class RigTarget:
         """On the ground (not flying): a long tick there harms nothing."""
         return not platform.vehicle.is_flying
 
-    def progress(self) -> int:
-        """Bounded work a lock-step tick may do: the pallet faces textured so far, each
-        once (the first frame facing a larger site's racks makes a hundred, 0.1 s each). The
-        tick watchdog and the guard count a lock-step tick's time from its last progress;
-        real time keeps its budgets."""
-        from perception.synth.texture_lookahead import textures_made
+    def progress(self) -> float | None:
+        """When (``time.monotonic()``) a lock-step tick last did bounded work: a pallet face
+        textured, each once (the first frame facing a larger site's racks makes a hundred,
+        0.1 s each). The tick watchdog and the guard count a lock-step tick's time from its
+        last progress; real time keeps its budgets."""
+        from perception.synth.texture_lookahead import last_texture_made
 
-        return textures_made()
+        return last_texture_made()
 
     def run_summary(self, platform: Platform, hooks: list[Any]) -> dict[str, Any]:
         """``sim`` (simulator ground truth) or ``vehicle`` (a real drone), and ``safety``."""

@@ -45,12 +45,12 @@ def test_a_slow_tick_on_a_busy_host(monkeypatch, real_time, fires):
 
 
 def _tick_with_progress(real_time: bool, progress_for_s: float, tick_s: float) -> list[str]:
-    """One tick of ``tick_s`` whose bounded work (a counter) grows every 20 ms for its
-    first ``progress_for_s``; budget 0.1 s. The reasons the watchdog stopped it for."""
-    count = [0]
+    """One tick of ``tick_s`` that does bounded work (a face textured) every 20 ms for
+    its first ``progress_for_s``; budget 0.1 s. The reasons the watchdog stopped it for."""
+    last: list[float | None] = [None]
     stops: list[str] = []
     w = wd.TickWatchdog(
-        0.1, real_time=real_time, request_stop=stops.append, progress=lambda: count[0]
+        0.1, real_time=real_time, request_stop=stops.append, progress=lambda: last[0]
     )
     try:
         w.start_tick(1)
@@ -58,7 +58,7 @@ def _tick_with_progress(real_time: bool, progress_for_s: float, tick_s: float) -
         try:
             while (now := time.monotonic()) < start + tick_s:
                 if now < start + progress_for_s:
-                    count[0] += 1  # a face textured
+                    last[0] = now  # a face textured
                 time.sleep(0.02)
         except wd.TickOverrun:
             pass
@@ -82,17 +82,17 @@ def test_a_lock_step_tick_that_makes_progress_is_not_a_hang():
 
 def test_the_guard_counts_a_lock_step_tick_from_its_last_progress(monkeypatch):
     """The guard process gets the tick's running time in each heartbeat: with progress,
-    from its last change (the guard's own limit is two budgets and a grace)."""
+    from its last progress (the guard's own limit is two budgets and a grace)."""
     from drivers.guard.client import GuardClient
 
-    count = [0]
-    client = GuardClient("/nonexistent", progress=lambda: count[0])
+    last: list[float | None] = [None]
+    client = GuardClient("/nonexistent", progress=lambda: last[0])
     sent: list[list] = []
     monkeypatch.setattr(client, "send", lambda msg: sent.append(msg) or True)
     clock = [100.0]
     monkeypatch.setattr("drivers.guard.client.time.monotonic", lambda: clock[0])
     client.before_tick(1.0)  # the tick starts at 100 s
-    clock[0], count[0] = 130.0, 5  # 30 s in, textures made: running counts from here
+    clock[0] = last[0] = 130.0  # 30 s in, a texture made: running counts from here
     client._send_beat()
     clock[0] = 131.5
     client._send_beat()

@@ -54,8 +54,9 @@ class GuardClient:
         at_rest: True while the drone is on the ground (read on the ticking thread).
         tick_limit_scale: a factor on ``tick_limit_s``, read at each heartbeat (lock-step on
             a busy host: :func:`bt_engine.watchdog.busy_factor`).
-        progress: lock-step: a count of bounded work a long tick does (textures made), read
-            at each heartbeat; the tick's running time counts from its last change.
+        progress: lock-step: when (``time.monotonic()``) a long tick last did bounded work
+            (a texture made), read at each heartbeat; the tick's running time counts from
+            then.
     """
 
     def __init__(
@@ -70,12 +71,11 @@ class GuardClient:
         rest_tick_limit_s: float = 1200.0,
         at_rest: Callable[[], bool] | None = None,
         tick_limit_scale: Callable[[], float] | None = None,
-        progress: Callable[[], int] | None = None,
+        progress: Callable[[], float | None] | None = None,
     ) -> None:
         self.run_dir = run_dir
         self.tick_limit_scale = tick_limit_scale
         self.progress = progress
-        self._progress: tuple[int, float] | None = None  # (count, when it last changed)
         self.settings = {
             "run_dir": os.path.abspath(run_dir),
             "mission_pid": os.getpid(),
@@ -211,13 +211,9 @@ class GuardClient:
         now = time.monotonic()
         self._last_beat = now
         started = self._tick_started
-        if self.progress is not None:
-            with contextlib.suppress(Exception):
-                count = int(self.progress())
-                if self._progress is None or count != self._progress[0]:
-                    self._progress = (count, now)
-            if started is not None and self._progress is not None:
-                started = max(started, self._progress[1])  # from the tick's last progress
+        if self.progress is not None and started is not None:
+            with contextlib.suppress(Exception):  # from the tick's last progress
+                started = max(started, self.progress() or started)
         running = None if started is None else now - started
         limit = self._tick_limit
         if self.tick_limit_scale is not None and limit == self.tick_limit_s:

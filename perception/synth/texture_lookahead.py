@@ -12,6 +12,7 @@ from __future__ import annotations
 import atexit
 import os
 import threading
+import time
 from collections import deque
 
 import numpy as np
@@ -40,8 +41,9 @@ class _Textures:
         self._queued: set[int] = set()
         self._thread: threading.Thread | None = None
         self._closed = False
-        #: textures made so far (on any thread): a lock-step tick's progress
-        self.made = 0
+        #: time.monotonic() when a texture was last made (on any thread), None before any:
+        #: a lock-step tick's progress
+        self.last_made: float | None = None
 
     def close(self, timeout_s: float = 10.0) -> None:
         """Drop what is queued and let the worker finish the texture it is making (at the
@@ -91,14 +93,12 @@ class _Textures:
                 self._lock.notify()
 
     def _make(self, quad: Quad, event: threading.Event) -> None:
-        made = False
         try:
             quad.levels  # noqa: B018
-            made = True
+            self.last_made = time.monotonic()
         finally:
             with self._lock:
                 self._making.pop(id(quad), None)
-                self.made += made
             event.set()
 
     def _run(self) -> None:
@@ -123,10 +123,11 @@ _TEXTURES = _Textures()
 atexit.register(_TEXTURES.close)  # before Python finalises: no worker left inside OpenCV
 
 
-def textures_made() -> int:
-    """How many quad textures this process has made (the pallets' relief faces, about
-    0.1 s each): work that only the world's size bounds, each face once."""
-    return _TEXTURES.made
+def last_texture_made() -> float | None:
+    """When (``time.monotonic()``) this process last made a quad texture (a pallet's relief
+    face, about 0.1 s each: work that only the world's size bounds, each face once); None
+    before the first."""
+    return _TEXTURES.last_made
 
 
 def _look_ahead(objects: list[Quad], near: np.ndarray, rel: np.ndarray, reach_m: float) -> None:
