@@ -97,6 +97,34 @@ def test_what_an_override_broke_elsewhere_is_located_in_the_file():
     ]
 
 
+def test_a_world_wrong_alone_flies_as_an_override_fixes_it(tmp_path):
+    """The world that flies is the file with its overrides: a pool too small for the file's
+    stock is refused, located in the file, unless a --set fixes it (it was refused even
+    then: the file's own check ran first). A problem the file keeps with the overrides is
+    still said at its line, once."""
+    text = open(AISLE).read().replace("count: 16,", "count: 12,")
+    text = text.replace('not_enrolled: ["115", "116"]', 'not_enrolled: ["111", "112"]')
+    small = tmp_path / "aisle.yaml"
+    small.write_text(text)
+    line = text[: text.index("\nstock:") + 1].count("\n") + 2
+    with pytest.raises(ConfigError) as exc:
+        load_world(str(small))
+    (alone,) = exc.value.problems
+    assert (alone.file, alone.line) == (str(small), line) and "pool has only 10" in alone.message
+    for fix in ({"pallet_pool.count": "16"}, {"stock.empty_places": "6"}):
+        assert len(load_world(str(small), fix, seed=1).places) == 16
+    with pytest.raises(ConfigError) as exc:  # an override that leaves it: said in the file
+        load_world(str(small), {"stock.placement_error.yaw_deg": "2", "stock.empty_places": "2"})
+    assert [(p.file, p.line, p.message) for p in exc.value.problems] == [
+        (alone.file, alone.line, alone.message)
+    ]
+    with pytest.raises(ConfigError) as exc:  # a side that is not there: said once, short
+        load_world(AISLE, {"scan_pallet": "ZZ"})
+    (said,) = exc.value.problems
+    assert said.file == "--set" and "'ZZ' is not a pallet side" in said.message
+    assert "101A, 101B, 102A, 102B, 103A, 103B, 104A, 104B, ..., 116B (32 sides)" in said.message
+
+
 def test_a_bad_rack_in_a_file_is_located(tmp_path):
     text = open(AISLE).read().replace("levels_m: [0.20, 1.00]", "levels_m: [1.00, 0.20]")
     bad = tmp_path / "aisle.yaml"

@@ -354,6 +354,16 @@ def identities(data: dict) -> list[str]:
     return [f"{p['id']}{s}" for p in with_generated_pallets(data)["pallets"] for s in ("A", "B")]
 
 
+def known_words(known: list[str], shown: int = 8) -> str:
+    """The pallet sides a message names: all of a few, else the first ones, the last and
+    how many (a site's pool has hundreds)."""
+    if not known:
+        return "none"
+    if len(known) <= shown + 2:
+        return ", ".join(known)
+    return f"{', '.join(known[:shown])}, ..., {known[-1]} ({len(known)} sides)"
+
+
 def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
     """Semantic checks of validated world data, located with ``marks`` (path -> loc)."""
     return [problem_at(marks, key, path, message) for key, message in _world_problems(data)]
@@ -374,7 +384,7 @@ def _world_problems(data: dict) -> list[tuple[str, str]]:
             (
                 "scan_pallet",
                 f"scan_pallet '{data['scan_pallet']}' is not a pallet "
-                f"side of this world (known: {', '.join(known) or 'none'}; "
+                f"side of this world (known: {known_words(known)}; "
                 "none leaves the slot empty)",
             )
         )
@@ -397,31 +407,24 @@ def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0
     the placement error."""
     marks: Marks = {}
     data = load_yaml_file(path, WORLD_SCHEMA, marks=marks, what="world files")
-    problems = check_world(data, marks, path)
-    if overrides:
+    if not overrides:
+        problems = check_world(data, marks, path)
+    else:
+        # the world that flies is the file with the overrides: its problems count, and a
+        # problem of the file alone that an override fixes does not. Each is said where it
+        # comes from: in the file when the file alone has it, as --set when an override
+        # wrote that key, else in the file with the overrides named (a stock the pool
+        # cannot fill once --set emptied fewer places, ...)
+        alone = set(_world_problems(data))
         data = apply_overrides(data, overrides, WORLD_SCHEMA, prefix="world.")
-        scan = data["scan_pallet"]
-        if scan not in identities(data) and str(scan).strip().lower() not in EMPTY:
-            problems.append(
-                SettingProblem(
-                    "--set",
-                    0,
-                    0,
-                    f"world.scan_pallet={data['scan_pallet']}: not a pallet side "
-                    f"of {path} (known: {', '.join(identities(data))}; none leaves "
-                    "the slot empty)",
-                )
-            )
-        # what the overrides broke (a stock the pool cannot fill, ...): said as --set when
-        # an override wrote that key, else located in the file with the overrides named
-        before = {p.message for p in problems}
+        given = ", ".join(f"--set world.{k}={v}" for k, v in overrides.items())
+        problems = []
         for key, message in _world_problems(data):
-            if message in before:
-                continue
-            if written_by(key, overrides):
+            if (key, message) in alone:
+                problems.append(problem_at(marks, key, path, message))
+            elif written_by(key, overrides):
                 problems.append(SettingProblem("--set", 0, 0, f"world.{key}: {message}"))
             else:
-                given = ", ".join(f"--set world.{k}={v}" for k, v in overrides.items())
                 problems.append(problem_at(marks, key, path, f"{message} (with {given})"))
     if problems:
         raise ConfigError(problems)
