@@ -229,6 +229,7 @@ def prepare(
         "rig": target.path if target is not None else None,
         "seed": args.seed,
         "rig_arg": args.rig,
+        "cwd": os.getcwd(),  # relative paths above and in sets are relative to it
         "sets": list(args.set),
         "rate_hz": args.rate,
         "started": started_now(),

@@ -116,7 +116,7 @@ def resume_settings(args) -> list[Problem]:
         if getattr(args, "seed", None) is None:
             args.seed = 0
         return []
-    from bt_engine.ticklog import read_log
+    from bt_engine.ticklog import header_path, read_log
 
     where = Loc("--resume", 0, 0)
     log = os.path.join(previous, "ticks.jsonl")
@@ -160,7 +160,7 @@ def resume_settings(args) -> list[Problem]:
         ]
     args.seed = seed
     if args.rig is None and header.get("rig_arg"):
-        args.rig = header["rig_arg"]
+        args.rig = header_path(header, header["rig_arg"])  # resumed from another folder
     if isinstance(header.get("sets"), list):  # kept; a key given again takes its new value
         args.set = [str(item) for item in header["sets"]] + list(args.set or [])
     return []

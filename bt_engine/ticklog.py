@@ -66,6 +66,18 @@ def run_started(name: str, *records: Any) -> float | None:
     return None
 
 
+def header_path(header: Any, value: Any) -> str | None:
+    """A path a tick log header names (``rig``, a ``--set gallery=FILE``) as the run meant
+    it: a relative one joined to the folder the run was started from (the header's ``cwd``;
+    a header from before it was recorded: as it stands). None if ``value`` is no path."""
+    if not isinstance(value, str) or not value or "\0" in value:
+        return None
+    cwd = header.get("cwd") if isinstance(header, dict) else None
+    if os.path.isabs(value) or not isinstance(cwd, str) or "\0" in cwd:
+        return value
+    return os.path.normpath(os.path.join(cwd, value))
+
+
 def to_jsonable(value: Any, depth: int = 0) -> Any:
     """Convert a blackboard value to something JSON can hold (tuples -> lists, others -> repr)."""
     if value is None or isinstance(value, (bool, int, str)):
@@ -214,6 +226,7 @@ _HEADER_KEYS: dict[str, tuple[Any, str]] = {
     "mission": (_path_or_none, "a path or null"),
     "rig": (_path_or_none, "a path or null"),
     "rig_arg": (_path_or_none, "a path or null"),
+    "cwd": (_path_or_none, "a path or null"),
     "seed": (lambda v: v is None or type(v) is int, "an integer or null"),
     "sets": (
         lambda v: isinstance(v, list) and all(isinstance(i, str) for i in v),

@@ -49,7 +49,7 @@ def test_the_tick_log_header_says_when_the_run_started(yaw_run):
     times are those of the last write or of the copy: the header keeps the start."""
     import time
 
-    from bt_engine.ticklog import read_log, started_at
+    from bt_engine.ticklog import header_path, read_log, started_at
 
     _rc, out, _printed = yaw_run
     header, _ = read_log(str(out / "ticks.jsonl"), header_only=True)
@@ -58,6 +58,12 @@ def test_the_tick_log_header_says_when_the_run_started(yaw_run):
     s = json.loads((out / "summary.json").read_text())
     assert started <= time.time() and time.time() - started < 3600
     assert started <= os.path.getmtime(out / "summary.json") - s["wall_time_s"] + 1.5
+    # where it was started: the header's relative paths (rig, --set gallery=) are from there
+    assert header["cwd"] == os.getcwd()
+    assert header_path({"cwd": "/runs/here"}, "rigs/aisle.yaml") == "/runs/here/rigs/aisle.yaml"
+    assert header_path({"cwd": "/runs/here"}, "/abs/rig.yaml") == "/abs/rig.yaml"
+    assert header_path({}, "rigs/aisle.yaml") == "rigs/aisle.yaml"  # from before it was kept
+    assert header_path({"cwd": "/x"}, None) is None
     assert started_at({"started": "2026-11-27T14:20:01Z"}) == 1795789201.0
     for bad in ("2026-11-27T14:20:01", "yesterday", 5, "9" * 50):
         assert started_at({"started": bad}) is None

@@ -281,3 +281,30 @@ def test_an_accuracy_short_of_all_is_never_shown_as_100_percent(runs, tmp_path):
         page.goto(f"{server.url}/runs/{FLEET}")
         wait_for(lambda: "accuracy in simulation 99.7 %" in page.inner_text("body"))
         assert not page.errors
+
+
+def test_a_narrow_window_and_a_cut_short_run(runs, tmp_path):
+    """At 400 px the page is one column (the map kept its width, drawings and tables scroll
+    sideways instead of the page); a bay's levels are drawn side by side on the map, not one
+    over the other; a place not scanned is not counted as answered."""
+    copy = tmp_path / "runs"
+    shutil.copytree(
+        os.path.join(runs, FLEET), copy / FLEET, ignore=shutil.ignore_patterns("review.*")
+    )
+    doc = json.load(open(copy / FLEET / "inventory.json"))
+    doc["rows"][-1].update(answer="", status="not_scanned")
+    write_inventory(str(copy / FLEET), doc["rows"], doc["planned"])
+    with console(str(copy)) as server, browser_page() as page:
+        page.set_viewport_size({"width": 400, "height": 900})
+        page.goto(f"{server.url}/runs/{FLEET}")
+        page.locator("#places tbody tr").first.wait_for()
+        assert "7 of 8 places answered" in page.inner_text("#run-summary")
+        width = page.evaluate("document.documentElement.scrollWidth")
+        assert width <= 400, width
+        assert page.evaluate("document.getElementById('map').getBoundingClientRect().width") > 300
+        xs = {
+            p: float(page.locator(f'#map rect[data-place="{p}"]').get_attribute("x"))
+            for p in ("A-03-1", "A-03-2")
+        }
+        assert xs["A-03-1"] != xs["A-03-2"], xs
+        assert not page.errors

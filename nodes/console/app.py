@@ -179,7 +179,8 @@ def make_app(config: ConsoleConfig) -> Starlette:
         return _shell("review", f"review {name}", name)
 
     async def api_runs(request: Request) -> Response:
-        runs = await run_in_threadpool(list_runs, root)
+        skipped: list[str] = []
+        runs = await run_in_threadpool(list_runs, root, skipped)
         for r in runs:
             r["source"] = "folder"
         note = None
@@ -189,7 +190,8 @@ def make_app(config: ConsoleConfig) -> Starlette:
             except StoreError as exc:
                 note = f"the site store cannot be read: {exc}; showing the runs folder only"
         shown = site.shown if site is not None else None
-        return JSONResponse({"runs": runs, "store": shown, "store_note": note})
+        body = {"runs": runs, "store": shown, "store_note": note, "skipped": ", ".join(skipped)}
+        return JSONResponse(body)
 
     async def place_page(request: Request) -> Response:
         place = request.path_params["place"]
@@ -264,6 +266,8 @@ def make_app(config: ConsoleConfig) -> Starlette:
             info = await run_in_threadpool(run_info, root, name, True)
         except PathRefused as exc:
             return _refused(exc)
+        if info.get("rows_error"):  # never an empty count handed to a WMS as if it were one
+            return _plain(409, f"the run's rows cannot be read: {info['rows_error']}")
         columns, lines = export.table(info, kind)
         filename = f"{name}-{kind}.{fmt}"
         disposition = {"Content-Disposition": f'attachment; filename="{filename}"'}

@@ -14,9 +14,8 @@ from __future__ import annotations
 import csv
 import io
 import time
-from typing import Any
 
-from nodes.console.files import latest_by_place
+from nodes.console.files import latest_by_place, safe_cell
 from nodes.console.runs import discrepancy, needs_review
 
 COLUMNS = ("place", "pallet", "status", "time", "drone")
@@ -32,10 +31,15 @@ def _iso(t: float | None) -> str:
 
 def wms_rows(info: dict) -> list[dict]:
     """The inventory of a run (:func:`nodes.console.runs.run_info` with ``full``) as WMS
-    lines, review decisions applied."""
+    lines, review decisions applied: every place the run planned, those it did not reach
+    (an interrupted run) as ``not_scanned``, so that a WMS does not take a place missing
+    from the file for one not in the count."""
     reviews = latest_by_place(info.get("review") or [])
     out = []
-    for r in info.get("rows") or []:
+    rows = list(info.get("rows") or [])
+    answered = {r["place"] for r in rows}
+    rows += [{"place": p, "status": "not_scanned"} for p in _planned(info) if p not in answered]
+    for r in rows:
         answer, status = r.get("answer") or "", r.get("status") or ""
         d = reviews.get(r["place"])
         if d is not None:
@@ -58,6 +62,10 @@ def wms_rows(info: dict) -> list[dict]:
     return out
 
 
+def _planned(info: dict) -> list[str]:
+    return list(dict.fromkeys(p for p in info.get("planned") or [] if isinstance(p, str)))
+
+
 def discrepancy_rows(info: dict) -> list[dict]:
     """The places that differ from what was expected: a discrepancy category of the run's
     expected stock, else (no expected stock) every exception of the review queue, and in
@@ -67,7 +75,7 @@ def discrepancy_rows(info: dict) -> list[dict]:
     grades, truth = info.get("grades") or {}, info.get("truth") or {}
     out = []
     for line in wms_rows(info):
-        row = by_place[line["place"]]
+        row = by_place.get(line["place"]) or {"place": line["place"], "status": "not_scanned"}
         category = discrepancy(row)
         if category is None and needs_review(row):
             category = "exception"
@@ -97,19 +105,13 @@ def table(info: dict, kind: str) -> tuple[tuple[str, ...], list[dict]]:
     return DISCREPANCY_COLUMNS, discrepancy_rows(info)
 
 
-def _cell(value: Any) -> str:
-    """A text cell a spreadsheet will not run as a formula (CSV injection)."""
-    text = "" if value is None else str(value)
-    return "'" + text if text[:1] in ("=", "+", "-", "@", "\t", "\r") else text
-
-
 def to_csv(columns: tuple[str, ...], lines: list[dict]) -> bytes:
     """CSV (UTF-8, header line)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\r\n")
     w.writerow(columns)
     for line in lines:
-        w.writerow([_cell(line.get(c)) for c in columns])
+        w.writerow([safe_cell(line.get(c)) for c in columns])
     return buf.getvalue().encode("utf-8")
 
 
@@ -123,7 +125,7 @@ def to_xlsx(columns: tuple[str, ...], lines: list[dict], title: str) -> bytes:
     ws.title = title[:31]
     ws.append(list(columns))
     for line in lines:
-        ws.append([_cell(line.get(c)) for c in columns])
+        ws.append([safe_cell(line.get(c)) for c in columns])
     for i, c in enumerate(columns):
         ws.column_dimensions[chr(ord("A") + i)].width = max(10, len(c) + 2)
     ws.freeze_panes = "A2"

@@ -2,7 +2,8 @@
 
 ``review.json`` holds every review decision (oldest first) and ``review.csv`` the latest
 per place (:mod:`nodes.console.review` takes the decisions); both are written atomically
-and never touch ``inventory.csv`` / ``inventory.json``.
+and never touch ``inventory.csv`` / ``inventory.json``. Every file is read only when no
+symbolic link leads to it (:func:`nodes.console.paths.plain`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import os
 from typing import Any
 
 from bt_engine.files import atomic_write_text, read_text
+from nodes.console.paths import plain
 
 #: the largest summary.json / fleet.json / review.json read, bytes
 MAX_JSON_BYTES = 16_000_000
@@ -36,8 +38,9 @@ REVIEW_CSV_FIELDS = (
 
 
 def read_json(path: str, limit: int = MAX_JSON_BYTES) -> Any:
-    """A JSON file read with a size limit; None if missing, unreadable or not JSON."""
-    if not os.path.isfile(path):
+    """A JSON file read with a size limit; None if missing, reached through a link (see
+    :func:`nodes.console.paths.plain`), unreadable or not JSON."""
+    if not plain(path) or not os.path.isfile(path):
         return None
     text = read_text(path, [], what="run files", limit=limit)
     if text is None:
@@ -49,7 +52,10 @@ def read_json(path: str, limit: int = MAX_JSON_BYTES) -> Any:
 
 
 def read_header(ticks: str) -> dict:
-    """The tick log's header (mission, rig, seed, sets); {} if unreadable."""
+    """The tick log's header (mission, rig, cwd, seed, sets); {} if unreadable or reached
+    through a link."""
+    if not plain(ticks):
+        return {}
     try:
         with open(ticks, "rb") as f:
             head = json.loads(f.readline(4_000_000) or b"{}")
@@ -59,13 +65,23 @@ def read_header(ticks: str) -> dict:
     return header if isinstance(header, dict) else {}
 
 
-def read_review(run_dir: str) -> list[dict]:
-    """Every decision of ``review.json`` (oldest first); [] if none or unreadable."""
-    doc = read_json(os.path.join(run_dir, REVIEW_JSON))
-    if not isinstance(doc, dict) or doc.get("format") != REVIEW_FORMAT:
-        return []
-    decisions = doc.get("decisions")
-    if not isinstance(decisions, list):
+class ReviewFileError(Exception):
+    """``review.json`` is there but cannot be read as a btrun review (one line)."""
+
+
+def read_review(run_dir: str, strict: bool = False) -> list[dict]:
+    """Every decision of ``review.json`` (oldest first); [] if none. An unreadable one reads
+    as none for a page, and raises :class:`ReviewFileError` when ``strict`` (a decision is
+    to be added: writing the file again would lose the decisions it held)."""
+    path = os.path.join(run_dir, REVIEW_JSON)
+    doc = read_json(path)
+    decisions = doc.get("decisions") if isinstance(doc, dict) else None
+    if not isinstance(decisions, list) or doc.get("format") != REVIEW_FORMAT:
+        if strict and os.path.lexists(path):
+            raise ReviewFileError(
+                f"{REVIEW_JSON} of this run cannot be read as a btrun review "
+                f"(format {REVIEW_FORMAT!r}): move it aside or mend it; nothing was written"
+            )
         return []
     out = [d for d in decisions if isinstance(d, dict) and isinstance(d.get("place"), str)]
     return out[-MAX_DECISIONS:]
@@ -74,6 +90,12 @@ def read_review(run_dir: str) -> list[dict]:
 def latest_by_place(decisions: list[dict]) -> dict[str, dict]:
     """The latest decision of each place."""
     return {d["place"]: d for d in decisions}
+
+
+def safe_cell(value: Any) -> str:
+    """A text cell a spreadsheet will not run as a formula (CSV injection)."""
+    text = "" if value is None else str(value)
+    return "'" + text if text[:1] in ("=", "+", "-", "@", "\t", "\r") else text
 
 
 def write_review(run_dir: str, decisions: list[dict]) -> None:
@@ -87,5 +109,5 @@ def write_review(run_dir: str, decisions: list[dict]) -> None:
     )
     w.writeheader()
     for d in latest_by_place(decisions).values():
-        w.writerow({k: "" if d.get(k) is None else d.get(k) for k in REVIEW_CSV_FIELDS})
+        w.writerow({k: safe_cell(d.get(k)) for k in REVIEW_CSV_FIELDS})
     atomic_write_text(os.path.join(run_dir, REVIEW_CSV), buf.getvalue())

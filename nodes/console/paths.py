@@ -14,8 +14,10 @@ import os
 import re
 import stat
 
-#: a run or drone folder name, a file name component (as fleets name their folders)
-NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,127}")
+#: a run or drone folder name, a file name component: letters and digits of any script,
+#: ``_``, ``.``, ``-``, ``+`` and spaces inside (``btrun run --out "aisle 3"``); never a
+#: separator, NUL or a name of dots only
+NAME = re.compile(r"\w[\w .+-]{0,127}")
 #: file types a page may load from a run folder (crops, reports, rows), and their media types
 MEDIA_TYPES = {
     ".png": "image/png",
@@ -50,6 +52,13 @@ def check_name(name: str, what: str = "run") -> str:
 def inside(root: str, path: str) -> bool:
     """Whether the real path ``path`` is ``root`` or below it (both real paths)."""
     return path == root or path.startswith(root.rstrip(os.sep) + os.sep)
+
+
+def plain(path: str) -> bool:
+    """Whether ``path``, built under a run folder's real path, is reached without a symbolic
+    link on the way: the console reads a run's own files only so, so that none leads out of
+    the runs folder (btrun writes no links in a run folder)."""
+    return os.path.realpath(path) == os.path.abspath(path)
 
 
 class RunsRoot:

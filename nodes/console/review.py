@@ -31,7 +31,8 @@ import threading
 import time
 from typing import Any
 
-from nodes.console.files import read_header, read_review, write_review
+from bt_engine.ticklog import header_path
+from nodes.console.files import ReviewFileError, read_header, read_review, write_review
 from nodes.console.paths import RunsRoot
 from nodes.console.runs import drone_dirs, evidence, needs_review, read_rows
 from nodes.gallery.cli import REVIEW_RUN
@@ -55,11 +56,11 @@ def gallery_path(root: RunsRoot, run_dir: str, option: str | None) -> str:
     if option:
         return option
     for d in drone_dirs(run_dir).values():
-        sets = read_header(os.path.join(run_dir, d, "ticks.jsonl")).get("sets") or []
-        for item in sets:
+        header = read_header(os.path.join(run_dir, d, "ticks.jsonl"))
+        for item in header.get("sets") or []:
             if isinstance(item, str) and item.startswith("gallery="):
-                value = item.split("=", 1)[1]
-                if value != "demo" and os.path.isfile(value):
+                value = header_path(header, item.split("=", 1)[1])
+                if value and item != "gallery=demo" and os.path.isfile(value):
                     return value
         break
     return os.path.join(root.root, DEFAULT_GALLERY)
@@ -85,9 +86,17 @@ class GalleryDesk:
 
     def open(self, path: str, rig_path: str | None) -> tuple[Any, Any]:
         """(embedder, gallery ``path``), the file first copied from the demo gallery of the
-        rig's world when it does not exist."""
+        rig's world when it does not exist (:class:`ReviewError` if that rig is not on
+        this machine: another world's demo would know none of the run's pallets)."""
         from perception.gallery import Gallery
 
+        if rig_path and not os.path.isfile(rig_path) and not os.path.exists(path):
+            raise ReviewError(
+                f"the run's rig {rig_path} is not on this machine: a new review gallery "
+                "starts as the demo gallery of the run's world; start the console with "
+                "--gallery FILE (a gallery that knows the run's pallets)",
+                409,
+            )
         s = self.session(rig_path)
         emb = s.embedder("")
         if not os.path.exists(path):
@@ -147,7 +156,10 @@ def decide(
     place = _text(request.get("place"), "place", 64)
     kind = request.get("decision")
     if kind not in DECISIONS:
-        raise ReviewError(f"decision must be one of {', '.join(DECISIONS)}")
+        raise ReviewError(
+            "choose a decision: this pallet (identity), new pallet (new_pallet) "
+            "or leave unknown (leave_unknown)"
+        )
     reviewer = _text(request.get("reviewer"), "reviewer", 64)
     reason = _text(request.get("reason"), "reason", 500, required=False)
     rows, _, error = read_rows(run_dir)
@@ -167,8 +179,13 @@ def decide(
     drones = drone_dirs(run_dir)
     rel = drones.get(row.get("drone") or "") or next(iter(drones.values()))
     gpath = gallery_path(root, run_dir, gallery_option)
-    rig = read_header(os.path.join(run_dir, rel, "ticks.jsonl")).get("rig")
+    header = read_header(os.path.join(run_dir, rel, "ticks.jsonl"))
+    rig = header_path(header, header.get("rig"))
     with _LOCK:
+        try:  # before the gallery changes: a decision that cannot be recorded is not taken
+            decisions = read_review(run_dir, strict=True)
+        except ReviewFileError as exc:
+            raise ReviewError(str(exc), 409) from None
         event = None
         if kind != "leave_unknown":
             crops = _crops(run_dir, evidence(run_dir, rel, place))
@@ -195,8 +212,7 @@ def decide(
             "gallery": os.path.abspath(gpath) if event is not None else None,
             "gallery_event": event,
         }
-        decisions = read_review(run_dir) + [record]
-        write_review(run_dir, decisions)
+        write_review(run_dir, decisions + [record])
     return record
 
 

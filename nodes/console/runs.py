@@ -15,9 +15,9 @@ import re
 import time
 from typing import Any
 
-from bt_engine.ticklog import run_started
+from bt_engine.ticklog import header_path, run_started
 from nodes.console.files import read_header, read_json, read_review
-from nodes.console.paths import NAME, PathRefused, RunsRoot
+from nodes.console.paths import NAME, PathRefused, RunsRoot, plain
 from nodes.inventory_log import EMPTY, UNKNOWN, InventoryError, grade, read_inventory
 from nodes.place_evidence import CANDIDATES_FILE, PLACES_DIR
 
@@ -37,9 +37,13 @@ PLACE_CODE = re.compile(r"^([A-Za-z]+)-(\d+)-(\d+)$")
 def drone_dirs(run_dir: str) -> dict[str, str]:
     """Drone name -> folder relative to the run (``"."`` for a solo run)."""
     drones = os.path.join(run_dir, "drones")
-    if os.path.isdir(drones):
+    if os.path.isdir(drones) and plain(drones):
         names = sorted(n for n in os.listdir(drones) if NAME.fullmatch(n) and ".." not in n)
-        return {n: f"drones/{n}" for n in names if os.path.isdir(os.path.join(drones, n))}
+        return {
+            n: f"drones/{n}"
+            for n in names
+            if os.path.isdir(os.path.join(drones, n)) and plain(os.path.join(drones, n))
+        }
     return {"": "."}
 
 
@@ -73,6 +77,13 @@ def run_status(run_dir: str, summary: Any) -> str:
 def read_rows(run_dir: str) -> tuple[list[dict], list[str], str | None]:
     """The inventory rows (checked by :func:`nodes.inventory_log.read_inventory`), the
     planned places and an error line (None if fine)."""
+    inv = os.path.join(run_dir, "inventory.json")
+    if os.path.lexists(inv) and not plain(inv):
+        return (
+            [],
+            [],
+            f"{inv}: reached through a link, not read (the console reads a run's own files)",
+        )
     try:
         rows = read_inventory(run_dir)
     except InventoryError as exc:
@@ -160,9 +171,10 @@ _WORLDS: dict[tuple, Any] = {}
 
 def world_of(header: dict) -> Any:
     """The simulated world a run flew (its rig, seed and ``world.*`` sets); None if it
-    cannot be loaded (a real drone's run, a moved rig file)."""
-    rig_path = header.get("rig") or header.get("rig_arg")
-    if not isinstance(rig_path, str) or not os.path.isfile(rig_path):
+    cannot be loaded (a real drone's run, a moved rig file). A relative rig path is the
+    run's (:func:`bt_engine.ticklog.header_path`), not the console's."""
+    rig_path = header_path(header, header.get("rig") or header.get("rig_arg"))
+    if rig_path is None or not os.path.isfile(rig_path):
         return None
     sets = [s for s in header.get("sets") or [] if isinstance(s, str) and s.startswith("world.")]
     key = (rig_path, tuple(sets), header.get("seed"))
@@ -183,6 +195,8 @@ def world_of(header: dict) -> Any:
 def track(ticks: str, points: int = TRACK_POINTS) -> list[list[float]]:
     """The drone's track from its tick log: ``[t, x, y, z]`` decimated to about ``points``."""
     out: list[list[float]] = []
+    if not plain(ticks):
+        return []
     try:
         size = os.path.getsize(ticks)
         with open(ticks, "rb") as f:
@@ -217,10 +231,14 @@ def evidence(run_dir: str, rel_drone: str, place: str) -> dict | None:
         return None
     base = os.path.normpath(os.path.join(rel_drone, PLACES_DIR, place)).replace(os.sep, "/")
     folder = os.path.join(run_dir, base)
-    if not os.path.isdir(folder):
+    if not os.path.isdir(folder) or not plain(folder):
         return None
     crops = sorted(
-        (n for n in os.listdir(folder) if re.fullmatch(r"block_\d+\.png", n)),
+        (
+            n
+            for n in os.listdir(folder)
+            if re.fullmatch(r"block_\d+\.png", n) and plain(os.path.join(folder, n))
+        ),
         key=lambda n: int(n[6:-4]),
     )
     doc = read_json(os.path.join(folder, CANDIDATES_FILE), 1_000_000) or {}
@@ -237,11 +255,18 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
     """What the index (``full`` False) or a run's page (``full`` True) shows of run ``name``."""
     run_dir = root.run_dir(name)
     summary = read_json(os.path.join(run_dir, "summary.json"))
+    if os.path.lexists(os.path.join(run_dir, "summary.json")) and not isinstance(summary, dict):
+        summary = None
+        problems = ["summary.json cannot be read (damaged, or reached through a link)"]
+    else:
+        problems = []
     fleet = read_json(os.path.join(run_dir, "fleet.json"), 1_000_000)
     drones = drone_dirs(run_dir)
     first = os.path.join(run_dir, next(iter(drones.values())), "ticks.jsonl")
     header = read_header(first)
     rows, planned, error = read_rows(run_dir)
+    if error:
+        problems.append(error)
     reviews = read_review(run_dir)
     mission = (summary or {}).get("mission") if isinstance(summary, dict) else None
     mission = mission or header.get("mission") or ""
@@ -265,26 +290,34 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
         cat = discrepancy(r)
         if cat and cat != "confirmed":
             discrepancies[cat] = discrepancies.get(cat, 0) + 1
-    right = sum(1 for g in (grades or {}).values() if g == "right")
-    accuracy = inv.get("accuracy")
+    status = run_status(run_dir, summary)
+    accuracy, accuracy_over = inv.get("accuracy"), "planned"
     if accuracy is None and grades:
-        accuracy = round(right / len(grades), 4)
+        counted = grades
+        if status == "RUNNING":  # a place not reached yet is not a miss yet
+            done = {r["place"] for r in rows if r.get("status") != "not_scanned"}
+            counted = {p: g for p, g in grades.items() if p in done}
+            accuracy_over = "answered"
+        right = sum(1 for g in counted.values() if g == "right")
+        accuracy = round(right / len(counted), 4) if counted else None
     exceptions = [r["place"] for r in rows if needs_review(r)]
     info: dict[str, Any] = {
         "name": name,
         "kind": "fleet" if fleet is not None or drones.get("") is None else "run",
         "mission": os.path.basename(mission) if isinstance(mission, str) else "",
-        "status": run_status(run_dir, summary),
+        "status": status,
         "started": _start_time(name, run_dir, fleet, header, first),
         "modified": max(_mtime(run_dir), _mtime(os.path.join(run_dir, "inventory.json"))),
         "places": places_n,
         "answered": answered,
         "accuracy": accuracy,
+        "accuracy_over": accuracy_over,
         "discrepancies": discrepancies,
         "exceptions": len(exceptions),
         "reviewed": len({d["place"] for d in reviews}),
         "drones": [d for d in drones if d],
-        "error": error,
+        "error": "; ".join(problems) or None,
+        "rows_error": error,
     }
     if not full:
         return info
@@ -323,14 +356,17 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
         },
         review=reviews,
         queue=exceptions,
+        report=os.path.isfile(os.path.join(run_dir, "report.html")),
         header={"rig": header.get("rig"), "seed": header.get("seed"), "sets": header.get("sets")},
     )
     return info
 
 
-def list_runs(root: RunsRoot) -> list[dict]:
-    """Every run and fleet folder directly under the root, newest first (at most
-    :data:`MAX_RUNS`)."""
+def list_runs(root: RunsRoot, skipped: list[str] | None = None) -> list[dict]:
+    """Every run and fleet folder directly under the root, the latest started first (at most
+    :data:`MAX_RUNS`: the folders written last; a review or a copy changes a folder's time,
+    not its start). Run folders the console cannot serve are appended to ``skipped`` (one
+    line each, why), so that the page can say why a run is missing."""
     found = []
     try:
         entries = list(os.scandir(root.root))
@@ -338,10 +374,14 @@ def list_runs(root: RunsRoot) -> list[dict]:
         return []
     for e in entries:
         if not NAME.fullmatch(e.name) or ".." in e.name:
+            if skipped is not None and e.is_dir() and is_run(os.path.join(root.root, e.name)):
+                skipped.append(f"{e.name!r:.80} (a name the console does not serve)")
             continue
         try:
             path = root.run_dir(e.name)
-        except PathRefused:
+        except PathRefused as exc:
+            if skipped is not None and exc.status == 403:
+                skipped.append(f"{e.name!r:.80} (a link out of the runs folder)")
             continue
         if is_run(path):
             found.append((max(_mtime(path), _mtime(os.path.join(path, "summary.json"))), e.name))
@@ -352,6 +392,7 @@ def list_runs(root: RunsRoot) -> list[dict]:
             out.append(run_info(root, name))
         except (PathRefused, OSError):
             continue
+    out.sort(key=lambda r: (r["started"] or 0.0, r["name"]), reverse=True)
     return out
 
 

@@ -21,7 +21,8 @@ async function indexPage() {
       el("td", {}, r.kind + (r.drones.length > 1 ? ` (${r.drones.length} drones)` : ""),
         fromStore ? el("span", { class: "note" }, ` from the store${r.host ? " (" + r.host + ")" : ""}`) : null),
       el("td", {}, r.mission),
-      el("td", { class: `status status-${r.status}` }, r.status),
+      el("td", {}, el("span", { class: `status status-${r.status}` }, r.status),
+        r.error ? el("span", { class: "error problem", title: r.error }, " damaged files") : null),
       el("td", { class: "num" }, `${r.answered}/${r.places}`),
       el("td", { class: "num" }, pct(r.accuracy)),
       el("td", {}, disc || (r.exceptions ? "" : "")),
@@ -33,10 +34,11 @@ async function indexPage() {
     data.store ? el("p", { class: "note" }, `site store: ${data.store}`) : null,
     data.store_note ? el("p", { class: "error", id: "store-note" }, data.store_note) : null,
     rows.length === 0 ? el("p", {}, "No runs yet: fly one (btrun fleet fleets/aisle_2.yaml).") :
-      el("table", { id: "runs", class: "grid" },
+      el("div", { class: "scroll" }, el("table", { id: "runs", class: "grid" },
         el("thead", {}, el("tr", {}, ["run", "kind", "mission", "status", "places", "accuracy (sim)",
           "discrepancies", "to review", "started"].map((h) => el("th", {}, h)))),
-        el("tbody", {}, rows)));
+        el("tbody", {}, rows))),
+    data.skipped ? el("p", { class: "note", id: "skipped" }, `not listed: ${data.skipped}`) : null);
   if (data.runs.some((r) => r.status === "RUNNING")) setTimeout(indexPage, 3000);
 }
 
@@ -132,9 +134,17 @@ function mapView() {
     ? (x, y) => [PX + (maxY - y) * S, PY + (maxX - x) * S]
     : (x, y) => [PX + (x - minX) * S, PY + (maxY - y) * S];
   const m = svg("svg", { id: "map", viewBox: `0 0 ${W} ${H}`, width: W, height: H });
+  // the levels of a bay stand one above the other: drawn side by side, the lowest first
+  const spots = {};
   for (const [place, p] of Object.entries(state.info.positions)) {
     const [x, y] = state.toMap(p[0], p[1]);
-    m.append(svg("rect", { class: "map-place", "data-place": place, x: x - 4, y: y - 4, width: 8, height: 8, fill: colour(place), stroke: "#555" }));
+    (spots[`${Math.round(x)},${Math.round(y)}`] ||= []).push({ place, x, y, z: p[2] });
+  }
+  for (const spot of Object.values(spots)) {
+    spot.sort((a, b) => a.z - b.z);
+    const w = Math.max(3, 12 / spot.length), x0 = spot[0].x - (w * spot.length) / 2;
+    spot.forEach((s, k) => m.append(svg("rect", { class: "map-place", "data-place": s.place, x: x0 + k * w, y: s.y - 4, width: w, height: 8, fill: colour(s.place), stroke: "#555", "stroke-width": 0.5 },
+      svg("title", {}, s.place))));
   }
   for (const pad of state.info.pads) {
     const [x, y] = state.toMap(pad.xy[0], pad.xy[1]);
@@ -148,7 +158,7 @@ function mapView() {
     const [x, y] = last ? state.toMap(last[1], last[2]) : [-20, -20];
     m.append(svg("g", { class: "drone", "data-drone": drone, "data-x": last ? last[1] : "", "data-y": last ? last[2] : "" },
       svg("circle", { cx: x, cy: y, r: 6, fill: palette[i % 4] }),
-      svg("text", { x: x + 8, y: y - 8, class: "drone-name" }, drone)));
+      svg("text", { x: x - 8, y: y - 8, class: "drone-name" }, drone)));
   });
   return m;
 }
@@ -162,7 +172,7 @@ function moveDrone(drone, at, points) {
   g.setAttribute("data-y", at[2]);
   g.querySelector("circle").setAttribute("cx", x);
   g.querySelector("circle").setAttribute("cy", y);
-  g.querySelector("text").setAttribute("x", x + 8);
+  g.querySelector("text").setAttribute("x", x - 8);
   g.querySelector("text").setAttribute("y", y - 8);
   if (line) {
     const more = points.map((p) => state.toMap(p[1], p[2]).join(",")).join(" ");
@@ -202,10 +212,10 @@ function placesTable() {
   const body = rows.map((r) => el("tr", { "data-place": r.place, class: state.selected === r.place ? "selected" : "", onclick: () => select(r.place) },
     COLUMNS.map(([k]) => {
       const v = cellValue(r, k);
-      const text = typeof v === "number" ? (Number.isInteger(v) ? String(v) : fmtNumber(v, k === "mission_time_s" ? 1 : 3)) : (v ?? "");
+      const text = typeof v === "number" ? (k === "mission_time_s" ? fmtNumber(v, 1) : Number.isInteger(v) ? String(v) : fmtNumber(v, 3)) : (v ?? "");
       return el("td", { "data-key": k, class: typeof v === "number" ? "num" : "" }, text);
     })));
-  return el("table", { id: "places", class: "grid" }, el("thead", {}, head), el("tbody", {}, body));
+  return el("div", { class: "scroll", id: "places" }, el("table", { class: "grid" }, el("thead", {}, head), el("tbody", {}, body)));
 }
 
 function renderTable() {
@@ -242,8 +252,11 @@ function summaryLine() {
   const counts = {};
   for (const r of i.rows) counts[r.status] = (counts[r.status] || 0) + 1;
   const parts = Object.entries(counts).map(([k, n]) => `${n} ${k.replace("_", " ")}`);
-  return `${i.rows.length} of ${i.places} places answered` + (parts.length ? `: ${parts.join(", ")}` : "") +
-    (typeof i.accuracy === "number" ? ` - accuracy in simulation ${pct(i.accuracy)}` : "");
+  // a place not scanned (an interrupted run) has a row, but no answer
+  const shown = typeof i.accuracy !== "number" ? "" : i.accuracy_over === "answered"
+    ? ` - accuracy in simulation so far ${pct(i.accuracy)} of the places answered`
+    : ` - accuracy in simulation ${pct(i.accuracy)}`;
+  return `${i.answered} of ${i.places} places answered` + (parts.length ? `: ${parts.join(", ")}` : "") + shown;
 }
 
 function renderRun() {
@@ -263,8 +276,8 @@ function renderRun() {
     i.error ? el("p", { class: "error" }, i.error) : null,
     el("p", { class: "actions" },
       el("a", { href: `/runs/${encodeURIComponent(RUN)}/review`, class: "button", id: "review-link" }, `review queue (${pending} to review)`),
-      exp("inventory", "csv"), exp("inventory", "xlsx"), exp("discrepancies", "csv"), exp("discrepancies", "xlsx"),
-      el("a", { href: fileUrl(RUN, "report.html"), class: "button" }, "flight report")),
+      i.rows_error ? el("span", { class: "note" }, "no export: the run's rows cannot be read") : [exp("inventory", "csv"), exp("inventory", "xlsx"), exp("discrepancies", "csv"), exp("discrepancies", "xlsx")],
+      i.report ? el("a", { href: fileUrl(RUN, "report.html"), class: "button" }, "flight report") : null),
     el("section", {}, el("h2", {}, "Rack faces ", colourBy), legend(state.colourBy), el("div", { id: "racks" }, rackFaces())),
     el("div", { class: "two" },
       el("section", {}, el("h2", {}, "Map (top view)"), mapView()),
@@ -288,6 +301,7 @@ function follow() {
     const known = new Set(Object.keys(state.info.evidence));
     state.info.rows = data.rows;
     state.info.planned = data.planned;
+    state.info.answered = data.rows.filter((r) => r.status !== "not_scanned").length;
     for (const r of data.rows) if (!(r.place in state.info.layout)) { await refresh(); return; }
     if (data.rows.some((r) => !known.has(r.place))) { await refresh(); return; }
     renderRun();

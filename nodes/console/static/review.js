@@ -35,6 +35,11 @@ function reviewItem(info, place) {
       place, decision: fd.get(name), identity: fd.get("identity"), new_name: fd.get("new_name"),
       reason: fd.get("reason"), reviewer,
     };
+    if (!fd.get(name)) {
+      result.textContent = "choose one first: this pallet, new pallet or leave unknown";
+      result.className = "result error";
+      return;
+    }
     result.textContent = "recording...";
     result.className = "result";
     const r = await fetch(`/api/runs/${encodeURIComponent(RUN_NAME)}/review`, {

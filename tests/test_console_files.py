@@ -1,0 +1,162 @@
+"""What the console makes of a run folder's files when they are not what btrun wrote: files
+linked out of the runs folder are not read, damaged rows are never exported as an empty
+count, a damaged review file is not written over, unscanned places stay in the export, and
+a run's relative paths are the run's, not the console's. No flight and no browser."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import pytest
+from console_helpers import REPO
+from test_console_security import _row
+
+from nodes.console import export
+from nodes.console.files import REVIEW_JSON, write_review
+from nodes.console.paths import RunsRoot
+from nodes.console.review import GalleryDesk, ReviewError, decide
+from nodes.console.runs import list_runs, run_info, world_of
+from nodes.inventory_log import write_inventory
+
+SECRET = "SECRET-FROM-OUTSIDE"
+
+
+def _run(root, name: str, rows: list[dict], planned: list[str], header: dict | None = None):
+    run = root / name
+    run.mkdir(parents=True)
+    head = {"mission": "missions/inventory.xml", **(header or {})}
+    (run / "ticks.jsonl").write_text(json.dumps({"header": head}) + "\n")
+    write_inventory(str(run), rows, planned)
+    return run
+
+
+@pytest.fixture
+def root(tmp_path):
+    (tmp_path / "runs").mkdir()
+    return tmp_path / "runs"
+
+
+def test_files_linked_out_of_the_runs_folder_are_not_read(root, tmp_path):
+    """A run's summary, rows, review, candidates and tick log linked to files outside: the
+    page, the list and the exports show none of them (the file server refused them already;
+    the JSON readers did not)."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    other = _run(outside, "elsewhere", [_row("A-01-1", SECRET, "identified")], ["A-01-1"])
+    (outside / "summary.json").write_text(json.dumps({"status": SECRET, "mission": SECRET}))
+    write_review(str(outside), [{"place": "A-01-1", "answer": SECRET, "decision": "identity"}])
+    (outside / "candidates.json").write_text(json.dumps({"candidates": [[SECRET, 0.1]]}))
+    run = _run(root, "leak", [_row("A-01-2", "unknown", "unknown")], ["A-01-2"])
+    os.replace(other / "inventory.json", outside / "inventory.json")
+    (run / "inventory.json").unlink()
+    for name in ("summary.json", "inventory.json", REVIEW_JSON):
+        os.symlink(outside / name, run / name)
+    (run / "places" / "A-01-2").mkdir(parents=True)
+    os.symlink(outside / "candidates.json", run / "places" / "A-01-2" / "candidates.json")
+    (run / "ticks.jsonl").unlink()
+    os.symlink("/etc/passwd", run / "ticks.jsonl")
+    runs = RunsRoot(str(root))
+    info = run_info(runs, "leak", True)
+    assert SECRET not in json.dumps(info) and "root:" not in json.dumps(info)
+    assert "reached through a link" in info["error"] and info["rows_error"]
+    assert info["status"] != SECRET and info["review"] == [] and info["tracks"] == {"drone": []}
+    assert SECRET not in json.dumps(list_runs(runs))
+
+
+def test_damaged_rows_are_refused_not_exported_empty(root):
+    """A truncated inventory.json (inventory.csv intact): the run's page says so and has no
+    export; the export itself answers 409, never a header and no places."""
+    from console_helpers import console
+    from test_console_security import _raw
+
+    rows = [_row(f"A-0{i}-1", f"10{i}A", "identified") for i in range(1, 5)]
+    run = _run(root, "cut", rows, [r["place"] for r in rows])
+    text = (run / "inventory.json").read_text()
+    (run / "inventory.json").write_text(text[: len(text) // 2])
+    info = run_info(RunsRoot(str(root)), "cut", True)
+    assert info["rows_error"] and "not JSON" in info["error"]
+    with console(str(root)) as server:
+        for kind in ("inventory.csv", "inventory.xlsx", "discrepancies.csv"):
+            status, body = _raw(server.port, "GET", f"/export/cut/{kind}")
+            assert status == 409 and b"rows cannot be read" in body, (kind, status, body)
+    (run / "summary.json").write_text('{"status": "SUCC')  # a summary cut short: said
+    assert "summary.json cannot be read" in run_info(RunsRoot(str(root)), "cut")["error"]
+
+
+def test_a_damaged_review_file_is_not_written_over(root):
+    """Adding a decision to a review.json that cannot be read would have replaced it (and
+    review.csv) with the new decision alone: the decisions it held were lost."""
+    run = _run(root, "r", [_row("A-01-2", "unknown", "unknown")], ["A-01-2"])
+    (run / REVIEW_JSON).write_text('{"format": "btrun-review-1", "decisions": [{"place": "A-0')
+    before = (run / REVIEW_JSON).read_bytes()
+    request = {"place": "A-01-2", "decision": "leave_unknown", "reviewer": "bob"}
+    with pytest.raises(ReviewError) as exc:
+        decide(RunsRoot(str(root)), "r", request, None, GalleryDesk())
+    assert exc.value.status == 409 and "review.json" in str(exc.value)
+    assert (run / REVIEW_JSON).read_bytes() == before and not (run / "review.csv").exists()
+    (run / REVIEW_JSON).unlink()  # mended: the decision is taken, its cells defused
+    request.update(reviewer="=cmd|' /C calc'!A0", reason="@SUM(A1)")
+    decide(RunsRoot(str(root)), "r", request, None, GalleryDesk())
+    line = (run / "review.csv").read_text().splitlines()[1]
+    assert ",'=cmd|" in line and ",'@SUM(A1)," in line
+
+
+def test_an_interrupted_runs_export_keeps_every_planned_place(root):
+    """The places an interrupted run never reached are in the WMS export as not_scanned: a
+    place missing from the file reads as one not in the count."""
+    planned = [f"A-{b:02d}-1" for b in range(1, 6)]
+    _run(root, "cut-short", [_row("A-01-1", "101A", "identified")], planned)
+    info = run_info(RunsRoot(str(root)), "cut-short", True)
+    lines = export.wms_rows(info)
+    assert [(r["place"], r["status"]) for r in lines] == [("A-01-1", "identified")] + [
+        (p, "not_scanned") for p in planned[1:]
+    ]
+    assert all(r["pallet"] == "" for r in lines[1:])
+    assert export.table(info, "discrepancies")[1] == []  # no expected stock, no grades
+
+
+def test_runs_are_listed_by_their_start_and_odd_names_are_said(root):
+    """Newest started first, whatever the folders' times (a review or a copy touches them);
+    a run under a name with spaces or accents is listed; one the console cannot serve is
+    named, not silently left out."""
+    for name, started in (("week 48", "10:00"), ("über", "11:00"), ("old", "09:00")):
+        _run(root, name, [], ["A-01-1"], {"started": f"2026-11-27T{started}:00Z"})
+    now = time.time()
+    os.utime(root / "old", (now + 60, now + 60))  # the oldest run written to last
+    _run(root, "-dash", [], ["A-01-1"])
+    skipped: list[str] = []
+    assert [r["name"] for r in list_runs(RunsRoot(str(root)), skipped)] == [
+        "über",
+        "week 48",
+        "old",
+    ]
+    assert skipped == ["'-dash' (a name the console does not serve)"]
+
+
+def test_a_runs_relative_rig_is_read_from_where_it_was_flown(root, tmp_path, monkeypatch):
+    """The header's rig is relative to the folder btrun was started in (``cwd``): a console
+    started elsewhere drew no places and seeded its review gallery from the default rig's
+    world, which knows none of the run's pallets. A rig that is not on this machine is said
+    before a gallery is made from another world."""
+    monkeypatch.chdir(tmp_path)
+    header = {"rig": "rigs/aisle.yaml", "seed": 0, "sets": []}
+    assert world_of(header) is None  # from before the header kept cwd: not found here
+    world = world_of({**header, "cwd": REPO})
+    assert world is not None and len(world.places) == 16
+    run = _run(root, "moved", [_row("A-01-2", "unknown", "unknown")], ["A-01-2"])
+    (run / "ticks.jsonl").write_text(
+        json.dumps({"header": {**header, "cwd": "/nowhere/else"}}) + "\n"
+    )
+    import numpy as np
+
+    from nodes.place_evidence import write_place_evidence
+
+    write_place_evidence(str(run), "A-01-2", [np.zeros((20, 30, 3), np.uint8)] * 3, [])
+    request = {"place": "A-01-2", "decision": "new_pallet", "new_name": "P-1", "reviewer": "al"}
+    with pytest.raises(ReviewError) as exc:
+        decide(RunsRoot(str(root)), "moved", request, None, GalleryDesk())
+    assert exc.value.status == 409 and "/nowhere/else/rigs/aisle.yaml" in str(exc.value)
+    assert "not on this machine" in str(exc.value)
+    assert not (root / "site-gallery.sqlite").exists()
