@@ -25,6 +25,7 @@ from bt_engine.run_inputs import (  # noqa: F401 - importable from here as befor
     parse_sets,
     resume_settings,
     run_dir_problem,
+    used_run_dir_problem,
 )
 from bt_engine.runner import Runner, RunResult
 from bt_engine.spec import Loc, MissionError, Problem
@@ -472,6 +473,9 @@ def finish(run: PreparedRun, runner: Runner, result: RunResult, echo: bool = Tru
 
 def run_command(args) -> int:
     """Run a mission from parsed CLI arguments; return the exit code."""
+    used = used_run_dir_problem(args.out) if getattr(args, "out", None) else None
+    if used is not None:  # nothing is started: no guard, platform or store
+        raise MissionError([used])
     run = prepare(args)
     try:
         runner, result = fly(run)

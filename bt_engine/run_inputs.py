@@ -106,6 +106,26 @@ def run_dir_problem(run_dir: str, option: str = "--out") -> Problem | None:
     return None
 
 
+#: the files that make a folder a run folder (a solo run's, a fleet's)
+RUN_FILES = ("ticks.jsonl", "summary.json", "fleet.json", "inventory.json")
+
+
+def used_run_dir_problem(run_dir: str, option: str = "--out") -> Problem | None:
+    """Why ``--out run_dir`` is refused when it holds a run already: flying there would
+    write a new tick log and rows over the old run's and leave its crops and report beside
+    them, and the site store (its run id is the folder's name) would mix the two flights'
+    rows under one run. None for a new or empty folder, or one without run files."""
+    found = [f for f in RUN_FILES if os.path.lexists(os.path.join(run_dir, f))]
+    if not found:
+        return None
+    return Problem(
+        Loc(option, 0, 0),
+        f"{run_dir}: holds a run already (its {found[0]}): give a new folder to --out "
+        "(or none: runs/<mission>-<time>), --resume it to go on with it, or remove it "
+        "to fly there again",
+    )
+
+
 def resume_settings(args) -> list[Problem]:
     """``--resume RUN``: take the rig and seed of the interrupted run from its tick log's
     header where this call does not give them, and its ``--set`` items followed by this

@@ -31,6 +31,7 @@ from bt_engine.run_cmd import (
     real_time_words,
     release,
     run_dir_problem,
+    used_run_dir_problem,
 )
 from bt_engine.spec import Loc, MissionError, Problem, plural
 from bt_engine.ticklog import started_now
@@ -131,7 +132,7 @@ def run(args: Any) -> int:
     seed = resumed_seed(previous, args.seed, args.resume)
     seed = spec.data["seed"] if seed is None else seed
     out = args.out or os.path.join("runs", f"{spec.data['name']}-{time.strftime('%Y%m%d-%H%M%S')}")
-    bad_dir = run_dir_problem(out)
+    bad_dir = run_dir_problem(out) or (used_run_dir_problem(out) if args.out else None)
     if bad_dir is not None:  # before any drone, store or guard is started
         raise MissionError([bad_dir])
     common = common_sets(spec, args.set, previous)
