@@ -26,7 +26,7 @@ import os
 import re
 import sqlite3
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
@@ -59,6 +59,7 @@ def parse_url(text: str) -> StoreURL:
         raise StoreError("empty store URL (sqlite:///FILE or postgresql://...)")
     scheme, sep, rest = text.partition("://")
     if not sep:
+        _not_a_path(text)
         return StoreURL("sqlite", text, text)
     scheme = scheme.lower()
     if scheme == "sqlite":
@@ -74,6 +75,30 @@ def parse_url(text: str) -> StoreURL:
         f"store URL {redact(text)!r}: unknown scheme {scheme!r} "
         "(sqlite:///FILE or postgresql://user@host/dbname)"
     )
+
+
+#: ``name:`` at the start of a store argument: a URL's scheme (a drive letter is one letter)
+_SCHEME = re.compile(r"([A-Za-z][A-Za-z0-9+.-]+):")
+
+
+def _not_a_path(text: str) -> None:
+    """Refuse a store argument without ``://`` that is a mistyped URL or a libpq
+    ``key=value`` string rather than an SQLite file path (it was taken as one: a file
+    named ``postgresql:/host/db`` was made in the working directory, or one named after a
+    connection string, password and all)."""
+    if "=" in text and re.search(r"\s", text):
+        raise StoreError(
+            "a libpq key=value string is not a store URL: give postgresql://USER@HOST/DBNAME "
+            "(the password in ~/.pgpass or $PGPASSWORD)"
+        )
+    m = _SCHEME.match(text)
+    if m:
+        scheme = m.group(1).lower()
+        known = {"sqlite": "sqlite:///FILE", "postgresql": "postgresql://USER@HOST/DBNAME"}
+        known["postgres"] = known["postgresql"]
+        want = known.get(scheme, "sqlite:///FILE or postgresql://USER@HOST/DBNAME")
+        shown = re.sub(r"(?i)(password=)[^&\s]*", r"\1***", re.sub(r":[^:@/]*@", ":***@", text))
+        raise StoreError(f"store URL {shown!r}: expected {want} (no '://' after the scheme)")
 
 
 def redact(url: str) -> str:
@@ -215,10 +240,14 @@ def connect_postgresql(url: str, schema: str | None = None, create: bool = False
     return conn
 
 
-def connect_sqlite(path: str, create: bool = True) -> sqlite3.Connection:
+def connect_sqlite(
+    path: str, create: bool = True, check: Callable[[sqlite3.Connection], None] | None = None
+) -> sqlite3.Connection:
     """An SQLite connection for a store file shared by processes: WAL journal, a busy
     timeout of :data:`SQLITE_BUSY_TIMEOUT_MS`, foreign keys on; the folder is made when
-    ``create``. :class:`StoreError` if the file cannot be opened."""
+    ``create``. ``check`` sees the connection before anything is written to the file (the
+    WAL switch writes its header) and may raise. :class:`StoreError` if the file cannot be
+    opened."""
     if not create and not os.path.exists(path):
         raise StoreError(f"{path}: no store file")
     try:
@@ -232,6 +261,12 @@ def connect_sqlite(path: str, create: bool = True) -> sqlite3.Connection:
             check_same_thread=False,
         )
         conn.execute(f"PRAGMA busy_timeout = {SQLITE_BUSY_TIMEOUT_MS}")
+        if check is not None:
+            try:
+                check(conn)
+            except BaseException:
+                conn.close()
+                raise
         _wal(conn)
         conn.execute("PRAGMA foreign_keys = ON")
     except (OSError, sqlite3.Error) as exc:

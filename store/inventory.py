@@ -148,9 +148,12 @@ class InventoryStore:
         if u.kind == "postgresql":
             conn: Any = connect_postgresql(u.target)
         else:
-            conn = connect_sqlite(u.target, create=create)
+            check = lambda c: cls(c, u.shown)._refuse_foreign(create)  # noqa: E731
+            conn = connect_sqlite(u.target, create=create, check=check)
         store = cls(conn, u.shown)
         try:
+            if u.kind == "postgresql":
+                store._refuse_foreign(create)
             store._migrate()
         except StoreError:
             store.close()
@@ -177,6 +180,33 @@ class InventoryStore:
         """The schema version of the store (0: empty)."""
         row = self.conn.execute("SELECT MAX(version) FROM store_schema").fetchone()
         return int(row[0] or 0)
+
+    def _tables(self) -> set[str]:
+        if self.dialect == "sqlite":
+            q = "SELECT name FROM sqlite_master WHERE type = 'table'"
+        else:
+            q = "SELECT table_name FROM information_schema.tables "
+            q += "WHERE table_schema = current_schema()"
+        return {str(r[0]) for r in self.conn.execute(q)}
+
+    def _refuse_foreign(self, create: bool) -> None:
+        """:class:`StoreError` for a database that is not a btrun store: an SQLite file
+        with other tables (a gallery named by mistake was made a store), tables named as
+        the store's without its schema record (PostgreSQL: other tables are the site's
+        own), or, for a command that only reads (``create`` False), no store at all; it
+        is then left as it was."""
+        tables = self._tables()
+        if "store_schema" in tables:
+            return
+        clash = tables & {"runs", "inventory_rows"} if self.dialect == "postgresql" else tables
+        if clash:
+            names = ", ".join(sorted(clash)[:4]) + (", ..." if len(clash) > 4 else "")
+            raise StoreError(f"{self.shown}: not a btrun site store (it holds tables {names})")
+        if not create:
+            raise StoreError(
+                f"{self.shown}: no site store there yet (fly an inventory with --store, "
+                "or btrun inventory import RUN_DIR)"
+            )
 
     def _migrate(self) -> None:
         with self._tx():
@@ -217,18 +247,24 @@ class InventoryStore:
         host: str | None = None,
     ) -> None:
         """Record (or update) run ``run``. A run id already recorded by another host or
-        folder is refused: two folders of one name must not mix their rows."""
+        folder is refused: two folders of one name must not mix their rows; unless it is
+        the same flight (the same recorded ``started``): a run folder moved or archived,
+        imported again from where it is now."""
         host = host if host is not None else socket.gethostname()
         folder = os.path.abspath(folder) if folder else None
         with self._tx():
             row = self.conn.execute(
-                "SELECT host, folder FROM runs WHERE run = ?", (run,)
+                "SELECT host, folder, started FROM runs WHERE run = ?", (run,)
             ).fetchone()
+            moved = started is not None and row is not None and row[2] is not None
+            moved = moved and abs(float(row[2]) - started) < 1.0
             if row is not None and folder and row[1] and (row[0], row[1]) != (host, folder):
-                raise StoreError(
-                    f"{self.shown}: run {run} is already recorded from {row[0]}:{row[1]}; "
-                    "name this run's folder differently (--out)"
-                )
+                if not moved:
+                    raise StoreError(
+                        f"{self.shown}: run {run} is already recorded from {row[0]}:{row[1]}; "
+                        "name this run's folder differently (--out when flying; rename the "
+                        "folder to import it)"
+                    )
             self.conn.execute(
                 "INSERT INTO runs (run, mission, rig, fleet, seed, host, folder, started) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (run) DO UPDATE SET "
@@ -248,7 +284,8 @@ class InventoryStore:
         if row is not None and row[1] and (row[0], row[1]) != (host, os.path.abspath(folder)):
             raise StoreError(
                 f"{self.shown}: run {run} is already recorded from {row[0]}:{row[1]}; "
-                "name this run's folder differently (--out)"
+                "name this run's folder differently (--out when flying; rename the "
+                "folder to import it)"
             )
 
     def record_rows(self, run: str, rows: Iterable[dict]) -> int:
@@ -320,13 +357,17 @@ class InventoryStore:
 
     def history(self, place: str, limit: int | None = None) -> list[dict]:
         """What was found at ``place``, run by run (oldest first; the newest ``limit``):
-        rows found by the run itself (not those a resumed run carried over), with the
-        run's start and status."""
+        rows found by the run itself, with the run's start and status. A row a resumed run
+        carried over is left out when the run that found it is in the store (it is in
+        that run's history); one whose finder is not (never recorded, or this very run
+        under the folder's old name: a renamed or copied folder) is the only record and
+        is shown."""
         keys = ("run", "started", "run_status", *ROW_FIELDS)
         q = "SELECT i.run, r.started, r.status, "
         q += ", ".join(f"i.{k}" for k in ROW_FIELDS)
         q += " FROM inventory_rows i JOIN runs r ON r.run = i.run "
-        q += "WHERE i.place = ? AND (i.origin IS NULL OR i.origin = i.run) "
+        q += "WHERE i.place = ? AND (i.origin IS NULL OR i.origin = i.run "
+        q += "OR NOT EXISTS (SELECT 1 FROM runs o WHERE o.run = i.origin)) "
         q += "ORDER BY r.started DESC, i.run DESC"
         if limit:
             q += f" LIMIT {int(limit)}"
@@ -357,8 +398,9 @@ class InventoryStore:
     def diff(self, run_a: str, run_b: str) -> list[dict]:
         """What changed from run ``run_a``'s inventory to ``run_b``'s, place by place:
         ``change`` is ``appeared`` (empty in A, a pallet in B), ``disappeared`` (a pallet
-        in A, empty in B), ``changed`` (another answer), ``only in A`` / ``only in B``
-        (the place has an answer in one run only). Unchanged places are left out."""
+        in A, empty in B), ``turned`` (the same pallet showing its other side: ``109A`` ->
+        ``109B``), ``changed`` (another answer), ``only in A`` / ``only in B`` (the place
+        has an answer in one run only). Unchanged places are left out."""
         a = {r["place"]: r for r in self.rows(run_a)}
         b = {r["place"]: r for r in self.rows(run_b)}
         out = []
@@ -375,6 +417,8 @@ class InventoryStore:
                 change = "appeared"
             elif y == "empty":
                 change = "disappeared"
+            elif _side_of(x) is not None and _side_of(x) == _side_of(y):
+                change = "turned"
             else:
                 change = "changed"
             out.append(
@@ -408,6 +452,14 @@ class _SqliteImmediate:
             self.conn.commit()
         else:
             self.conn.rollback()
+
+
+def _side_of(answer: str) -> str | None:
+    """The pallet an answer names a side of (``109B`` -> ``109``: a digit and one letter, as
+    :func:`perception.expected.pallet_of` reads it; the store imports nothing of the
+    project), else None."""
+    s = answer.strip()
+    return s[:-1] if len(s) >= 2 and s[-1].isalpha() and s[-2].isdigit() else None
 
 
 def _first_line(exc: BaseException) -> str:

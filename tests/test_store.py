@@ -50,7 +50,7 @@ def test_record_history_diff(store_url) -> None:
     with InventoryStore.open(store_url) as s:
         s.begin_run("inv-1", mission="missions/inventory.xml", seed=0, started=1000.0)
         s.record_rows("inv-1", [_row("A-01-1", "3A"), _row("A-01-2", "empty", "empty")])
-        s.record_rows("inv-1", [_row("A-02-1", "4B", drone="cf2")])
+        s.record_rows("inv-1", [_row("A-02-1", "4B", drone="cf2"), _row("A-04-1", "109A")])
         s.end_run("inv-1", "SUCCESS")
         s.begin_run("inv-2", started=2000.0, fleet="aisle_2")
         s.record_rows(
@@ -60,11 +60,12 @@ def test_record_history_diff(store_url) -> None:
                 _row("A-01-2", "2B"),
                 _row("A-02-1", "empty", "empty"),
                 _row("A-03-1", "unknown", "unknown"),
+                _row("A-04-1", "109B"),  # the same pallet, turned: not another one
             ],
         )
         # a re-record of the same run/place replaces: never a second row
         s.record_rows("inv-2", [_row("A-01-1", "5A", distance=0.25)])
-        assert len(s.rows("inv-2")) == 4
+        assert len(s.rows("inv-2")) == 5
         hist = s.history("A-01-1")
         assert [(h["run"], h["answer"]) for h in hist] == [("inv-1", "3A"), ("inv-2", "5A")]
         assert hist[1]["distance"] == 0.25 and hist[0]["run_status"] == "SUCCESS"
@@ -75,11 +76,12 @@ def test_record_history_diff(store_url) -> None:
             "A-01-2": "appeared",
             "A-02-1": "disappeared",
             "A-03-1": "only in B",
+            "A-04-1": "turned",
         }
         with pytest.raises(StoreError, match=r"no run 'inv-3' \(did you mean inv-[12]\?\)"):
             s.diff("inv-1", "inv-3")
         assert [r["run"] for r in s.runs()] == ["inv-1", "inv-2"]
-        assert s.runs()[0]["rows"] == 3 and s.runs()[1]["status"] == "running"
+        assert s.runs()[0]["rows"] == 4 and s.runs()[1]["status"] == "running"
 
 
 def test_carried_rows_are_not_history_of_the_resumed_run(store_url) -> None:

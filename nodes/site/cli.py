@@ -87,7 +87,13 @@ def _history(store: InventoryStore, args: argparse.Namespace) -> int:
     if not found:
         import difflib
 
-        close = difflib.get_close_matches(args.place, store.places(), n=1)
+        places = store.places()
+        if args.place in places:  # rows there, each carried over from a run kept beside it
+            raise StoreError(
+                f"{store.shown}: place {args.place!r} has only rows that resumed runs "
+                "carried over; each is in the history of the run that found it"
+            )
+        close = difflib.get_close_matches(args.place, places, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
         raise StoreError(f"{store.shown}: no row for place {args.place!r}{hint}")
     if args.json:

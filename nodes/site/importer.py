@@ -20,6 +20,15 @@ def import_run(store: InventoryStore, run_dir: str) -> int:
     replaces. :class:`StoreError` for a folder without an inventory."""
     if not os.path.isdir(run_dir):
         raise StoreError(f"{run_dir}: no such run folder")
+    parent = os.path.dirname(os.path.abspath(run_dir))
+    if os.path.basename(parent) == "drones" and os.path.exists(
+        os.path.join(os.path.dirname(parent), "fleet.json")
+    ):
+        fleet = os.path.dirname(parent)
+        raise StoreError(
+            f"{run_dir}: one drone's folder of the fleet run {fleet}: import the fleet's "
+            "folder (its inventory merges every drone's)"
+        )
     if not os.path.exists(os.path.join(run_dir, "inventory.json")):
         raise StoreError(f"{run_dir}: not an inventory run (no inventory.json)")
     try:
