@@ -42,6 +42,8 @@ MAX_EXPECTED_PLACES = 100_000
 #: spellings of "no pallet here" in the pallet column
 EMPTY_SPELLINGS = ("", "empty", "none", "-")
 _LONGEST = 200  # a place or pallet name longer than this is not one
+#: the most problems of one expected-stock file said (a wrong file would print thousands)
+MAX_PROBLEMS_SAID = 50
 
 
 @dataclass
@@ -181,6 +183,15 @@ def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]],
         if not place:
             problems.append(Problem(where_place, "a row without a place (expected place,pallet)"))
             continue
+        if qc >= len(cells):  # not "A-01-1," (empty): a line cut short is no answer
+            problems.append(
+                Problem(
+                    where_place,
+                    f"'{place}': the row ends before its pallet column (write "
+                    f"'{place}{delimiter}' for a place that should be empty)",
+                )
+            )
+            continue
         out.append((place, pallet, where_place, where_pallet))
     return out, problems
 
@@ -202,8 +213,32 @@ def _cell_text(value: Any) -> str:
     return str(value).strip()
 
 
+#: what a spreadsheet shows for a formula that failed
+_EXCEL_ERRORS = ("#N/A", "#REF!", "#DIV/0!", "#VALUE!", "#NAME?", "#NUM!", "#NULL!", "#SPILL!")
+
+
+def _odd_cell(value: Any) -> str | None:
+    """Why a spreadsheet cell is no name (a yes/no cell, a date, a fraction, a formula's
+    error), else None."""
+    import datetime
+
+    if isinstance(value, bool):
+        return f"a yes/no cell ({str(value).upper()}), not a name"
+    if isinstance(value, (datetime.date, datetime.time, datetime.timedelta)):
+        return f"a date or time cell ({value}), not a name"
+    if isinstance(value, float) and not value.is_integer():
+        return f"a number with a fraction ({value}), not a name"
+    if isinstance(value, str) and value.strip().upper() in _EXCEL_ERRORS:
+        return f"a formula's error ({value.strip()}), not a name"
+    return None
+
+
 def xlsx_table(
-    path: str, data: bytes, limit: int, needs: tuple[str, ...] = ()
+    path: str,
+    data: bytes,
+    limit: int,
+    needs: tuple[str, ...] = (),
+    odd: dict[tuple[int, int], str] | None = None,
 ) -> tuple[str, list[str], list[tuple[int, list[str]]], list[Problem]]:
     """The first sheet of the XLSX workbook ``data`` (openpyxl; formulas by their saved
     results): its title, its header row (cells as text, trailing empty cells left out) and
@@ -211,7 +246,9 @@ def xlsx_table(
     ``limit`` rows, only as many columns as the header has; or the problems (located at
     ``path``:1:1, or at the row past the limit). The header is the first of the sheet's
     first :data:`_XLSX_HEADER_ROWS` rows that holds every name of ``needs`` (any case): a
-    WMS report may have a title and a date above it. Without one, it is the first row."""
+    WMS report may have a title and a date above it. Without one, it is the first row.
+    ``odd`` (if given) gets (row, column from 0) -> why for each body cell that is no name
+    (:func:`_odd_cell`)."""
     from openpyxl import load_workbook
 
     try:
@@ -247,6 +284,11 @@ def xlsx_table(
             cells = [_cell_text(c) for c in row]
             if any(cells):
                 rows.append((i, cells))
+                if odd is not None:
+                    for j, c in enumerate(row):
+                        why = _odd_cell(c)
+                        if why:
+                            odd[(i, j)] = why
         return ws.title, header, rows, []
     except Exception as exc:  # a sheet openpyxl cannot read to the end
         return "", [], [], [Problem(Loc(path, 1, 1), f"not a readable XLSX workbook: {exc}")]
@@ -258,7 +300,10 @@ def _entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc
     """(place, pallet, where, where) per row of the first sheet of an XLSX workbook (as a
     WMS exports it: a header row with ``place`` and ``pallet``), located as
     ``file:row:column``."""
-    title, header, rows, problems = xlsx_table(path, data, MAX_EXPECTED_PLACES, ("place", "pallet"))
+    odd: dict[tuple[int, int], str] = {}
+    title, header, rows, problems = xlsx_table(
+        path, data, MAX_EXPECTED_PLACES, ("place", "pallet"), odd
+    )
     if problems and not rows:
         return [], problems
     names = [h.lower() for h in header]
@@ -272,6 +317,9 @@ def _entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc
             )
         ]
     pc, qc = names.index("place"), names.index("pallet")
+    unsaved = _unsaved_formulas(
+        data, {i for i, cells in rows if not cells[qc : qc + 1] or not cells[qc]}, qc
+    )
     out = []
     for i, cells in rows:
         place = cells[pc] if pc < len(cells) else ""
@@ -279,8 +327,43 @@ def _entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc
         if not place:
             problems.append(Problem(Loc(path, i, pc + 1), "a row without a place"))
             continue
+        why = odd.get((i, pc)) or odd.get((i, qc))
+        if why is None and i in unsaved:
+            why = (
+                f"a formula without a saved result ({unsaved[i][:40]}): the workbook was "
+                "written by a program, not saved by a spreadsheet; open and save it"
+            )
+        if why is not None:
+            col = pc if (i, pc) in odd else qc
+            problems.append(Problem(Loc(path, i, col + 1), why))
+            continue
         out.append((place, pallet, Loc(path, i, pc + 1), Loc(path, i, qc + 1)))
     return out, problems
+
+
+def _unsaved_formulas(data: bytes, rows: set[int], col: int) -> dict[int, str]:
+    """Row -> formula of the first sheet's cells in column ``col`` (from 0) of ``rows``
+    that hold a formula: read as values they are empty when no spreadsheet saved their
+    result, and an empty pallet means "this place should be empty"."""
+    if not rows:
+        return {}
+    from openpyxl import load_workbook
+
+    found: dict[int, str] = {}
+    try:
+        wb = load_workbook(io.BytesIO(data), read_only=True, data_only=False)
+        try:
+            ws = wb.worksheets[0]
+            body = ws.iter_rows(min_row=min(rows), max_row=max(rows), values_only=True)
+            for i, row in enumerate(body, start=min(rows)):
+                v = row[col] if col < len(row) else None
+                if i in rows and isinstance(v, str) and v.startswith("="):
+                    found[i] = v
+        finally:
+            wb.close()
+    except Exception:  # noqa: BLE001 - read once already; this pass only adds a reason
+        return found
+    return found
 
 
 def _offset_loc(path: str, text: str, offset: int) -> Loc:
@@ -327,7 +410,7 @@ def _entries_json(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]]
             )
             continue
         pallet = obj.get("pallet")
-        if pallet is not None and not isinstance(pallet, (str, int)):
+        if pallet is not None and (isinstance(pallet, bool) or not isinstance(pallet, (str, int))):
             problems.append(
                 Problem(where, f"rows[{i}]: pallet must be text or null, got {_shown(pallet)}")
             )
@@ -362,7 +445,7 @@ def _mapping(
         start = m.start() if m else pos
         pos = m.end() if m else pos
         where = _offset_loc(path, text, start)
-        if pallet is not None and not isinstance(pallet, (str, int)):
+        if pallet is not None and (isinstance(pallet, bool) or not isinstance(pallet, (str, int))):
             problems.append(
                 Problem(where, f"{place}: pallet must be text or null, got {_shown(pallet)}")
             )
@@ -447,6 +530,11 @@ def read_expected(
             pallet_at[key] = (place, where_place)
     if not entries and not problems:
         problems.append(Problem(Loc(path, 1, 1), "the expected stock lists no place"))
+    if len(problems) > MAX_PROBLEMS_SAID:  # a wrong file altogether: the first ones say it
+        more = len(problems) - MAX_PROBLEMS_SAID
+        problems = problems[:MAX_PROBLEMS_SAID] + [
+            Problem(Loc(path, 1, 1), f"... and {more} more problems in this file")
+        ]
     return stock, problems
 
 

@@ -124,6 +124,11 @@ def test_the_same_as_json_in_three_shapes(tmp_path, world):
         # objects are said as the file wrote them, not as Python's [('x', 1)]
         ("s.json", '[{"place": "A-01-1", "pallet": {"x": 1}}]', (1, 2), 'pallet must be text or null, got {"x": 1}'),
         ("s.json", '[{"place": null, "pallet": "1"}]', (1, 2), 'with the place as text, got {"place": null, "pallet": "1"}'),
+        # a line cut short is no "should be empty" (that is "A-01-1,"); nor is a JSON true
+        ("s.csv", "place,pallet\nA-01-2,\nA-01-1\n", (3, 1), "'A-01-1': the row ends before its pallet column (write 'A-01-1,'"),
+        ("s.csv", "place;pallet\nA-01-1\n", (2, 1), "(write 'A-01-1;' for a place that should be empty)"),
+        ("s.json", '[{"place": "A-01-1", "pallet": true}]', (1, 2), "pallet must be text or null, got true"),
+        ("s.json", '{"A-01-1": false}', (1, 2), "A-01-1: pallet must be text or null, got false"),
     ],
 )  # fmt: skip
 def test_every_problem_is_located_in_the_file(tmp_path, world, name, text, where, message):
@@ -164,6 +169,40 @@ def test_a_wms_xlsx_is_read_as_its_csv_would_be(tmp_path, world):
         (5, 1, "a row without a place"),
     ]
     assert all(p.loc.file == path for p in problems)
+
+
+def test_xlsx_cells_that_are_no_pallet_name_are_refused(tmp_path, world):
+    """A formula whose result no spreadsheet saved reads as an empty cell, i.e. "this place
+    should be empty": a false `unexpected` for the pallet found there. Error cells, yes/no
+    cells, dates and fractions were taken as pallet names. Columns not read may hold
+    anything."""
+    import datetime
+
+    rows = [
+        ["place", "pallet", "checked"],
+        ["A-01-1", "=VLOOKUP(A2,Sheet2!A:B,2,0)", datetime.date(2026, 11, 1)],
+        ["A-01-2", "#N/A"],
+        ["A-02-1", True],
+        ["A-02-2", 109.5],
+        ["A-03-1", datetime.datetime(2026, 1, 2)],
+        ["A-03-2", None, True],
+        ["A-04-1", 104, "#REF!"],
+    ]
+    _, problems = read_expected(_xlsx(tmp_path / "s.xlsx", rows), world, WHERE)
+    assert [(p.loc.line, p.loc.col, p.message.split(" (")[0]) for p in problems] == [
+        (2, 2, "a formula without a saved result"),
+        (3, 2, "a formula's error"),
+        (4, 2, "a yes/no cell"),
+        (5, 2, "a number with a fraction"),
+        (6, 2, "a date or time cell"),
+    ]
+    assert "open and save it" in problems[0].message
+
+
+def test_a_wrong_file_says_its_first_problems_only(tmp_path, world):
+    text = "place,pallet\n" + "".join(f"Z-{i:04d}-1,{i}\n" for i in range(2000))
+    _, problems = _read(tmp_path, "s.csv", text, world)
+    assert len(problems) == 51 and problems[-1].message == "... and 1950 more problems in this file"
 
 
 def test_an_xlsx_report_with_a_title_above_its_header(tmp_path, world):
