@@ -40,8 +40,10 @@ class RunRecorder:
         run: str,
         info: Callable[[], dict[str, Any]] | None = None,
         say: Callable[[str], None] | None = None,
+        folder: str | None = None,
     ) -> None:
         self.store: InventoryStore | None = store
+        self.folder = folder or "RUN_DIR"  # said in the import command a user may need
         self.url, self.run = url, run
         self.shown = store.shown
         self._info = info or dict
@@ -84,7 +86,7 @@ class RunRecorder:
         if not done:
             self._say(
                 f"store {self.shown}: the last rows of {self.run} are not recorded yet; the "
-                f"run folder has them (btrun inventory import <run folder> --store ...)"
+                f"run folder has them (btrun inventory import {self.folder} --store ...)"
             )
         ok = done and not self._failing
         self.close(timeout=0.0)
@@ -180,7 +182,7 @@ def start_recorder(
     except db_errors() as exc:
         store.close()
         raise StoreError(f"{store.shown}: {exc}".splitlines()[0]) from None
-    return RunRecorder(store, url, run, info, say)
+    return RunRecorder(store, url, run, info, say, folder)
 
 
 __all__ = ["FINISH_TIMEOUT_S", "RunRecorder", "start_recorder"]

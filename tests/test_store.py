@@ -227,3 +227,22 @@ def test_many_opening_a_new_store_file_at_once_all_get_it(tmp_path) -> None:
             t.join(60)
         failed += [f"attempt {attempt}: {e}" for e in errors]
     assert not failed, failed[:3]
+
+
+def test_rows_the_store_did_not_take_in_time_name_the_folder_to_import(tmp_path) -> None:
+    """The end-of-run line printed a literal "<run folder>" for the user to fill in."""
+    import sqlite3
+
+    from store.recorder import start_recorder
+
+    url, folder, said = f"sqlite:///{tmp_path}/site.sqlite", str(tmp_path / "inv-7"), []
+    rec = start_recorder(url, "inv-7", folder, say=said.append)
+    lock = sqlite3.connect(tmp_path / "site.sqlite", isolation_level=None)
+    lock.execute("BEGIN EXCLUSIVE")  # another writer holds the store
+    try:
+        rec.record([_row("A-01-1", "3A")])
+        assert rec.finish("SUCCESS", timeout=0.3) is False
+    finally:
+        lock.execute("ROLLBACK")
+        lock.close()
+    assert any(f"btrun inventory import {folder} --store" in m for m in said), said
