@@ -27,3 +27,20 @@ def positive(what: str, most: float | None = None) -> Callable[[str], float]:
 
     parse.__name__ = what  # argparse names the type in some messages
     return parse
+
+
+def count(what: str) -> Callable[[str], int]:
+    """An argparse ``type``: a whole number >= 1 (``--limit 0`` and ``-1`` showed
+    everything, ``--page 0`` the first page)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = 0
+        if value < 1:
+            raise argparse.ArgumentTypeError(f"expected {what}: a whole number >= 1, got {text!r}")
+        return value
+
+    parse.__name__ = what
+    return parse

@@ -112,3 +112,21 @@ def test_renamed_moved_and_drone_folders_imported(tmp_path, capsys):
     (fleet / "fleet.json").write_text(json.dumps({"seed": 0}))
     assert main(["inventory", "import", drone, "--store", store]) == 2
     assert "import the fleet's folder" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["inventory", "history", "A-01-1", "--limit", "0"],
+        ["inventory", "runs", "--limit", "-1"],
+        ["gallery", "list", "g.sqlite", "--page", "0"],
+        ["gallery", "list", "g.sqlite", "--per-page", "0"],
+    ],
+)
+def test_counts_below_one_are_refused(args, capsys):
+    """--limit 0 and -1 showed everything, --page 0 the first page."""
+    try:
+        rc = main(args)
+    except SystemExit as exc:
+        rc = exc.code
+    assert rc == 2 and "a whole number >= 1" in capsys.readouterr().err

@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from bt_engine.arg_types import count
 from perception.gallery_pg import is_gallery_url
 
 #: how an operator's review (``btrun console``) names itself in a gallery's history ``run``
@@ -57,10 +58,10 @@ def setup(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="gallery_command", metavar="SUBCOMMAND", required=True)
     ls = sub.add_parser("list", help="the enrolled pallet sides (a page of them)")
     ls.add_argument("gallery")
-    ls.add_argument("--page", type=int, default=None, help="page number, from 1")
+    ls.add_argument("--page", type=count("a page number"), default=None, help="page number, from 1")
     ls.add_argument(
         "--per-page",
-        type=int,
+        type=count("a number of sides per page"),
         default=None,
         help=f"sides per page (default {PER_PAGE}; every side of a gallery of at most "
         f"{LIST_ALL_UP_TO} when neither option is given)",
