@@ -151,6 +151,28 @@ def export_text(data: bytes) -> str:
             raise exc from None
 
 
+#: how an old binary Office file (an .xls workbook, a .doc) starts
+_OLE2 = b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1"
+
+
+class NotText(ValueError):
+    """A file that is no text at all (an old .xls workbook): said as what it is."""
+
+
+def not_text(data: bytes) -> str:
+    """ "" for text-like ``data``; :class:`NotText` for an old binary Excel workbook (read as
+    Windows-1252 it was a header error that printed its binary to the terminal)."""
+    if data.startswith(_OLE2):
+        raise NotText("an old binary Excel workbook (.xls): save it as .xlsx or CSV")
+    return ""
+
+
+def byte_loc(path: str, data: bytes, offset: int) -> Loc:
+    """``path:line:col`` of byte ``offset`` of ``data`` (the column counted in bytes)."""
+    line_start = data.rfind(b"\n", 0, offset) + 1
+    return Loc(path, data.count(b"\n", 0, offset) + 1, offset - line_start + 1)
+
+
 def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
     """(place, pallet, where the place is, where the pallet is) per CSV row."""
     try:
@@ -475,13 +497,13 @@ def read_expected(
         entries, problems = _entries_xlsx(path, data)
     else:
         try:
-            text = export_text(data)
-        except UnicodeDecodeError as exc:
+            text = not_text(data) or export_text(data)
+        except (UnicodeDecodeError, ValueError) as exc:
             return None, [
                 Problem(
-                    where,
-                    f"expected stock: {path} is not UTF-8, UTF-16 or Windows-1252 text (byte "
-                    f"{exc.start}): expected CSV, JSON or an XLSX workbook",
+                    byte_loc(path, data, getattr(exc, "start", 0)),
+                    f"{exc if isinstance(exc, NotText) else 'not UTF-8, UTF-16 or Windows-1252 text'}"
+                    ": expected CSV, JSON or an XLSX workbook",
                 )
             ]
         if path.lower().endswith(".json") or text.lstrip()[:1] in ("[", "{"):
@@ -541,9 +563,12 @@ def read_expected(
 __all__ = [
     "EMPTY_SPELLINGS",
     "ExpectedStock",
+    "NotText",
     "CsvRow",
     "csv_rows",
+    "byte_loc",
     "export_text",
+    "not_text",
     "read_expected",
     "xlsx_table",
 ]

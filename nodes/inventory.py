@@ -32,8 +32,11 @@ from drivers.settings import ConfigError, did_you_mean
 from nodes.common import geofence_config
 from nodes.expected_stock import (
     ExpectedStock,
+    NotText,
+    byte_loc,
     csv_rows,
     export_text,
+    not_text,
     read_expected,
     xlsx_table,
 )
@@ -145,14 +148,14 @@ def _csv_tokens(path: str, where: Loc) -> tuple[list[tuple[str, Loc]], list[Prob
     if data is None:
         return [], [Problem(where, f"place list: {read[0].message}")]
     try:
-        text = export_text(data)  # UTF-8, UTF-16 with its mark or Windows-1252
+        text = not_text(data) or export_text(data)  # UTF-8, UTF-16 with its mark or cp1252
         rows, _ = csv_rows(text)  # a comma, a semicolon or a tab between the columns
-    except UnicodeDecodeError as exc:
+    except (UnicodeDecodeError, NotText) as exc:
+        why = exc if isinstance(exc, NotText) else "not UTF-8, UTF-16 or Windows-1252 text"
         return [], [
             Problem(
-                Loc(path, 1, 1),
-                f"not UTF-8, UTF-16 or Windows-1252 text (byte {exc.start}): expected a CSV "
-                "file with a 'place' column or an XLSX workbook",
+                byte_loc(path, data, getattr(exc, "start", 0)),
+                f"{why}: expected a CSV file with a 'place' column or an XLSX workbook",
             )
         ]
     except csv.Error as exc:
