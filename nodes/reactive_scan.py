@@ -41,6 +41,9 @@ from nodes.perception_session import MIN_SCORE_DOC, PerceptionError, PerceptionS
 CATEGORY_SCAN = "reactive scan"
 FIXED_YAW = 2
 GEOFENCE_CLEARANCE_M = 0.05  # a target must be this far inside the geofence walls
+#: frames taken at a look point that must reach the detector before LocatePallet may say
+#: it saw no block there (lock-step always has them: 15 frames/s over its look_time)
+MIN_LOOK_FRAMES = 3
 STANDOFF_SLACK_M = 0.15  # stand off up to this much further to keep inside the geofence
 
 _DETECTOR = input_port("detector", STRING, "", "detector weights file (empty: the shipped model)")
@@ -72,6 +75,7 @@ class ReactiveLeaf(StatefulActionNode):
         self.started_s = self.now()
         self.progress: Any = None
         self.feed = self.session.feed(self.vehicle, is_realtime(self))
+        self.frame_times: list[float] = []  # when each frame looked at was taken
 
     def start_on_face(self) -> NodeStatus | None:
         """Set up (:meth:`setup_common`) and take the ``face`` input as :attr:`face`; the
@@ -155,6 +159,7 @@ class ReactiveLeaf(StatefulActionNode):
                 self.feed, self.vehicle, detector, min_score, self.now()
             ):
                 self.session.track(obs)
+                self.frame_times.append(obs.frame.t_s)
         except PerceptionError as exc:
             return str(exc)
         return ""
@@ -195,11 +200,12 @@ def look_points(
 class LocatePallet(ReactiveLeaf):
     """Find the pallet face near where the map puts it. Fly to ``look_distance`` in front of
     ``place`` (the mapped centre of the block row, x;y;z), facing ``facing_deg``; hold for
-    ``look_time`` while the detector looks; fit the face (:mod:`perception.face`). If no block
-    is seen, look again from points ``search_step`` to either side (``search_points`` in
-    all). SUCCESS with ``face``; FAILURE "no pallet found" (``blocks_seen`` 0: an empty
-    place), or on a refused motion or after ``timeout`` (``blocks_seen`` -1: it could not
-    look)."""
+    ``look_time`` while the detector looks (and on until at least 3 frames taken there
+    reached it: a stalled camera or a busy host never makes a place empty); fit the face
+    (:mod:`perception.face`). If no block is seen, look again from points ``search_step``
+    to either side (``search_points`` in all). SUCCESS with ``face``; FAILURE "no pallet
+    found" (``blocks_seen`` 0: an empty place), or on a refused motion or after ``timeout``
+    (``blocks_seen`` -1: it could not look)."""
 
     bt_id = "LocatePallet"
     ports = (
@@ -356,7 +362,18 @@ class LocatePallet(ReactiveLeaf):
             why = self.look(self.detector, self.get_input("min_score"))
             if why:
                 return self._fail(why)
-            if self.now() - self.looking_since >= self.get_input("look_time") - 1e-9:
+            looked = sum(t >= self.looking_since - 1e-9 for t in self.frame_times)
+            done = self.now() - self.looking_since >= self.get_input("look_time") - 1e-9
+            if done and looked < MIN_LOOK_FRAMES:
+                # a host behind: too few frames taken here reached the detector to say the
+                # place is empty; look on (within the time-out), never answer "no block"
+                if self.timed_out():
+                    return self._fail(
+                        f"{looked} frame(s) taken at the look point reached the detector in "
+                        f"{self.get_input('timeout'):g} s (at least {MIN_LOOK_FRAMES} are "
+                        "needed to say there is no pallet): the camera or the host is behind"
+                    )
+            elif done:
                 face = self._fit()
                 if face is not None:
                     return self._found(face)
