@@ -191,6 +191,14 @@ def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]],
                 f"the columns reads too), got '{got}'",
             )
         ]
+    twice = [h for h in ("place", "pallet") if header.count(h) > 1]
+    if twice:
+        return [], [
+            Problem(
+                Loc(path, rows[0].line, 1),
+                f"two '{twice[0]}' columns in the header: which one is meant cannot be told",
+            )
+        ]
     pc, qc = header.index("place"), header.index("pallet")
     out = []
     problems = []
@@ -280,7 +288,9 @@ def xlsx_table(
     try:
         if not wb.worksheets:
             return "", [], [], [Problem(Loc(path, 1, 1), "the workbook has no sheet")]
-        ws = wb.worksheets[0]
+        # the first sheet a spreadsheet shows (a hidden one first is a lookup table)
+        shown = [w for w in wb.worksheets if getattr(w, "sheet_state", "visible") == "visible"]
+        ws = shown[0] if shown else wb.worksheets[0]
         top = ws.iter_rows(
             values_only=True, max_col=_XLSX_HEADER_COLUMNS, max_row=_XLSX_HEADER_ROWS
         )
@@ -336,6 +346,15 @@ def _entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc
                 f"expected a header row with 'place' and 'pallet' in the first "
                 f"{_XLSX_HEADER_ROWS} rows of the first sheet ('{title}'), got "
                 f"'{','.join(header)[:80]}'",
+            )
+        ]
+    twice = [h for h in ("place", "pallet") if names.count(h) > 1]
+    if twice:
+        return [], [
+            Problem(
+                Loc(path, 1, 1),
+                f"two '{twice[0]}' columns in the header row of sheet '{title}': which one is "
+                "meant cannot be told",
             )
         ]
     pc, qc = names.index("place"), names.index("pallet")
@@ -513,12 +532,22 @@ def read_expected(
     names = list(getattr(world, "places", None) or {})
     stock = ExpectedStock(path)
     pallet_at: dict[str, tuple[str, Loc]] = {}
-    for place, pallet, where_place, where_pallet in entries[: MAX_EXPECTED_PLACES + 1]:
-        if len(stock.places) >= MAX_EXPECTED_PLACES:
-            problems.append(Problem(where_place, f"more than {MAX_EXPECTED_PLACES} places listed"))
-            break
+    if len(entries) > MAX_EXPECTED_PLACES:  # said first: the rest is not read
+        problems.insert(
+            0,
+            Problem(
+                entries[MAX_EXPECTED_PLACES][2], f"more than {MAX_EXPECTED_PLACES} places listed"
+            ),
+        )
+    for place, pallet, where_place, where_pallet in entries[:MAX_EXPECTED_PLACES]:
         if len(place) > _LONGEST or len(pallet) > _LONGEST:
             problems.append(Problem(where_place, f"a name longer than {_LONGEST} characters"))
+            continue
+        if any(ord(c) < 32 or ord(c) == 127 for c in place + pallet):
+            shown = (place if any(ord(c) < 32 for c in place) else pallet).encode("unicode_escape")
+            problems.append(
+                Problem(where_place, f"a control character in '{shown.decode()[:60]}': not a name")
+            )
             continue
         if names and place not in names:
             hint = did_you_mean(place, names) or f" (places: {names[0]} .. {names[-1]})"

@@ -308,7 +308,7 @@ class InventoryStore:
                 f"ON CONFLICT (run, place) DO UPDATE SET {updates}, recorded = excluded.recorded",
                 values,
             )
-        return len(values)
+        return len({v[1] for v in values})  # a place listed twice is one row
 
     def end_run(self, run: str, status: str, ended: float | None = None) -> None:
         """Mark ``run`` ended with the mission's ``status``."""

@@ -531,3 +531,35 @@ def test_the_mission_reports_every_injected_discrepancy(tmp_path, world, capsys)
     assert answer.index("discrepancies: 2 confirmed") < answer.index("inventory: 8 places")
     section = inventory_section(str(tmp_path), summary)
     assert section.index("Discrepancies against the expected stock") < section.index("<img")
+
+
+def test_odd_headers_sheets_and_names(tmp_path, world):
+    """Two 'place' columns (the first one won), a control character in a name, a hidden
+    lookup sheet before the stock (it was read), more rows than a stock may have (cut
+    without a word)."""
+    from openpyxl import Workbook
+
+    _, problems = _read(tmp_path, "a.csv", "place,pallet,place\nA-01-1,109,A-02-1\n", world)
+    assert [p.message for p in problems] == [
+        "two 'place' columns in the header: which one is meant cannot be told"
+    ]
+    _, problems = _read(tmp_path, "b.csv", "place,pallet\nA-01-1,10\x009\n", world)
+    assert [(p.loc.line, p.message) for p in problems] == [
+        (2, "a control character in '10\\x009': not a name")
+    ]
+    wb = Workbook()
+    wb.active.title = "lookup"
+    wb.active.append(["place", "pallet"])
+    wb.active.append(["A-01-1", 999])
+    wb.active.sheet_state = "hidden"
+    stock_sheet = wb.create_sheet("Stock")
+    stock_sheet.append(["place", "pallet"])
+    stock_sheet.append(["A-01-1", 109])
+    wb.active = 1
+    wb.save(tmp_path / "s.xlsx")
+    stock, problems = read_expected(str(tmp_path / "s.xlsx"), world, WHERE)
+    assert problems == [] and stock.places == {"A-01-1": "109"}
+    many = "place,pallet\n" + "A-01-1,1\n" * 100_001
+    _, problems = _read(tmp_path, "c.csv", many, world)
+    assert problems[0].message == "more than 100000 places listed"
+    assert problems[0].loc.line == 100_002
