@@ -11,7 +11,7 @@ place should be empty::
 
 or the same as JSON: a list of ``{"place": ..., "pallet": ...}`` objects (``null`` or
 ``""`` for an empty place), the list under ``"rows"``, or a ``{place: pallet}`` object; or
-an XLSX workbook whose first sheet has a header row with ``place`` and ``pallet`` (read
+an XLSX workbook whose first shown sheet has a header row with ``place`` and ``pallet`` (read
 with openpyxl; problems located as ``stock.xlsx:ROW:COLUMN``).
 Pallets are named as the WMS names them (``103``); a side name (``103B``) stands for its
 pallet. :func:`read_expected` reads it before flight (bounded, :mod:`bt_engine.files`) and
@@ -263,6 +263,12 @@ def _odd_cell(value: Any) -> str | None:
     return None
 
 
+def _shown_sheet(wb: Any) -> Any:
+    """The first sheet a spreadsheet shows (a hidden one before it is a lookup table)."""
+    shown = [w for w in wb.worksheets if getattr(w, "sheet_state", "visible") == "visible"]
+    return shown[0] if shown else wb.worksheets[0]
+
+
 def xlsx_table(
     path: str,
     data: bytes,
@@ -270,7 +276,7 @@ def xlsx_table(
     needs: tuple[str, ...] = (),
     odd: dict[tuple[int, int], str] | None = None,
 ) -> tuple[str, list[str], list[tuple[int, list[str]]], list[Problem]]:
-    """The first sheet of the XLSX workbook ``data`` (openpyxl; formulas by their saved
+    """The first shown sheet of the XLSX workbook ``data`` (openpyxl; formulas by their saved
     results): its title, its header row (cells as text, trailing empty cells left out) and
     the non-blank rows below it as (row number, cells as text: ``1001`` for 1001.0) up to
     ``limit`` rows, only as many columns as the header has; or the problems (located at
@@ -288,9 +294,7 @@ def xlsx_table(
     try:
         if not wb.worksheets:
             return "", [], [], [Problem(Loc(path, 1, 1), "the workbook has no sheet")]
-        # the first sheet a spreadsheet shows (a hidden one first is a lookup table)
-        shown = [w for w in wb.worksheets if getattr(w, "sheet_state", "visible") == "visible"]
-        ws = shown[0] if shown else wb.worksheets[0]
+        ws = _shown_sheet(wb)
         top = ws.iter_rows(
             values_only=True, max_col=_XLSX_HEADER_COLUMNS, max_row=_XLSX_HEADER_ROWS
         )
@@ -394,7 +398,7 @@ def _unsaved_formulas(data: bytes, rows: set[int], col: int) -> dict[int, str]:
     try:
         wb = load_workbook(io.BytesIO(data), read_only=True, data_only=False)
         try:
-            ws = wb.worksheets[0]
+            ws = _shown_sheet(wb)
             body = ws.iter_rows(min_row=min(rows), max_row=max(rows), values_only=True)
             for i, row in enumerate(body, start=min(rows)):
                 v = row[col] if col < len(row) else None
