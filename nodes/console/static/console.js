@@ -138,7 +138,8 @@ function mapView() {
   const spots = {};
   for (const [place, p] of Object.entries(state.info.positions)) {
     const [x, y] = state.toMap(p[0], p[1]);
-    (spots[`${Math.round(x)},${Math.round(y)}`] ||= []).push({ place, x, y, z: p[2] });
+    const key = `${Math.round(x)},${Math.round(y)}`;
+    (spots[key] = spots[key] || []).push({ place, x, y, z: p[2] });
   }
   for (const spot of Object.values(spots)) {
     spot.sort((a, b) => a.z - b.z);
