@@ -63,6 +63,9 @@ def test_files_linked_out_of_the_runs_folder_are_not_read(root, tmp_path):
     assert "reached through a link" in info["error"] and info["rows_error"]
     assert info["status"] != SECRET and info["review"] == [] and info["tracks"] == {"drone": []}
     assert SECRET not in json.dumps(list_runs(runs))
+    from nodes.console.live import RunFollower
+
+    assert "root:" not in json.dumps(RunFollower(str(run)).poll())  # nor the live view
 
 
 def test_damaged_rows_are_refused_not_exported_empty(root):

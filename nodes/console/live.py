@@ -13,6 +13,7 @@ import os
 from typing import Any
 
 from nodes.console.files import read_json, read_review
+from nodes.console.paths import plain
 from nodes.console.runs import drone_dirs, read_rows, run_status, vehicle_point
 
 #: the most bytes read from one tick log per poll (the rest is read at the next poll)
@@ -52,6 +53,8 @@ class RunFollower:
 
     def _new_points(self, name: str) -> list[list[float]]:
         path = os.path.join(self.run_dir, self.drones[name], "ticks.jsonl")
+        if not plain(path):  # a link: never followed out of the runs folder
+            return []
         try:
             with open(path, "rb") as f:
                 f.seek(self.offsets[name])
