@@ -19,6 +19,11 @@ Two layers, both over the Vehicle API only:
   the other (the drone stops and holds, its motion kept) and resumes it once they are apart, so
   they never come closer than the minimum separation. It records the closest approach, the
   holds and any violation.
+* A landing is never refused nor kept waiting, but it does not come down onto another
+  drone: when a drone's way straight down passes within ``separation_m`` of another drone
+  (one that stands where it would touch down, or its corridor), :meth:`Airspace.land_spot`
+  gives the nearest free spot beside it (inside the geofence, clear of obstacles), and the
+  drone moves over it at its height before it descends.
 
 With contiguous place blocks per drone (``btrun fleet``) the gate alone keeps them apart;
 the guard is the backstop for what the reservations did not foresee (gusts, tracking error).
@@ -36,6 +41,8 @@ Vec3 = tuple[float, float, float]
 Way = tuple[Vec3, ...]
 #: a drone stepping aside is there this close to its aside point, m
 ASIDE_REACHED_M = 0.1
+#: how far beside its spot a landing may move when another drone is there, m
+LAND_RINGS_M = (0.75, 1.0, 1.5, 2.0)
 
 
 def segment_distance(a0: Vec3, a1: Vec3, b0: Vec3, b1: Vec3) -> float:
@@ -111,6 +118,10 @@ class Airspace:
     requests: dict[str, Way] = field(default_factory=dict)
     blocked_by: dict[str, str] = field(default_factory=dict)
     inside: dict[str, Callable[[Vec3], bool]] = field(default_factory=dict)
+    #: whether a point is clear of the world's obstacles for the drone (None: no obstacles)
+    clear: Callable[[Vec3], bool] | None = None
+    #: landings moved beside another drone
+    landings_moved: int = 0
 
     def add(self, vehicle: Any, inside: Callable[[Vec3], bool] | None = None) -> None:
         """Put ``vehicle`` (named uniquely) under this airspace's gate; ``inside`` says
@@ -122,6 +133,56 @@ class Airspace:
             self.inside[vehicle.name] = inside
         self.corridors[vehicle.name] = (tuple(vehicle.position),)
         vehicle.motion_gate = self.gate
+        vehicle.land_spot = self.land_spot
+
+    def land_spot(self, name: str, start: Vec3, ground_z: float) -> Vec3 | None:
+        """Where drone ``name``, landing from ``start``, should touch down: None for straight
+        below (no other drone within the separation of that way down), else the nearest
+        free spot beside it (rings of LAND_RINGS_M, every 30 deg, the one farthest from the
+        others on the nearest ring): its way over at ``start``'s height and down keeps the
+        separation from every other drone, inside its geofence and clear of obstacles.
+        None too when no spot is free (it lands where it is: recorded by the guard)."""
+        self.after_step(0.0)
+        others = [c for o, c in self.corridors.items() if o != name]
+        down: Way = (tuple(start), (start[0], start[1], ground_z))
+        if all(way_distance(down, c) >= self.separation_m for c in others):
+            return None
+        inside = self.inside.get(name)
+        for r in LAND_RINGS_M:
+            best: tuple[float, Vec3] | None = None
+            for k in range(12):
+                a = math.radians(30 * k)
+                x, y = start[0] + r * math.cos(a), start[1] + r * math.sin(a)
+                above, spot = (x, y, start[2]), (x, y, ground_z)
+                way: Way = (tuple(start), above, spot)
+                gap = min((way_distance(way, c) for c in others), default=math.inf)
+                if gap < self.separation_m:
+                    continue
+                if inside is not None and not (inside(above) and inside((x, y, ground_z + 0.1))):
+                    continue
+                if not self._clear_way(way):
+                    continue
+                if best is None or gap > best[0]:
+                    best = (gap, spot)
+            if best is not None:
+                self.landings_moved += 1
+                self.events.append(
+                    {"landing": name, "moved_to": [round(c, 3) for c in best[1]], "m": r}
+                )
+                return best[1]
+        return None
+
+    def _clear_way(self, way: Way, step_m: float = 0.1) -> bool:
+        """Whether every point along ``way`` (every ``step_m``) is clear of obstacles."""
+        if self.clear is None:
+            return True
+        for a, b in zip(way, way[1:], strict=False):
+            n = max(1, math.ceil(math.dist(a, b) / step_m))
+            for i in range(n + 1):
+                p = tuple(a[k] + (b[k] - a[k]) * i / n for k in range(3))
+                if not self.clear(p):  # type: ignore[arg-type]
+                    return False
+        return True
 
     def blocking(self, name: str, way: Way) -> tuple[str, float] | None:
         """The first other drone whose corridor comes within the separation of ``way`` and

@@ -207,10 +207,21 @@ class MotionRequests:
             speed_mps = 0.5
         start, yaw = self._start_state()
         goal = (start[0], start[1], self._ground_z)
+        # another drone where this one would touch down (a fleet's airspace): beside it
+        spot = None
+        if self.land_spot is not None and self.flight_state in AIRBORNE:
+            spot = self.land_spot(self.name, start, self._ground_z)
+        if spot is not None:
+            goal = (spot[0], spot[1], self._ground_z)
         progress = self._new_motion("land", goal, yaw, None, None, None)
         if self._refuse_unless_flying(progress):
             return progress
-        self._ref = LineReference(start, goal, yaw, yaw, self._limits(speed_mps), self.now_s)
+        limits = self._limits(speed_mps)
+        if spot is None:
+            self._ref = LineReference(start, goal, yaw, yaw, limits, self.now_s)
+        else:  # over at this height, then down
+            over = (goal[0], goal[1], start[2])
+            self._ref = PathReference([start, over, goal], [yaw, yaw], yaw, limits, self.now_s)
         self.flight_state = FlightState.LANDING
         self._touchdown_since = None
         return progress

@@ -14,11 +14,12 @@ control rate; the platform does it (lock-step: inside ``before_tick``).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 from drivers.vehicle.angles import yaw_error_rad
 from drivers.vehicle.battery import percent_from_voltage
 from drivers.vehicle.config import VehicleConfig
-from drivers.vehicle.gate import GatedMotion, MotionGate
+from drivers.vehicle.gate import GatedMotion, MotionGate, Vec3
 from drivers.vehicle.health import HealthTracker
 from drivers.vehicle.interfaces import CameraSource, Link, LinkTelemetry, PoseSample, PoseSource
 from drivers.vehicle.motions import AIRBORNE, MotionRequests
@@ -80,6 +81,9 @@ class Vehicle(MotionRequests):
         self._next_step_s = 0.0
         #: the airspace of a fleet: asked before a take-off, go-to or path starts (gate.py)
         self.motion_gate: MotionGate | None = None
+        #: the airspace's landing spot (name, start, ground z) -> a spot beside, or None for
+        #: straight down; a landing is never refused nor kept waiting (motions.land)
+        self.land_spot: Callable[[str, Vec3, float], Vec3 | None] | None = None
         self._gated: GatedMotion | None = None  # the current gated motion (running or waiting)
         self.waits = 0  # motions that had to wait at the gate
         self.pauses = 0  # motions paused by a supervisor

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -53,6 +54,7 @@ from nodes.fleet.spec import FleetSpec, load_fleet
 from nodes.inventory_log import InventoryError, InventoryLog, discrepancy_lines, pace, pace_line
 
 DRONE_CONTACT_M = 0.12  # two Crazyflie collision spheres (2 x 0.06 m) touch
+LANDING_CLEARANCE_M = 0.12  # a spot a landing moves to is this clear of obstacles
 
 
 def setup(p: argparse.ArgumentParser) -> None:
@@ -246,6 +248,26 @@ def _geofence_of(r: PreparedRun) -> Any:
     return None
 
 
+def _clear_of(runs: dict[str, PreparedRun]) -> Any:
+    """Whether a point is clear of the simulated world's obstacles for a drone (a spot a
+    landing may move to); None without a simulated world (a real site's obstacles are not
+    known here: a landing then moves only inside the geofence)."""
+    for r in runs.values():
+        world = getattr(r.platform, "world", None)
+        if world is not None and hasattr(world, "collision"):
+            return lambda p, w=world: w.collision(p[0], p[1], p[2], LANDING_CLEARANCE_M) is None
+    return None
+
+
+def _contact(runs: dict[str, PreparedRun]) -> tuple[float, list[str]] | None:
+    """The closest two drones stand at the end (a drone that came down onto another, or
+    landed on it after the separation guard stopped watching: an emergency landing) and
+    which; None for a single drone."""
+    at = [(n, tuple(r.platform.vehicle.position)) for n, r in runs.items()]
+    pairs = [(math.dist(p, q), [a, b]) for i, (a, p) in enumerate(at) for b, q in at[i + 1 :]]
+    return min(pairs) if pairs else None
+
+
 def _fly(
     spec: FleetSpec,
     args: Any,
@@ -263,6 +285,7 @@ def _fly(
         v.name = name
         airspace.add(v, _geofence_of(r))
         vehicles[name] = v
+    airspace.clear = _clear_of(runs)
     guard = SeparationGuard(vehicles, sep["minimum_m"], sep["hold_margin_m"])
     runners = {name: make_runner(r) for name, r in runs.items()}
     fleet = FleetRunner(runners, hooks=[airspace, guard])
@@ -298,7 +321,8 @@ def _fly(
     if merged.recorder is not None:  # the run's end and its last rows in the site store
         merged.recorder.finish(summary["status"])
     _print(summary, out, args.fleet)
-    return 0 if all(c == 0 for c in codes.values()) and runs else 1
+    ok = all(c == 0 for c in codes.values()) and runs and summary["status"] == "SUCCESS"
+    return 0 if ok else 1
 
 
 def _summary(
@@ -344,16 +368,26 @@ def _summary(
     sep = guard.summary()
     sep["airspace_waits"] = airspace.waits
     sep["airspace_asides"] = airspace.asides  # steps aside that broke a mutual wait
+    sep["landings_moved"] = airspace.landings_moved  # beside a drone standing there
     sep["airspace_events"] = airspace.events[:200]
-    closest = sep.get("closest_m")
+    closest, pair = sep.get("closest_m"), sep.get("closest_pair")
+    end = _contact(runs)
+    if end is not None and (closest is None or end[0] < closest):
+        closest, pair = round(end[0], 3), end[1]
+        sep["closest_m"], sep["closest_pair"] = closest, pair
+    touched = closest is not None and closest < DRONE_CONTACT_M
+    status = (
+        "SUCCESS"
+        if statuses and all(s == "SUCCESS" for s in statuses)
+        else ("ABORTED" if "ABORTED" in statuses else "FAILURE")
+    )
     return {
         "fleet": spec.data["name"],
         "file": os.path.abspath(spec.path),
         "mission": spec.mission,
         "seed": seed,
-        "status": "SUCCESS"
-        if statuses and all(s == "SUCCESS" for s in statuses)
-        else ("ABORTED" if "ABORTED" in statuses else "FAILURE"),
+        # two drones that touched: never a success, whatever their missions returned
+        "status": "FAILURE" if touched and status == "SUCCESS" else status,
         "mission_time_s": mission_time,
         "wall_time_s": round(wall_s, 3),
         "drones": drones,
@@ -361,7 +395,8 @@ def _summary(
         "separation": sep,
         "collisions": {
             "world": world_hits,
-            "drones": 1 if closest is not None and closest < DRONE_CONTACT_M else 0,
+            "drones": 1 if touched else 0,
+            "drone_pair": pair if touched else None,
         },
     }
 
@@ -404,6 +439,14 @@ def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
         f"violations, {s['holds']} holds, {s['airspace_waits']} airspace waits"
         + (f", {s['airspace_asides']} steps aside" if s.get("airspace_asides") else "")
     )
+    if summary["collisions"].get("drones"):
+        a, b = summary["collisions"].get("drone_pair") or ["?", "?"]
+        print(
+            f"collision: {a} and {b} came within {s['closest_m']:.2f} m of each other "
+            f"(touching below {DRONE_CONTACT_M:g} m): the fleet failed"
+        )
+    if s.get("landings_moved"):
+        print(f"landing: {plural(s['landings_moved'], 'landing')} moved beside a drone there")
     if summary.get("report"):
         print(f"report: {os.path.join(out, summary['report'])}")
     print(f"run folder: {out}")
