@@ -439,7 +439,7 @@ def _print(summary: dict, out: str, fleet_file: str = "FLEET") -> None:
         f"violations, {s['holds']} holds, {s['airspace_waits']} airspace waits"
         + (f", {s['airspace_asides']} steps aside" if s.get("airspace_asides") else "")
     )
-    if summary["collisions"].get("drones"):
+    if (summary.get("collisions") or {}).get("drones"):
         a, b = summary["collisions"].get("drone_pair") or ["?", "?"]
         print(
             f"collision: {a} and {b} came within {s['closest_m']:.2f} m of each other "
