@@ -12,7 +12,7 @@ import sys
 
 from bt_engine.arg_types import positive
 from bt_engine.plugins import Command, PluginError, plugin_commands
-from bt_engine.spec import MissionError, Problem
+from bt_engine.spec import MissionError, MissionSpec, Problem
 
 COMMANDS = ("run", "validate", "show", "convert", "nodes", "replay", "campaign")
 
@@ -251,7 +251,7 @@ def _main(argv: list[str] | None, early: dict | None) -> int:
 
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        extra = plugin_commands()
+        extra = plugin_commands(COMMANDS)
     except PluginError as exc:
         print(f"btrun: {exc}", file=sys.stderr)
         return 2
@@ -321,6 +321,8 @@ def _cmd_validate(args) -> int:
             print(str(w), file=sys.stderr)
         if against_rig and not problems:
             problems = check_before_flight(spec, args.rig, args.set, seed)
+        elif not problems:  # the values the file gives through the blackboard: no rig needed
+            problems = _file_value_problems(spec)
         if problems:
             all_problems += problems
             worst = 2
@@ -329,6 +331,21 @@ def _cmd_validate(args) -> int:
     if all_problems:
         _print_problems(all_problems)
     return worst
+
+
+def _file_value_problems(spec: MissionSpec) -> list[Problem]:
+    """:meth:`bt_engine.mission.Mission.value_problems` of a mission built without a
+    vehicle ([] if it cannot be built so: ``btrun run`` says why)."""
+    from bt_engine.mission import Mission
+
+    try:
+        mission = Mission(spec)
+    except Exception:  # noqa: BLE001 - a node that needs a rig to be built at all
+        return []
+    try:
+        return mission.value_problems()
+    finally:
+        mission.close()
 
 
 def _load_valid(path: str, include_paths: list[str]):

@@ -262,14 +262,24 @@ class Mission:
             out = self._preflight(lambda node: getattr(node, "preflight_loads", False), set_keys)
         return out
 
-    def _preflight(self, which: Callable[[Any], bool], set_keys: set[str] | None) -> list[Problem]:
-        """The problems of the pre-flight checks of the nodes ``which`` selects."""
+    def value_problems(self) -> list[Problem]:
+        """The values the mission file itself gives its ports through the blackboard (a
+        ``<TreeNodesModel>`` default, a SubTree call's value) that a port reading them
+        cannot take, type or range: what ``btrun validate`` says without a rig (the nodes'
+        own pre-flight checks need one)."""
+        return self.set_value_problems(set()) + self._preflight(lambda node: True, set(), False)
+
+    def _preflight(
+        self, which: Callable[[Any], bool], set_keys: set[str] | None, checks: bool = True
+    ) -> list[Problem]:
+        """The problems of the pre-flight checks of the nodes ``which`` selects (``checks``
+        False: their port ranges only)."""
         out: list[Problem] = []
         ranged: set[str] = set()  # --set entries a range check refused already
         for node in self.nodes:
             if not which(node):
                 continue
-            check = getattr(node, "preflight", None)
+            check = getattr(node, "preflight", None) if checks else None
             found: list[Any] = []
             try:
                 found = list(check() or ()) if check is not None else []
@@ -279,6 +289,20 @@ class Mission:
             for item in found + ranges:
                 if isinstance(item, Problem):
                     out.append(item)
+                    continue
+                if not (
+                    isinstance(item, (tuple, list))
+                    and len(item) == 2
+                    and all(isinstance(x, str) for x in item)
+                ):  # a plug-in's check that returned something else: said, not a traceback
+                    where = node.loc or Loc("<mission>")
+                    out.append(
+                        Problem(
+                            where,
+                            f"{node.describe()}: pre-flight check returned {item!r:.80}; "
+                            "expected (port, message) pairs or Problems",
+                        )
+                    )
                     continue
                 port, message = item
                 key = node.input_entry(port) if port else None
@@ -322,10 +346,13 @@ class Mission:
         return out
 
     def set_value_problems(self, set_keys: set[str]) -> list[Problem]:
-        """A ``--set`` value that a port reading it cannot take (``sweep_speed=abc`` read as
-        a number, ``nan`` where a finite number is needed), once per entry, with the first
-        node that reads it: refused before flight, not found by the first tick that reads
-        it, after take-off. Ports inside SubTrees are followed through their remapping."""
+        """A value on the blackboard before flight that a port reading it cannot take
+        (``sweep_speed=abc`` read as a number, ``nan`` where a finite number is needed), once
+        per entry, with the first node that reads it: refused before flight, not found by the
+        first tick that reads it, after take-off. Ports inside SubTrees are followed through
+        their remapping. A ``--set`` value (``set_keys``) is said at ``--set``; one the
+        mission file gives (a ``<TreeNodesModel>`` default, a SubTree call's value) at the
+        node that reads it."""
         out: list[Problem] = []
         done: set[str] = set()
         for node in self.nodes:
@@ -336,22 +363,36 @@ class Mission:
                 if key is None or node.scope is None:
                     continue
                 entry = node.scope.display_key(key)
-                if entry not in set_keys or entry in done:
+                if entry in done:
                     continue
                 try:
                     node.get_input(decl.name)
                 except NodeRuntimeError as exc:
+                    text = str(exc)
+                    if "which is not set" in text:  # an output writes it in flight
+                        continue
                     done.add(entry)
-                    value = self.scope.get(entry, None)
-                    why = str(exc).split(f"from {{{key}}}: ", 1)[-1]
+                    why = text.split(f"from {{{key}}}: ", 1)[-1]
                     where = f" ({node.loc})" if node.loc is not None else ""
-                    out.append(
-                        Problem(
-                            Loc("--set", 0, 0),
-                            f"{entry}={value}: {why} (read as '{decl.name}' by "
-                            f"{node.describe()}{where})",
+                    if entry in set_keys:
+                        value = self.scope.get(entry, None)
+                        out.append(
+                            Problem(
+                                Loc("--set", 0, 0),
+                                f"{entry}={value}: {why} (read as '{decl.name}' by "
+                                f"{node.describe()}{where})",
+                            )
                         )
-                    )
+                    else:
+                        loc = node.loc or Loc(self.spec.file or "mission", 0, 0)
+                        out.append(
+                            Problem(
+                                loc,
+                                f"{{{key}}}: the value the mission gives it (a default or a "
+                                f"SubTree's value) cannot be read as '{decl.name}' by "
+                                f"{node.describe()}: {why}",
+                            )
+                        )
         return out
 
     def _note_failure(self, text: str) -> None:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata
@@ -295,9 +296,23 @@ def run_sections(trace: Any, mission: Any) -> dict[str, Any]:
     return out
 
 
-def plugin_commands() -> dict[str, Command]:
-    """Every plug-in's extra subcommands, by name (the first plug-in wins a clash)."""
+def plugin_commands(reserved: tuple[str, ...] = ()) -> dict[str, Command]:
+    """Every plug-in's extra subcommands, by name (the first plug-in wins a clash);
+    :class:`PluginError` for a name that is one of btrun's own commands (``reserved``) or
+    no command word (every ``btrun`` call failed with argparse's traceback)."""
     out: dict[str, Command] = {}
     for plugin in reversed(load_plugins()):
-        out.update(plugin.commands())
+        commands = plugin.commands()
+        for name in commands:
+            if not isinstance(name, str) or not re.fullmatch(r"[a-z][a-z0-9_-]*", name):
+                raise PluginError(
+                    f"plug-in {plugin.name!r}: command name {name!r:.40} (expected a word of "
+                    "lower-case letters, digits, '-' and '_')"
+                )
+            if name in reserved:
+                raise PluginError(
+                    f"plug-in {plugin.name!r}: command {name!r} is one of btrun's own "
+                    f"commands ({', '.join(reserved)}): name it otherwise"
+                )
+        out.update(commands)
     return out

@@ -13,7 +13,16 @@ import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from bt_engine.ports import NO_DEFAULT, Port, PortValueError, blackboard_ref
+from bt_engine.ports import (
+    INOUT,
+    INPUT,
+    NO_DEFAULT,
+    OUTPUT,
+    Port,
+    PortType,
+    PortValueError,
+    blackboard_ref,
+)
 
 if TYPE_CHECKING:
     from bt_engine.node import BTNode
@@ -74,7 +83,28 @@ def _checked_ports(node_id: str, declared: Any) -> dict[str, Port]:
         raise ValueError(f"node ID {node_id!r}: {_NAME_RULE}")
     ports: dict[str, Port] = {}
     for p in declared:
+        if not isinstance(p, Port):
+            raise ValueError(
+                f"node {node_id!r}: a port must be declared with bt_engine.ports.input_port / "
+                f"output_port / inout_port, got {p!r:.60}"
+            )
         where = f"node {node_id!r}, port {p.name!r}"
+        if not isinstance(p.type, PortType):
+            raise ValueError(
+                f"{where}: type {p.type!r:.40} is not a port type (use one of bt_engine.ports: "
+                "FLOAT, INT, BOOL, STRING, DURATION, VEC3, ANY, ...)"
+            )
+        if p.direction not in (INPUT, OUTPUT, INOUT):
+            raise ValueError(
+                f"{where}: direction {p.direction!r:.40} (expected {INPUT!r}, {OUTPUT!r} or "
+                f"{INOUT!r})"
+            )
+        for bound in ("low", "high"):
+            value = getattr(p, bound)
+            if value is not None and (
+                isinstance(value, bool) or not isinstance(value, (int, float))
+            ):
+                raise ValueError(f"{where}: {bound} must be a number, got {value!r:.40}")
         if not isinstance(p.name, str) or not _NAME.match(p.name) or p.name.startswith("_"):
             raise ValueError(f"{where}: {_NAME_RULE}, not starting with _")
         if p.name in RESERVED_PORTS:

@@ -214,9 +214,13 @@ class _Validator(_ExpansionChecks, _WarningChecks):
                 )
                 continue
             try:
-                port.type.convert(attr.value)
+                value = port.type.convert(attr.value)
             except PortValueError as exc:
                 self.add(attr.loc, f"port '{key}' of {node.type}: {exc}")
+                continue
+            outside = port.out_of_range(value) if port.reads else None
+            if outside is not None:  # a literal: the file alone says it, no rig needed
+                self.add(attr.loc, f"port '{key}' of {node.type}: {outside}")
                 continue
             if node.type in ("Script", "ScriptCondition") and key == "code":
                 err = check_script(str(attr.value))

@@ -55,6 +55,35 @@ def _raise_in(thread_id: int, exc_type: type[BaseException]) -> bool:
     return done == 1
 
 
+def _innermost(thread_id: int) -> Any:
+    frame = sys._current_frames().get(thread_id)
+    while frame is not None:
+        obj = frame.f_locals.get("self")
+        if obj is not None and hasattr(obj, "describe") and hasattr(obj, "loc"):
+            return obj
+        frame = frame.f_back
+    return None
+
+
+def stuck_leaf(thread_id: int, samples: int = 5, every_s: float = 0.01) -> str:
+    """`` in <leaf> (<file:line:col>)`` when ``thread_id``'s innermost tree node is the same
+    leaf in each of ``samples`` looks ``every_s`` apart: a leaf that does not return (done
+    in one tick, it was never RUNNING: its parent would be blamed). "" for a loop of
+    children ticked again and again within the tick (a control or decorator shows up
+    between them) or no node."""
+    first = _innermost(thread_id)
+    if first is None or getattr(first, "children", None):
+        return ""
+    for _ in range(samples - 1):
+        time.sleep(every_s)
+        if _innermost(thread_id) is not first:
+            return ""
+    try:
+        return f" in {first.describe()} ({first.loc})"
+    except Exception:  # pragma: no cover - a half-built node
+        return ""
+
+
 def stuck_in(thread_id: int) -> str:
     """`` in <node> (<file:line:col>)`` for the deepest tree node on ``thread_id``'s stack."""
     frame = sys._current_frames().get(thread_id)
@@ -242,8 +271,11 @@ class TickWatchdog:
         self, tick: int, target: int, budget: float, why: str, now: float, busy: float = 1.0
     ) -> None:
         """Step 1: name where the tree is stuck, ask loops to stop, raise in the main thread."""
-        where = ""
-        if self.running is not None:  # the deepest RUNNING node: stable over a loop
+        # a leaf on the stack is the one that does not return (a leaf done in one tick is
+        # never RUNNING: its parent would be blamed); else the deepest RUNNING node, stable
+        # over a loop of children ticked again and again within the tick
+        where = stuck_leaf(target)
+        if not where and self.running is not None:
             try:
                 where = self.running()
             except Exception:  # pragma: no cover - the tree is mid-change

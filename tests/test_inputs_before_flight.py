@@ -482,9 +482,13 @@ def test_declared_port_ranges_are_checked_before_flight(tmp_path, capsys) -> Non
         square.replace('<Land name="land" speed="0.5"', '<Land name="land" speed="0"')
     )
     assert 'speed="0"' in written.read_text()
-    assert main(["validate", str(written), "--rig", "rigs/sim.yaml"]) == 2
-    err = _err_lines(capsys)[0]
-    assert err.startswith(f"{written}:") and "Land 'land': speed 0.0: expected 0.01 to 3" in err
+    line = square[: square.index('<Land name="land"')].count("\n") + 1
+    for rig in (["--rig", "rigs/sim.yaml"], []):  # a literal: no rig needed to say it
+        assert main(["validate", str(written), *rig]) == 2
+        err = _err_lines(capsys)[0]
+        assert err.startswith(f"{written}:{line}:") and (
+            "port 'speed' of Land: speed 0.0: expected 0.01 to 3" in err
+        ), err
 
 
 def test_a_port_range_refuses_nan_and_inf_and_leaves_other_values_alone() -> None:
@@ -497,3 +501,48 @@ def test_a_port_range_refuses_nan_and_inf_and_leaves_other_values_alone() -> Non
     assert port.out_of_range("fast") is None and port.out_of_range(True) is None
     assert input_port("n", FLOAT, 1.0, low=0).out_of_range(-1) == "n -1: expected at least 0"
     assert input_port("x", FLOAT, 1.0).out_of_range(1e9) is None  # no range declared
+
+
+def test_values_the_mission_file_gives_are_checked_before_flight(tmp_path, capsys) -> None:
+    """A <TreeNodesModel> default (the main tree's, a SubTree's) that the port reading it
+    cannot take passed `btrun validate` and took off, failing at the first tick that read
+    it. Said at the node that reads it, with or without a rig."""
+    mission = tmp_path / "m.xml"
+    mission.write_text(
+        """<root BTCPP_format="4" main_tree_to_execute="M">
+  <BehaviorTree ID="M">
+    <Sequence>
+      <TakeOff height="1"/>
+      <SubTree ID="Hop"/>
+      <Sleep msec="{nap}"/>
+      <Land/>
+    </Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="Hop">
+    <GoTo pose="1;0;1" max_speed="{spd}"/>
+  </BehaviorTree>
+  <TreeNodesModel>
+    <SubTree ID="M">
+      <input_port name="nap" type="int" default="soon"/>
+    </SubTree>
+    <SubTree ID="Hop">
+      <input_port name="spd" type="double" default="fast"/>
+    </SubTree>
+  </TreeNodesModel>
+</root>
+"""
+    )
+    text = mission.read_text()
+    goto = text[: text.index("<GoTo")].count("\n") + 1
+    sleep = text[: text.index("<Sleep")].count("\n") + 1
+    for args in (["validate", str(mission)], [str(mission), "--out", str(tmp_path / "r"), "-q"]):
+        assert main(args) == 2
+        err = _err_lines(capsys)
+        assert any(
+            line.startswith(f"{mission}:{goto}:") and "{spd}" in line and "got 'fast'" in line
+            for line in err
+        ), err
+        assert any(line.startswith(f"{mission}:{sleep}:") and "'soon'" in line for line in err), err
+    assert not (tmp_path / "r").exists()
+    assert main([str(mission), "--set", "nap=100", "--out", str(tmp_path / "r2"), "-q"]) == 2
+    assert not any("'soon'" in line for line in _err_lines(capsys))  # --set replaced it

@@ -134,6 +134,20 @@ class {cls}(StatefulActionNode):
             '(input_port("_x", INT, 1),)',
             "port '_x': expected an XML name: letters, digits, _, . and -, starting with a letter or _, not starting with _",
         ),
+        # a type as <TreeNodesModel> writes it, a Python type, a direction, a range bound,
+        # a plain tuple: each crashed every command later with a traceback
+        (
+            "Snap",
+            '(input_port("speed", "float"),)',
+            "port 'speed': type 'float' is not a port type",
+        ),
+        (
+            "Snap",
+            '(input_port("speed", float, 1.0),)',
+            "port 'speed': type <class 'float'> is not a port type",
+        ),
+        ("Snap", '(input_port("n", INT, 1, low="a"),)', "port 'n': low must be a number, got 'a'"),
+        ("Snap", '(("speed", INT),)', "a port must be declared with bt_engine.ports.input_port"),
     ],
 )
 def test_a_leaf_a_mission_could_not_use_is_refused_at_its_class(
@@ -227,3 +241,51 @@ def _fly(tmp_path, leaf: str) -> dict:
     out = tmp_path / "run"
     assert main([str(mission), "--out", str(out), "--quiet", "--no-report"]) == 0
     return json.loads((out / "summary.json").read_text())["blackboard"]
+
+
+def test_a_plugin_command_named_as_btrun_s_own_is_refused(plugin_env, tmp_path, capsys):
+    """A plug-in command called 'validate' broke every btrun call with argparse's
+    traceback ("conflicting subparser")."""
+    source = """
+class _C:
+    help = "x"
+
+    def setup(self, parser):
+        pass
+
+    def run(self, args):
+        return 0
+
+
+class _P:
+    name = "clash"
+    load_target = None
+    write_report = None
+    commands = {"validate": _C()}
+
+
+PLUGIN = _P()
+"""
+    plugin_env("clash_plugin:PLUGIN", source)
+    assert main(["validate", "missions/square.xml"]) == 2
+    err = capsys.readouterr().err
+    assert "plug-in 'clash': command 'validate' is one of btrun's own commands" in err
+    assert "Traceback" not in err
+
+
+def test_a_preflight_that_returns_no_pairs_is_said(plugin_env, tmp_path, capsys):
+    """A plug-in leaf's preflight() returning a bare string crashed the run ("too many
+    values to unpack") after the platform was built."""
+    from helpers import LEAF_PLUGIN_TAIL
+
+    leaf = _LEAF.format(cls="Leaf", bt_id="Snap", ports="()")
+    leaf += "\n    def preflight(self):\n        return ['just a string']\n"
+    plugin_env("pf_plugin:PLUGIN", leaf + LEAF_PLUGIN_TAIL)
+    mission = tmp_path / "m.xml"
+    mission.write_text(
+        '<root BTCPP_format="4"><BehaviorTree ID="Main"><Snap/></BehaviorTree></root>'
+    )
+    assert main([str(mission), "--out", str(tmp_path / "run"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "Snap: pre-flight check returned 'just a string'; expected (port, message)" in err
+    assert "Traceback" not in err and not (tmp_path / "run").exists()

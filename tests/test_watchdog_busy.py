@@ -107,3 +107,48 @@ def test_the_guard_counts_a_lock_step_tick_from_its_last_progress(monkeypatch):
     clock[0] = 230.0
     plain._send_beat()
     assert sent[-1][2] == 30.0  # without progress: from the tick's start, as before
+
+
+def test_the_watchdog_names_the_leaf_that_does_not_return():
+    """A leaf finished in one tick is never RUNNING: the watchdog named its parent (the
+    Sequence) as where the tick hung. A leaf found on the stack in every look is named; a
+    loop of children ticked within the tick (Repeat over AlwaysSuccess) still is not."""
+    import threading
+
+    from bt_engine.watchdog import stuck_leaf
+
+    class Node:
+        children = ()
+
+        def __init__(self, name):
+            self.name, self.loc, self.stop = name, f"m.xml:{len(name)}:1", False
+
+        def describe(self):
+            return self.name
+
+        def spin(self):
+            while not self.stop:
+                pass
+
+        def tick(self):
+            return 1
+
+    class Loop(Node):
+        children = (Node("AlwaysSuccess"),)
+
+        def spin(self):
+            while not self.stop:
+                self.children[0].tick()
+
+    for node, expected in (
+        (Node("ProbeSpinner"), " in ProbeSpinner (m.xml:12:1)"),
+        (Loop("Repeat"), ""),
+    ):
+        t = threading.Thread(target=node.spin)
+        t.start()
+        try:
+            time.sleep(0.05)
+            assert stuck_leaf(t.ident) == expected
+        finally:
+            node.stop = True
+            t.join()
