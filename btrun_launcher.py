@@ -23,9 +23,37 @@ def _remember(signum: int, frame: object) -> None:  # noqa: ARG001
     PENDING.append("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
 
 
+class _Console:
+    """``sys.stdout`` that stops printing, and only that, once its reader is gone
+    (``btrun ... | head -1``, a closed terminal): the print of a leaf's progress raised
+    BrokenPipeError inside a tick and ended the flight as an internal error."""
+
+    def __init__(self, stream: object) -> None:
+        self._stream, self._gone = stream, False
+
+    def write(self, text: str) -> int:
+        if not self._gone:
+            try:
+                return self._stream.write(text)  # type: ignore[attr-defined]
+            except (BrokenPipeError, ValueError):
+                self._gone = True
+        return len(text)
+
+    def flush(self) -> None:
+        if not self._gone:
+            try:
+                self._stream.flush()  # type: ignore[attr-defined]
+            except (BrokenPipeError, ValueError):
+                self._gone = True
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._stream, name)
+
+
 def main() -> int:
     """The ``btrun`` command: route SIGINT/SIGTERM to a recorder, then run
     :func:`bt_engine.cli.main` with what it recorded; returns the exit code."""
+    sys.stdout = _Console(sys.stdout)  # type: ignore[assignment]
     old = {}
     try:
         for sig in (signal.SIGINT, signal.SIGTERM):

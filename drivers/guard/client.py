@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import socket
 import subprocess
 import sys
 import threading
@@ -94,6 +95,9 @@ class GuardClient:
         self.info: dict[str, Any] = {}
         self.took_over: str | None = None
         self.gone = False
+        #: messages dropped while the guard did not read, and the longest such time (s)
+        self.unsent, self.longest_unread_s = 0, 0.0
+        self._unread_since: float | None = None
         self._replies: dict[str, Any] = {}
         self._reply_events: dict[str, threading.Event] = {}
         self._ticks = 0
@@ -159,15 +163,27 @@ class GuardClient:
 
     # ------------------------------------------------------------------ wire
     def send(self, message: list[Any]) -> bool:
-        """Send one message (never blocks for long); False once the guard is gone."""
+        """Send one message, never a wait: False once the guard is gone, or while it does
+        not read (stopped or frozen: its socket's buffer full; the message is dropped and
+        counted, and how long it stopped reading is kept for the summary). A blocking send
+        there froze the whole mission process, tick watchdog included, until the guard
+        read again."""
         if self.gone or self.sock is None:
             return False
         try:
-            self.sock.send(encode(message))
-            return True
+            self.sock.send(encode(message), socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            now = time.monotonic()
+            self.unsent += 1
+            if self._unread_since is None:
+                self._unread_since = now
+            self.longest_unread_s = max(self.longest_unread_s, now - self._unread_since)
+            return False
         except OSError:
             self.gone = True
             return False
+        self._unread_since = None
+        return True
 
     def request(self, kind: str, reply: str, timeout_s: float = 2.0) -> Any:
         """Send ``[kind]`` and wait (bounded) for the guard's ``reply``; None if none came."""
@@ -247,7 +263,13 @@ class GuardClient:
     def summary(self) -> dict[str, Any]:
         """``guard`` in summary.json: the guard's figures (IPC latency, set-point period)."""
         stats = self.request("stats", "stats", 1.0) or {}
-        return {"enabled": True, **stats, "took_over": self.took_over is not None}
+        out = {"enabled": True, **stats, "took_over": self.took_over is not None}
+        if self.unsent:  # the guard stopped reading (stopped, frozen): said, not hidden
+            out["mission_messages_unsent"] = self.unsent
+            out["guard_not_reading_s"] = round(self.longest_unread_s, 3)
+        if self.gone and not self._said_bye:
+            out["guard_gone"] = True  # it ended (killed) before the run did
+        return out
 
     def finished(self, summary_written: bool = True) -> None:
         """Say goodbye (summary.json is written) and wait, bounded, for the guard to end."""

@@ -66,6 +66,9 @@ GROUND_Z_M = 0.08
 #: The guard's loop comes round every 5 ms; a longer gap than this means the guard itself
 #: did not run (the host paused the machine or starved the guard, or it was stopped).
 STALL_S = 0.25
+#: a set-point older than this when the guard reads it (queued while the guard was stopped
+#: or starved) is not flown: the drone would fly where it was asked to be seconds ago
+STALE_SETPOINT_S = 0.3
 #: After such a gap the mission process, most likely paused with the guard, has at least this
 #: long to be heard from before its silence (or a tick's running time) is held against it.
 RESUME_GRACE_S = 0.5
@@ -116,7 +119,14 @@ class Guard:
         self.link_closed = link is None
         self.latencies_s: deque[float] = deque(maxlen=50_000)
         self.forward_times: deque[float] = deque(maxlen=50_000)
-        self.counts = {"setpoints": 0, "extposes": 0, "heartbeats": 0, "telemetry": 0}
+        self.counts = {
+            "setpoints": 0,
+            "extposes": 0,
+            "heartbeats": 0,
+            "telemetry": 0,
+            "stale_setpoints": 0,  # older than STALE_SETPOINT_S when read: not flown
+            "unsent": 0,  # messages to a mission process that was not reading
+        }
         self._next_health = 0.0
         self.last_loop = self.started
         #: gaps in the guard's own loop (see :data:`STALL_S`): how many, and the longest (s)
@@ -126,8 +136,10 @@ class Guard:
     def _send(self, message: list[Any]) -> None:
         if self.mission_gone:
             return
-        try:
-            self.sock.send(encode(message))
+        try:  # never a wait: a stopped mission process must not stop the guard
+            self.sock.send(encode(message), socket.MSG_DONTWAIT)
+        except BlockingIOError:  # its buffer is full (it is not reading): telemetry is
+            self.counts["unsent"] += 1  # periodic, the next batch supersedes this one
         except OSError:  # the mission process is gone; the read side will see it
             self.mission_gone = True
 
@@ -155,6 +167,9 @@ class Guard:
             return
         args = msg[1:]
         if kind in ("p", "v") and len(args) >= 5 and all(_finite(a) for a in args[:5]):
+            if now - float(args[4]) > STALE_SETPOINT_S:  # queued while the guard was stopped
+                self.counts["stale_setpoints"] += 1  # (a newer one follows: never flown late)
+                return
             (link.send_position_setpoint if kind == "p" else link.send_velocity_setpoint)(*args[:4])
             self.latencies_s.append(now - float(args[4]))
             self.forward_times.append(now)
@@ -303,12 +318,38 @@ class Guard:
         started = os.path.isdir(self.s.run_dir)  # a refused run made no folder
         if not os.path.isfile(summary) and (started or not self.said_bye):
             how = "said goodbye" if self.said_bye else "ended without a goodbye (killed or crashed)"
+            # a simulated drone lives in the mission process: it ended with it, wherever it
+            # was; a real one's last telemetry said it was on the ground
+            where = (
+                "the drone on the ground"
+                if self.link is not None
+                else ("a simulated drone: it ended with the process" + self._last_known())
+            )
             self.took_over = {
-                "reason": f"the mission process {how} and wrote no summary.json; "
-                "the drone on the ground",
+                "reason": f"the mission process {how} and wrote no summary.json; {where}",
                 "at_s": round(time.monotonic() - self.started, 3),
             }
             self._write_record({"mission_process": "gone", **self._final()})
+
+    def _last_known(self) -> str:
+        """``; last known: <state> at z <m> (tick N)`` from the mission process's last
+        heartbeat and tick log line, or ""."""
+        try:
+            with open(os.path.join(self.s.run_dir, "ticks.jsonl"), "rb") as f:
+                f.seek(max(0, os.path.getsize(f.name) - 65536))
+                lines = f.read().splitlines()
+        except OSError:
+            return ""
+        for line in reversed(lines):
+            if b'"vehicle"' not in line:
+                continue
+            try:
+                rec = json.loads(line)
+                v = rec["vehicle"]
+                return f" (last known: {v.get('state', '?')} at z {float(v['z']):.2f} m, tick {rec.get('tick', '?')})"
+            except (ValueError, KeyError, TypeError):
+                continue
+        return ""
 
     def take_over(self, reason: str) -> None:
         """Land, end the mission process, write the record, close the link."""
@@ -537,5 +578,11 @@ def main(argv: list[str] | None = None) -> int:
             sock.send(encode(["error", str(exc) or type(exc).__name__]))
             return 1
         info.update(connect_time_s=link.connect_time_s, protocol_version=link.protocol_version)
-    sock.send(encode(["ready", info]))
+    try:
+        sock.send(encode(["ready", info]))
+    except OSError:  # the mission process died while the link was opening: close it quietly
+        if link is not None:
+            with contextlib.suppress(Exception):
+                link.close()
+        return 1
     return Guard(sock, settings, link).run()
