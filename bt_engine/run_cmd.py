@@ -32,6 +32,7 @@ from bt_engine.spec import Loc, MissionError, Problem
 from bt_engine.summary import (
     build_summary,
     handled_failure_lines,
+    reserve_space,
     result_lines,
     write_summary,
 )
@@ -220,6 +221,7 @@ def prepare(
         why = exc.strerror or type(exc).__name__
         problem = Problem(Loc("--out", 0, 0), f"{run_dir}: cannot be made ({why})")
         raise MissionError([problem]) from None
+    reserve_space(run_dir)  # room for summary.json should the disk fill in flight
     if target is not None:  # a target may write files of its own beside the tick log
         target.run_dir = run_dir  # type: ignore[attr-defined]
         target.record_mcap = not getattr(args, "no_mcap", False)  # type: ignore[attr-defined]
@@ -439,6 +441,9 @@ def finish(run: PreparedRun, runner: Runner, result: RunResult, echo: bool = Tru
         )
         if report:
             summary["report"] = attempt("report", lambda: os.path.relpath(report, run.run_dir))
+    log_failed = getattr(run.log, "failed", None)
+    if log_failed:
+        add_error(summary, f"ticks.jsonl: {log_failed}")
     for line in errors:
         add_error(summary, line)
     try:

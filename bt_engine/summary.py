@@ -21,6 +21,7 @@ before it writes, so a process out of descriptors still writes its summary.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from typing import Any
@@ -243,6 +244,37 @@ def reserve_descriptors(n: int = RESERVE_FDS) -> None:
             return
 
 
+#: the file a run folder keeps in reserve for its record (:func:`reserve_space`)
+SPACE_RESERVE = ".btrun-reserve"
+#: bytes kept in reserve: summary.json (at most about 8 MB, usually some kB) and the guard's
+SPACE_RESERVE_BYTES = 512 * 1024
+
+
+def reserve_space(run_dir: str, size: int = SPACE_RESERVE_BYTES) -> None:
+    """Keep ``size`` bytes of the run folder's disk in reserve (:data:`SPACE_RESERVE`) for
+    the record: a disk that fills in flight (the tick log, the camera's crops) left no room
+    for summary.json. :func:`free_space` gives them back when the record is written; no
+    reserve (no room even now) is no error."""
+    path = os.path.join(run_dir, SPACE_RESERVE)
+    try:
+        with open(path, "wb") as f:
+            f.write(b"\0" * size)
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+
+
+def free_space(run_dir: str) -> bool:
+    """Give the run folder's reserve back (True if there was one)."""
+    try:
+        os.unlink(os.path.join(run_dir, SPACE_RESERVE))
+    except OSError:
+        return False
+    return True
+
+
 def _release_reserve() -> None:
     while _RESERVE:
         try:
@@ -266,12 +298,19 @@ def write_summary(run_dir: str, summary: dict[str, Any]) -> str:
         text = _minimal_text(summary, error_line("summary.json", exc))
     _release_reserve()
     try:
-        atomic_write_text(path, text)
+        try:
+            atomic_write_text(path, text)
+        except OSError as exc:  # a full disk: the reserve back, then the record
+            if not free_space(run_dir):
+                raise
+            add_error(summary, error_line("disk", exc))
+            atomic_write_text(path, json.dumps(summary, indent=2))
     except MemoryError as exc:
         del text
         atomic_write_text(path, _minimal_text(summary, error_line("summary.json", exc)))
     finally:
         reserve_descriptors()
+        free_space(run_dir)  # written (or never will be): the reserve is not needed now
     return path
 
 

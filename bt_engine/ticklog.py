@@ -166,6 +166,9 @@ class TickLog:
         self.path = path
         self.bytes_written = 0
         self.limited = False  # LOG_LIMIT_BYTES was reached
+        #: why the log could not be written any more (a full disk), and at which record
+        self.failed: str | None = None
+        self.records = 0
         self._f: IO[str] = open(path, "w", encoding="utf-8", buffering=1)
         if header is not None:
             self.write({"header": header})
@@ -189,16 +192,32 @@ class TickLog:
             rec = slim
         line = json.dumps(rec, separators=(",", ":")) + "\n"
         self.bytes_written += len(line)
-        self._f.write(line)
+        if self.failed is None:
+            try:
+                self._f.write(line)
+                self.records += 1
+            except OSError as exc:  # a full disk: the flight goes on, the log stops here
+                self._fail(exc)
+
+    def _fail(self, exc: OSError) -> None:
+        self.failed = f"{exc.strerror or exc} (the tick log stops after record {self.records})"
 
     def flush(self) -> None:
-        """Flush to the OS."""
-        self._f.flush()
+        """Flush to the OS (a write error stops the log, never the run)."""
+        if self.failed is None:
+            try:
+                self._f.flush()
+            except OSError as exc:
+                self._fail(exc)
 
     def close(self) -> None:
-        """Flush and close."""
+        """Flush and close (a write error is kept in :attr:`failed`)."""
         if not self._f.closed:
-            self._f.close()
+            try:
+                self._f.close()
+            except OSError as exc:
+                if self.failed is None:
+                    self._fail(exc)
 
 
 #: The longest line of a tick log read back, in bytes: a longer one is refused, not read.

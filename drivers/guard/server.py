@@ -494,7 +494,15 @@ class Guard:
                 "written_by": "guard",
             }
         summary["guard"] = section
-        _atomic_write(path, json.dumps(summary, indent=2, default=str) + "\n")
+        try:
+            _atomic_write(path, json.dumps(summary, indent=2, default=str) + "\n")
+        except OSError as exc:  # no room even so: said in one line, and the state on stderr
+            print(
+                f"btrun guard: {path}: cannot be written ({exc.strerror or exc}); "
+                f"{summary.get('status')}: {summary.get('reason')}",
+                file=sys.stderr,
+                flush=True,
+            )
 
 
 def _r(v: float | None) -> float | None:
@@ -531,6 +539,25 @@ def _read_summary(path: str) -> dict[str, Any] | None:
 
 
 def _atomic_write(path: str, text: str) -> None:
+    """``text`` to ``path`` atomically; on a full disk the run folder's reserve
+    (:data:`bt_engine.summary.SPACE_RESERVE`, kept for the record) is given back and it is
+    tried once more."""
+    reserve = os.path.join(os.path.dirname(os.path.abspath(path)), ".btrun-reserve")
+    try:
+        _write_once(path, text)
+    except OSError:
+        try:
+            os.unlink(reserve)
+        except OSError:
+            raise  # no reserve: the first error stands
+        _write_once(path, text)
+    with contextlib.suppress(OSError):  # the record is written: the reserve is not needed
+        os.unlink(reserve)
+    with contextlib.suppress(OSError):
+        os.chmod(path, 0o644)  # as btrun's own summary (mkstemp made it 0600)
+
+
+def _write_once(path: str, text: str) -> None:
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=".summary-", suffix=".tmp")
