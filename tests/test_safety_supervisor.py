@@ -310,3 +310,18 @@ def test_fault_names_are_checked_when_loading() -> None:
     probs = problems_of_xml(wrap('    <FaultActive fault="battery_lo"/>'))
     assert len(probs) == 1 and "battery_lo" in probs[0] and "inline" not in probs[0]
     assert problems_of_xml(wrap('    <NoFault fault="any"/>')) == []
+
+
+def test_a_final_state_the_drone_did_not_report_is_not_claimed_as_confirmed() -> None:
+    """A real drone whose link (or the guard holding it) died: the record said
+    disarmed: true, what btrun last commanded; the drone stayed armed. Said unconfirmed
+    when the link was down at the last look and no ground truth is known."""
+    mission, runner, platform, sup = flown()
+    runner.run(max_time_s=200)
+    assert "confirmed" not in sup.summary()  # the link up at the end
+    sup.last_link_ok = False
+    assert "confirmed" not in sup.summary()  # down, but the simulator knows the truth
+    truth = platform.summary
+    platform.summary = lambda: {k: v for k, v in truth().items() if k != "collisions"}
+    s = sup.summary()  # as a real drone's platform: no ground truth
+    assert s["confirmed"] is False and "what btrun last commanded" in s["note"]

@@ -130,3 +130,19 @@ def test_counts_below_one_are_refused(args, capsys):
     except SystemExit as exc:
         rc = exc.code
     assert rc == 2 and "a whole number >= 1" in capsys.readouterr().err
+
+
+def test_a_killed_fleet_imports_with_its_drones_status(tmp_path, capsys):
+    """A fleet killed outright writes no summary of its own (each drone's guard writes the
+    drone's): it was imported as still `running`."""
+    store = f"sqlite:///{tmp_path}/site.sqlite"
+    fleet = tmp_path / "killed-fleet"
+    _run_folder(fleet / "drones" / "cf1", [("A-01-1", "3A", "identified")])
+    _run_folder(fleet / "drones" / "cf2", [("A-02-1", "4A", "identified")], status="ABORTED")
+    (fleet / "fleet.json").write_text(json.dumps({"seed": 0}))
+    shutil.copy(fleet / "drones" / "cf1" / "inventory.json", fleet / "inventory.json")
+    assert main(["inventory", "import", str(fleet), "--store", store]) == 0
+    capsys.readouterr()
+    assert main(["inventory", "runs", "--store", store, "--json"]) == 0
+    (run,) = json.loads(capsys.readouterr().out)
+    assert run["status"] == "ABORTED"

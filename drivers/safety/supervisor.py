@@ -100,6 +100,7 @@ class SafetySupervisor:
             camera_ok = h.camera.healthy
         volts = v.battery.voltage_v
         running = self.tree_running()
+        self.last_link_ok = h.link.healthy  # the link as last seen (summary's confirmed)
         return Observation(
             t_s=t_s,
             airborne=v.is_flying,
@@ -315,6 +316,25 @@ class SafetySupervisor:
         }.get(fs, "flying")
         return state, not v.is_armed
 
+    def _unconfirmed(self) -> dict[str, Any]:
+        """``confirmed: False`` and why when the link was down at the end of the flight (a
+        lost radio, a guard that died with it: the link unhealthy at the last observation):
+        the final state and the disarm are then what btrun last commanded, not what the
+        drone reported. {} when the link was up (closed afterwards, as every run does)."""
+        if getattr(self, "last_link_ok", True) is not False:
+            return {}
+        summ = getattr(self.platform, "summary", None)
+        try:  # a simulator's (or the SITL emulator's) ground truth: known all the same
+            if summ is not None and "collisions" in summ():
+                return {}
+        except Exception:  # noqa: BLE001 - a half-closed platform: unconfirmed
+            pass
+        return {
+            "confirmed": False,
+            "note": "the link was down at the end: final_state and disarmed are what btrun "
+            "last commanded, not what the drone reported",
+        }
+
     def summary(self) -> dict[str, Any]:
         """Key ``safety`` of ``summary.json``: which fault ended the run, when, what was done."""
         state, disarmed = self.final_state()
@@ -331,5 +351,6 @@ class SafetySupervisor:
             "final_state": state,
             "motors_cut": self.motors_cut,
             "disarmed": disarmed,
+            **self._unconfirmed(),
             "faults_seen": [r.as_dict() for r in self.monitor.history],
         }

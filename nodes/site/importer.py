@@ -39,13 +39,39 @@ def import_run(store: InventoryStore, run_dir: str) -> int:
     store.begin_run(run, **run_info(run_dir, imported=True))
     n = store.record_rows(run, rows)
     status = read_json(os.path.join(run_dir, "summary.json")).get("status")
+    ended_by = os.path.join(run_dir, "summary.json")
+    if not isinstance(status, str) and os.path.exists(os.path.join(run_dir, "fleet.json")):
+        status, ended_by = _fleet_status(run_dir)  # killed: no fleet summary, its drones'
     if isinstance(status, str):
         try:
-            ended = os.path.getmtime(os.path.join(run_dir, "summary.json"))
+            ended = os.path.getmtime(ended_by)
         except OSError:
             ended = None
         store.end_run(run, status, ended)
     return n
+
+
+def _fleet_status(run_dir: str) -> tuple[str | None, str]:
+    """A killed fleet wrote no summary.json; each drone's guard wrote the drone's: the
+    fleet's status is theirs (ABORTED if one was, else FAILURE if one was, else SUCCESS),
+    None if no drone has one (the newest summary is the end's time)."""
+    drones = os.path.join(run_dir, "drones")
+    found, missing = [], 0
+    for name in sorted(os.listdir(drones)) if os.path.isdir(drones) else []:
+        if not os.path.isdir(os.path.join(drones, name)):
+            continue
+        path = os.path.join(drones, name, "summary.json")
+        status = read_json(path).get("status")
+        if isinstance(status, str):
+            found.append((status, path))
+        else:
+            missing += 1
+    if not found:
+        return None, run_dir
+    statuses = {s for s, _ in found} | ({"ABORTED"} if missing else set())
+    status = next((s for s in ("ABORTED", "FAILURE") if s in statuses), "SUCCESS")
+    newest = max((p for _, p in found), key=lambda p: os.path.getmtime(p))
+    return status, newest
 
 
 __all__ = ["import_run"]
