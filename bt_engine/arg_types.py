@@ -44,3 +44,22 @@ def count(what: str) -> Callable[[str], int]:
 
     parse.__name__ = what
     return parse
+
+
+def port_number(most: int = 65535) -> Callable[[str], int]:
+    """An argparse ``type``: a TCP port 0..``most``, 0 for any free one (``--groot 99999``
+    said it served on 99999 and listened on 34463: the number wrapped)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = 0
+        if not 0 <= value <= most or text.strip() in ("", "-0"):
+            raise argparse.ArgumentTypeError(
+                f"expected a TCP port 1 to {most} (0: any free one), got {text!r}"
+            )
+        return value
+
+    parse.__name__ = "a TCP port"
+    return parse

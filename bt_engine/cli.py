@@ -10,7 +10,7 @@ import argparse
 import os
 import sys
 
-from bt_engine.arg_types import positive
+from bt_engine.arg_types import port_number, positive
 from bt_engine.plugins import Command, PluginError, plugin_commands
 from bt_engine.spec import MissionError, MissionSpec, Problem
 
@@ -118,7 +118,7 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         "--groot",
         nargs="?",
         const=1667,
-        type=int,
+        type=port_number(65534),  # and PORT+1
         metavar="PORT",
         help="serve Groot2 live monitoring on PORT (default 1667) and PORT+1 (docs/monitoring.md)",
     )
@@ -126,7 +126,7 @@ def _parser(extra: dict[str, Command] | None = None) -> argparse.ArgumentParser:
         "--foxglove",
         nargs="?",
         const=8765,
-        type=int,
+        type=port_number(),
         metavar="PORT",
         help="serve the run live to Foxglove (WebSocket on 127.0.0.1:PORT, default 8765; "
         "the channels of run.mcap; docs/monitoring.md)",

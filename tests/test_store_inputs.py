@@ -146,3 +146,21 @@ def test_a_killed_fleet_imports_with_its_drones_status(tmp_path, capsys):
     assert main(["inventory", "runs", "--store", store, "--json"]) == 0
     (run,) = json.loads(capsys.readouterr().out)
     assert run["status"] == "ABORTED"
+
+
+@pytest.mark.parametrize("option", ["--groot", "--foxglove"])
+def test_a_port_number_out_of_range_is_refused(option, capsys):
+    """--groot 99999 said it served there and listened on 34463 (the number wrapped)."""
+    try:
+        rc = main(["missions/square.xml", option, "99999"])
+    except SystemExit as exc:
+        rc = exc.code
+    assert rc == 2 and "expected a TCP port 1 to" in capsys.readouterr().err
+
+
+def test_a_critical_battery_level_above_the_low_one_is_refused(tmp_path, capsys):
+    rig = tmp_path / "r.yaml"
+    rig.write_text("link: sim\nsafety: {battery_low_v: 3.0, battery_critical_v: 3.5}\n")
+    assert main(["validate", str(rig)]) == 2
+    err = capsys.readouterr().err
+    assert f"{rig}:2:" in err and "battery_critical_v 3.5 V must be below battery_low_v 3 V" in err

@@ -110,8 +110,17 @@ def rig_problems(data: dict, own_start: bool = True) -> list[tuple[tuple[str, ..
     """``(keys, message)`` for what no single setting shows (``keys``: the settings that make
     it, located at the first): a geofence box whose minimum is not below its maximum on an
     axis, or a simulated drone that starts outside it (it would be in breach the moment it
-    took off)."""
+    took off), a battery's critical level above its low one (the landing for low would
+    never come first)."""
     fence = SafetyConfig.from_dict(data["safety"])
+    if fence.battery_critical_v >= fence.battery_low_v > 0.0:
+        return [
+            (
+                ("safety.battery_critical_v", "safety.battery_low_v"),
+                f"safety.battery_critical_v {fence.battery_critical_v:g} V must be below "
+                f"battery_low_v {fence.battery_low_v:g} V (critical is the lower level)",
+            )
+        ]
     if not fence.geofence_enabled:
         return []
     lo, hi = fence.geofence_min_m, fence.geofence_max_m
