@@ -173,8 +173,15 @@ class BTNode(py_trees.behaviour.Behaviour):
         """Set the BehaviorTree.CPP status (and the py_trees one)."""
         old = self.bt_status
         if status is not old:
+            try:
+                self.status = TO_PY_TREES[status]
+            except (KeyError, TypeError):  # a leaf that returned True, None, "SUCCESS" ...
+                raise NodeRuntimeError(
+                    self,
+                    f"returned {status!r:.40}: a node returns SUCCESS, FAILURE or RUNNING "
+                    "(bt_engine's NodeStatus)",
+                ) from None
             self.bt_status = status
-            self.status = TO_PY_TREES[status]
             changes = self._changes
             if changes is not None:
                 changes.append((self, old, status))
@@ -302,7 +309,12 @@ class BTNode(py_trees.behaviour.Behaviour):
         b = self._bindings.get(name)
         if b is None:
             p = self.port_decl(name)
-            if p is None or p.default is NO_DEFAULT:
+            if p is None:
+                names = ", ".join(q.name for q in type(self).ports) or "none"
+                raise NodeRuntimeError(
+                    self, f"input port '{name}' is not declared by this node (its ports: {names})"
+                )
+            if p.default is NO_DEFAULT:
                 raise NodeRuntimeError(self, f"input port '{name}' has no value")
             return p.type.convert(p.default) if p.default is not None else None
         kind, val = b

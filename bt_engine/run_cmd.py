@@ -34,6 +34,7 @@ from bt_engine.summary import (
     handled_failure_lines,
     reserve_space,
     result_lines,
+    timing_line,
     write_summary,
 )
 from bt_engine.ticklog import TickLog, started_now
@@ -470,6 +471,9 @@ def finish(run: PreparedRun, runner: Runner, result: RunResult, echo: bool = Tru
     )
     for line in headlines:
         print(line)
+    late = timing_line(summary)
+    if late:
+        print(late)
     if report:
         print(f"report: {report}")
     print(f"run folder: {run.run_dir}")

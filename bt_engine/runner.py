@@ -58,6 +58,10 @@ class RunResult:
     mission_time_s: float
     wall_time_s: float
     tick_periods_s: list[float] = field(default_factory=list, repr=False)
+    #: real time: tick slots skipped after a tick (or the host) ran late
+    slots_skipped: int = 0
+    #: mission seconds per wall second (``--realtime 4``: 4); the periods above are wall time
+    clock_factor: float = 1.0
 
 
 class Abort(Exception):
@@ -129,6 +133,7 @@ class Runner:
         self.keep_trace = True
         self.status: NodeStatus = mission.status
         self.tick_periods_s: list[float] = []
+        self.slots_skipped = 0
         self._interrupted = 0
         #: what interrupted the run: "Ctrl-C" (SIGINT) or "SIGTERM"
         self.interrupt_source = "Ctrl-C"
@@ -159,7 +164,9 @@ class Runner:
             if behind > 2 * self.period_s:  # a slow tick: skip the missed slots instead of
                 # ticking back to back to catch up (the drone lives in real time, a burst of
                 # ticks a few microseconds apart would only repeat the newest state)
-                self._steps += int(behind / self.period_s)
+                skipped = int(behind / self.period_s)
+                self._steps += skipped
+                self.slots_skipped += skipped
                 next_t = self._t0 + self._steps * self.period_s
         clock.sleep_until(next_t)
         if not getattr(clock, "is_simulated", False):
@@ -366,6 +373,8 @@ class Runner:
             self.clock.now() - self._start_t,
             time.perf_counter() - self._wall0,
             self.tick_periods_s,
+            self.slots_skipped,
+            float(getattr(self.clock, "_factor", 1.0) or 1.0),
         )
         return self.result
 

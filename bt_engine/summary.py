@@ -185,6 +185,9 @@ def build_summary(
     ``errors``.
     """
     summary = minimal_summary(result, mission_path=mission_path, seed=seed, rate_hz=rate_hz)
+    timing = tick_timing(result, rate_hz)
+    if timing is not None:
+        summary["timing"] = timing
     try:
         summary["blackboard"], omitted = bounded_blackboard(mission.scope.all_items())
         if omitted is not None:
@@ -212,6 +215,41 @@ def build_summary(
                 add_error(summary, error_line(f"section {name}", exc))
     _cap_sections(summary, set(CORE_KEYS) | {"blackboard"})
     return summary
+
+
+def tick_timing(result: RunResult, rate_hz: float) -> dict[str, Any] | None:
+    """Real time: the tick period's p50 / p99 / max (ms), the periods over twice the
+    nominal one and the tick slots skipped after them (a busy or paused host: the tick log
+    alone told it). None in lock-step."""
+    periods = sorted(1000.0 * p for p in getattr(result, "tick_periods_s", None) or ())
+    if not periods:
+        return None
+    factor = float(getattr(result, "clock_factor", 1.0) or 1.0)
+    nominal = 1000.0 / (rate_hz * factor) if rate_hz else 0.0  # wall ms per tick
+    pick = lambda q: round(periods[min(len(periods) - 1, int(q * (len(periods) - 1) + 0.5))], 1)  # noqa: E731
+    return {
+        "tick_period_ms": {
+            "nominal": round(nominal, 1),
+            "p50": pick(0.5),
+            "p99": pick(0.99),
+            "max": round(periods[-1], 1),
+        },
+        "late_ticks": sum(1 for p in periods if nominal and p > 2 * nominal),
+        "slots_skipped": int(getattr(result, "slots_skipped", 0) or 0),
+    }
+
+
+def timing_line(summary: dict[str, Any]) -> str | None:
+    """The console's word on a run whose ticks ran late (None when they kept time)."""
+    t = summary.get("timing")
+    if not isinstance(t, dict) or not (t.get("slots_skipped") or t.get("late_ticks")):
+        return None
+    p = t["tick_period_ms"]
+    return (
+        f"timing: the tick period reached {p['max']:g} ms (p99 {p['p99']:g} ms, nominal "
+        f"{p['nominal']:g} ms); {t['late_ticks']} late ticks, {t['slots_skipped']} tick slots "
+        "skipped (a busy or paused host)"
+    )
 
 
 def result_lines(mission: Mission) -> list[str]:

@@ -352,7 +352,9 @@ class _Validator(_ExpansionChecks, _WarningChecks):
             loc,
             f"unknown node '{node.type}'"
             + (f"; did you mean '{hint}'?" if hint else "")
-            + " (btrun nodes lists them all)",
+            + " (btrun nodes lists them all"
+            + ("" if hint else "; a plug-in's node needs its plug-in named in BTRUN_PLUGINS")
+            + ")",
         )
 
 

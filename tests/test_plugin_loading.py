@@ -289,3 +289,33 @@ def test_a_preflight_that_returns_no_pairs_is_said(plugin_env, tmp_path, capsys)
     err = capsys.readouterr().err
     assert "Snap: pre-flight check returned 'just a string'; expected (port, message)" in err
     assert "Traceback" not in err and not (tmp_path / "run").exists()
+
+
+def test_a_leaf_that_returns_no_status_or_reads_an_undeclared_port_is_said(
+    plugin_env, tmp_path, capsys
+):
+    """`return True` ended the run as `internal error ...: KeyError: True`; get_input of a
+    port the leaf never declared said "has no value"."""
+    from helpers import LEAF_PLUGIN_TAIL
+
+    source = _LEAF.format(cls="Leaf", bt_id="Snap", ports="()").replace(
+        "return SUCCESS", "return True"
+    )
+    source += (
+        _LEAF.format(cls="Peek", bt_id="Peek", ports="()")
+        .split("\n", 3)[3]
+        .replace("return SUCCESS", "return self.get_input('nope')")
+    )
+    plugin_env("bad_leaf_plugin:PLUGIN", source + LEAF_PLUGIN_TAIL)
+    for leaf, said in (
+        ("Snap", "Snap 'Snap': returned True: a node returns SUCCESS, FAILURE or RUNNING"),
+        ("Peek", "input port 'nope' is not declared by this node (its ports: none)"),
+    ):
+        mission = tmp_path / f"{leaf}.xml"
+        mission.write_text(
+            f'<root BTCPP_format="4"><BehaviorTree ID="Main"><{leaf}/></BehaviorTree></root>'
+        )
+        out = tmp_path / f"run-{leaf}"
+        assert main([str(mission), "--out", str(out), "-q", "--no-report"]) == 1
+        reason = json.loads((out / "summary.json").read_text())["reason"]
+        assert said in reason and "KeyError" not in reason, reason

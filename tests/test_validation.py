@@ -26,6 +26,7 @@ def one(xml: str) -> str:
 CASES = [
     # (body, expected location, expected fragment)
     ('<Sleeep msec="1"/>', "m.xml:3:1", "unknown node 'Sleeep'; did you mean 'Sleep'?"),
+    ('<HoverMeasure t="1"/>', "m.xml:3:1", "needs its plug-in named in BTRUN_PLUGINS"),
     ('<Sleep msec="abc"/>', "m.xml:3:8", "expected a whole number, got 'abc'"),
     ("<Sleep/>", "m.xml:3:1", "Sleep needs port 'msec'"),
     ('<Sleep msec="1" colour="x"/>', "m.xml:3:17", "Sleep has no port 'colour'"),

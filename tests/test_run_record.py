@@ -1,6 +1,7 @@
-"""A disk that fills in flight: the flight goes on and lands, the tick log stops where it
-must, and summary.json is still written (the run folder keeps room for it in reserve). Both
-processes printed a traceback and the run left no summary."""
+"""The run's record on a bad day. A disk that fills in flight: the flight goes on and lands,
+the tick log stops where it must, and summary.json is still written (the run folder keeps
+room for it in reserve; both processes printed a traceback and the run left no summary). A
+real-time host that ran late: summary.json says how late."""
 
 from __future__ import annotations
 
@@ -68,3 +69,24 @@ def test_the_reserve_makes_room_for_summary_json(tmp_path, monkeypatch):
             lambda p, t: (_ for _ in ()).throw(OSError(errno.ENOSPC, "full")),
         )
         summary_mod.write_summary(str(tmp_path), {"status": "SUCCESS"})
+
+
+def test_late_ticks_and_skipped_slots_are_in_the_summary():
+    """Real time on a busy or paused host: the tick log alone showed a 7 s tick period and
+    the slots skipped after it; summary.json and the console say it."""
+    from bt_engine.runner import RunResult
+
+    periods = [0.01] * 98 + [0.011, 3.0]
+    result = RunResult("SUCCESS", "done", 100, 26.0, 13.0, periods, 303, 2.0)
+    timing = summary_mod.tick_timing(result, 50.0)
+    assert timing == {
+        "tick_period_ms": {"nominal": 10.0, "p50": 10.0, "p99": 11.0, "max": 3000.0},
+        "late_ticks": 1,
+        "slots_skipped": 303,
+    }
+    line = summary_mod.timing_line({"timing": timing})
+    assert line.startswith("timing: the tick period reached 3000 ms") and "303 tick slots" in line
+    assert summary_mod.tick_timing(RunResult("SUCCESS", "", 1, 1.0, 1.0), 50.0) is None
+    assert (
+        summary_mod.timing_line({"timing": {**timing, "late_ticks": 0, "slots_skipped": 0}}) is None
+    )
