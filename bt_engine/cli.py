@@ -12,7 +12,7 @@ import sys
 
 from bt_engine.arg_types import port_number, positive
 from bt_engine.plugins import Command, PluginError, plugin_commands
-from bt_engine.spec import MissionError, MissionSpec, Problem
+from bt_engine.spec import MissionError, MissionSpec, Problem, plural
 
 COMMANDS = ("run", "validate", "show", "convert", "nodes", "replay", "campaign")
 
@@ -387,13 +387,20 @@ def _cmd_show(args) -> int:
 
 
 def _cmd_convert(args) -> int:
-    from bt_engine.loading import convert_file
+    from bt_engine.loading import check_mission, convert_file
     from bt_engine.registry import REGISTRY
 
     problems = convert_file(args.source, args.dest, REGISTRY, args.include_path)
     if problems:
         raise MissionError(problems)
     print(f"wrote {args.dest}")
+    _, invalid = check_mission(args.source, REGISTRY, args.include_path)
+    if invalid:  # converted as written (a file being edited), but it would not fly: said
+        print(
+            f"btrun: warning: {args.source} has {plural(len(invalid), 'problem')} "
+            f"(btrun validate {args.source}); the converted file has them too",
+            file=sys.stderr,
+        )
     return 0
 
 

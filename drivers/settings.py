@@ -119,7 +119,14 @@ def check_value(value: Any, spec: Field, path: str) -> tuple[Any, list[str]]:
             ok = ok and float(value).is_integer()
         if not ok:
             want = "an integer" if kind == "int" else "a number"
-            return value, [f"{path}: expected {want}, got {value!r}"]
+            hint = ""
+            if isinstance(value, str) and re.fullmatch(
+                r"[-+]?\d+(\.\d*)?[eE][-+]?\d+", value.strip()
+            ):
+                hint = (
+                    " (YAML 1.1 reads an exponent without a dot and a sign as text: write 1.0e+3)"
+                )
+            return value, [f"{path}: expected {want}, got {value!r}{hint}"]
         if not math.isfinite(value):  # YAML's .nan and .inf: no setting means either
             return value, [f"{path}: expected a finite number, got {value!r}"]
         value = int(value) if kind == "int" else float(value)

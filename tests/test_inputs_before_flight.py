@@ -546,3 +546,12 @@ def test_values_the_mission_file_gives_are_checked_before_flight(tmp_path, capsy
     assert not (tmp_path / "r").exists()
     assert main([str(mission), "--set", "nap=100", "--out", str(tmp_path / "r2"), "-q"]) == 2
     assert not any("'soon'" in line for line in _err_lines(capsys))  # --set replaced it
+
+
+def test_an_exponent_yaml_reads_as_text_is_said_so(tmp_path, capsys) -> None:
+    """`capacity_mah: 1e308` is text to YAML 1.1 (no dot, no sign): "expected a number, got
+    '1e308'" left the user puzzled."""
+    rig = tmp_path / "r.yaml"
+    rig.write_text("link: sim\nbattery:\n  capacity_mah: 1e3\n")
+    assert main(["validate", str(rig)]) == 2
+    assert "write 1.0e+3" in capsys.readouterr().err

@@ -260,3 +260,17 @@ def test_a_misspelt_command_or_mission_gets_a_did_you_mean(tmp_path, capsys, arg
     err = capsys.readouterr().err
     assert err.startswith(expected) and "Traceback" not in err
     assert not (tmp_path / "run").exists()
+
+
+def test_converting_a_mission_that_would_not_fly_warns(tmp_path, capsys):
+    """btrun convert wrote an invalid mission with exit 0 and no word (a file being edited
+    may be converted; it is said it would not fly)."""
+    from bt_engine.cli import main
+
+    src = tmp_path / "m.xml"
+    src.write_text(
+        '<root BTCPP_format="4"><BehaviorTree ID="Main"><Sleep msec="abc"/></BehaviorTree></root>'
+    )
+    assert main(["convert", str(src), str(tmp_path / "m.yaml")]) == 0
+    err = capsys.readouterr().err
+    assert (tmp_path / "m.yaml").exists() and f"warning: {src} has 1 problem" in err
