@@ -555,3 +555,12 @@ def test_an_exponent_yaml_reads_as_text_is_said_so(tmp_path, capsys) -> None:
     rig.write_text("link: sim\nbattery:\n  capacity_mah: 1e3\n")
     assert main(["validate", str(rig)]) == 2
     assert "write 1.0e+3" in capsys.readouterr().err
+
+
+def test_a_physics_rate_off_the_firmware_loop_and_a_negative_floor_are_refused(capsys) -> None:
+    """sim.physics_rate_hz 333 (the docs say a multiple of 100) and a floor of negative size
+    (it moved the answer's distance from 0.208 to 0.369) flew without a word."""
+    assert main(["missions/square.xml", "--set", "sim.physics_rate_hz=333", "-q"]) == 2
+    assert "physics_rate_hz 333: expected a multiple of 100" in capsys.readouterr().err
+    assert main(["validate", "worlds/aisle.yaml", "--set", "world.floor.size_m=[-16,12]"]) == 2
+    assert "floor size [-16.0, 12.0]: expected two lengths > 0" in capsys.readouterr().err

@@ -112,6 +112,15 @@ def rig_problems(data: dict, own_start: bool = True) -> list[tuple[tuple[str, ..
     axis, or a simulated drone that starts outside it (it would be in breach the moment it
     took off), a battery's critical level above its low one (the landing for low would
     never come first)."""
+    rate = float(data["sim"]["physics_rate_hz"])
+    if abs(rate / 100.0 - round(rate / 100.0)) > 1e-9:  # the firmware's 100 Hz loop steps
+        return [  # a whole number of physics steps: 333 Hz ran it at another rate
+            (
+                ("sim.physics_rate_hz",),
+                f"sim.physics_rate_hz {rate:g}: expected a multiple of 100 (the firmware's "
+                "control loop runs at 100 Hz, a whole number of physics steps each)",
+            )
+        ]
     fence = SafetyConfig.from_dict(data["safety"])
     if fence.battery_critical_v >= fence.battery_low_v > 0.0:
         return [

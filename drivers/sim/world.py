@@ -372,6 +372,9 @@ def check_world(data: dict, marks: Marks, path: str) -> list[SettingProblem]:
 def _world_problems(data: dict) -> list[tuple[str, str]]:
     """(key, message) for every semantic problem of validated world data (unlocated)."""
     problems = []
+    size = data["floor"]["size_m"]
+    if not all(s > 0 for s in size):
+        problems.append(("floor.size_m", f"floor size {list(size)}: expected two lengths > 0 (m)"))
     data = with_generated_pallets(data)
     seen = set()
     for i, p in enumerate(data["pallets"]):
