@@ -564,3 +564,12 @@ def test_a_physics_rate_off_the_firmware_loop_and_a_negative_floor_are_refused(c
     assert "physics_rate_hz 333: expected a multiple of 100" in capsys.readouterr().err
     assert main(["validate", "worlds/aisle.yaml", "--set", "world.floor.size_m=[-16,12]"]) == 2
     assert "floor size [-16.0, 12.0]: expected two lengths > 0" in capsys.readouterr().err
+
+
+def test_a_missing_world_file_is_said_at_the_rig_line(tmp_path, capsys) -> None:
+    """It was located at the missing file itself (``/nonexistent/world.yaml:1:1``)."""
+    rig = tmp_path / "r.yaml"
+    rig.write_text("link: sim\nworld:\n  path: /nonexistent/world.yaml\n")
+    assert main(["validate", str(rig)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"{rig}:3:9: world.path '/nonexistent/world.yaml': no such world file")

@@ -99,6 +99,19 @@ def load_rig(
         _check_rig(data, marks, path, rest, own_start)
     rig = Rig(data, path, world_over)
     if rig.kind == "sim":
+        if not os.path.lexists(rig.world_path):  # said at the rig's line, not the missing file's
+            p = data["world"]["path"]
+            message = (
+                f"world.path {p!r}: no such world file (looked beside the rig, in the working "
+                "directory and in btrun's folder)"
+            )
+            raise ConfigError(
+                [
+                    SettingProblem("--set", 0, 0, message)
+                    if written_by("world.path", rest)
+                    else problem_at(marks, "world.path", path, message)
+                ]
+            )
         rig.load_world()  # world checks (and the scan pallet) before anything flies
     return rig
 
