@@ -64,3 +64,31 @@ def test_a_set_point_queued_while_the_guard_was_stopped_is_not_flown(tmp_path):
         guard._send(["T", [], True])
     assert time.monotonic() - t0 < 2.0 and guard.counts["unsent"] > 0
     assert decode(ours.recv(65536)) == ["T", [], True] and encode(["x"])
+
+
+def test_a_link_gone_with_its_guard_is_not_waited_on(tmp_path):
+    """The guard killed with the cflib link in it: btrun spent its whole recovery time (30 s)
+    "landing" over a link that could never come back."""
+    from helpers import sim_mission
+
+    from drivers.guard.client import GuardLink
+    from drivers.rig.loader import load_rig
+    from drivers.safety.policies import SafetyConfig
+    from drivers.safety.supervisor import SafetySupervisor
+
+    client = GuardClient(str(tmp_path))
+    link = GuardLink(
+        client, type("Config", (), {"uri": "radio://0/80/2M", "link_timeout_s": 1.0})()
+    )
+    assert not link.gone_for_good
+    client.gone = True  # the guard process ended (its socket closed) before the goodbye
+    assert link.gone_for_good
+    _, _, platform = sim_mission(
+        "<root BTCPP_format='4'><BehaviorTree ID='M'><AlwaysSuccess/></BehaviorTree></root>"
+    )
+    sup = SafetySupervisor(
+        SafetyConfig.from_dict(load_rig(None).data["safety"]), platform.vehicle, platform
+    )
+    platform.vehicle.link.gone_for_good = True
+    t0 = sup._now()
+    assert sup._wait(lambda: False, 30.0, t0 + 30.0) is False and sup._now() == t0

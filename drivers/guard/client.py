@@ -325,6 +325,12 @@ class GuardLink:
             return False
         return self._connected and time.monotonic() - self._last_rx <= self.config.link_timeout_s
 
+    @property
+    def gone_for_good(self) -> bool:
+        """The guard process ended before the run did: its cflib link went with it and no
+        command reaches the drone any more (the safety supervisor does not wait on it)."""
+        return self.client.gone and not self.client._said_bye
+
     def arm(self, armed: bool) -> bool:
         """Forward an arming request."""
         return self.client.send(["arm", bool(armed)])

@@ -237,9 +237,17 @@ class SafetySupervisor:
         while True:
             if done():
                 return True
-            if self._now() >= end - 1e-9:
+            if self._now() >= end - 1e-9 or self._link_gone():
                 return False
             self._advance()
+
+    def _link_gone(self) -> bool:
+        """The link can never come back (the guard process holding it ended): nothing btrun
+        commands reaches the drone, so a recovery does not wait out its time on it."""
+        try:
+            return bool(getattr(self.vehicle.link, "gone_for_good", False))
+        except Exception:  # noqa: BLE001 - a half-closed link
+            return False
 
     def _critical(self) -> bool:
         v = self.vehicle.battery.voltage_v
@@ -292,6 +300,12 @@ class SafetySupervisor:
                 v.land(c.land_speed_mps)
             self._step("land")
             if not self._wait(down, c.max_recovery_s, deadline) and v.is_flying:
+                if self._link_gone():
+                    self._step(
+                        "the link is gone for good (the guard process holding it ended): "
+                        "nothing btrun commands reaches the drone any more"
+                    )
+                    return
                 self.motors_cut = True
                 v.emergency_stop()
                 self._step(f"motors off: not landed within {fmt_number(c.max_recovery_s)} s")
