@@ -107,7 +107,8 @@ def csv_rows(text: str) -> tuple[list[CsvRow], str]:
     if named:
         delimiter, body, skipped = named.group(1), rest, 1
     else:
-        delimiter = max(DELIMITERS, key=lambda d: (first.count(d), d == ","))
+        bare = re.sub(r'"[^"]*"', "", first)  # a separator inside quotes separates nothing
+        delimiter = max(DELIMITERS, key=lambda d: (bare.count(d), d == ","))
         body, skipped = text, 0
     lines = io.StringIO(body, newline="").readlines()  # as the reader splits them
     reader = csv.reader(io.StringIO(body, newline=""), delimiter=delimiter)

@@ -129,6 +129,8 @@ def test_the_same_as_json_in_three_shapes(tmp_path, world):
         ("s.csv", "place;pallet\nA-01-1\n", (2, 1), "(write 'A-01-1;' for a place that should be empty)"),
         ("s.json", '[{"place": "A-01-1", "pallet": true}]', (1, 2), "pallet must be text or null, got true"),
         ("s.json", '{"A-01-1": false}', (1, 2), "A-01-1: pallet must be text or null, got false"),
+        # commas inside a quoted header cell of a semicolon file: split at the semicolons
+        ("s.csv", 'place;pallet;"a,b,c,d"\nA-01-1;109;x\nA-1-2;3;y\n', (3, 1), "unknown place 'A-1-2'"),
     ],
 )  # fmt: skip
 def test_every_problem_is_located_in_the_file(tmp_path, world, name, text, where, message):
