@@ -163,6 +163,7 @@ class BTNode(py_trees.behaviour.Behaviour):
         self.loc: Loc | None = None
         self.path = name
         self.uid = 0
+        self.tick_count = 0  # calls of execute_tick (the watchdog tells a hung leaf by it)
         self._bindings: dict[str, tuple[int, Any]] = {}
         self._pre: list[tuple[int, Script]] | None = None
         self._post: dict[str, Script] | None = None
@@ -195,6 +196,7 @@ class BTNode(py_trees.behaviour.Behaviour):
     # -- ticking ------------------------------------------------------------------------
     def execute_tick(self) -> NodeStatus:
         """Tick this node once, with pre/post-conditions, and return its new status."""
+        self.tick_count += 1
         pre = self._pre
         if pre is not None:
             new = self._check_pre_conditions(pre)

@@ -74,9 +74,10 @@ def stuck_leaf(thread_id: int, samples: int = 5, every_s: float = 0.01) -> str:
     first = _innermost(thread_id)
     if first is None or getattr(first, "children", None):
         return ""
+    calls = getattr(first, "tick_count", None)  # a hung leaf is in one call all along
     for _ in range(samples - 1):
         time.sleep(every_s)
-        if _innermost(thread_id) is not first:
+        if _innermost(thread_id) is not first or getattr(first, "tick_count", None) != calls:
             return ""
     try:
         return f" in {first.describe()} ({first.loc})"

@@ -122,6 +122,7 @@ def test_the_watchdog_names_the_leaf_that_does_not_return():
 
         def __init__(self, name):
             self.name, self.loc, self.stop = name, f"m.xml:{len(name)}:1", False
+            self.tick_count = 0
 
         def describe(self):
             return self.name
@@ -130,7 +131,8 @@ def test_the_watchdog_names_the_leaf_that_does_not_return():
             while not self.stop:
                 pass
 
-        def tick(self):
+        def tick(self):  # as BTNode.execute_tick: each call counted
+            self.tick_count += 1
             return 1
 
     class Loop(Node):
