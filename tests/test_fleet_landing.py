@@ -26,7 +26,8 @@ SAME_POINT = """<root BTCPP_format="4" main_tree_to_execute="M">
 """
 
 
-def test_the_second_drone_lands_beside_the_first(tmp_path, capsys):
+def _fly_same_point(tmp_path) -> tuple[int, dict]:
+    """Two drones of a fleet flying SAME_POINT: exit code and summary.json."""
     (tmp_path / "m.xml").write_text(SAME_POINT)
     (tmp_path / "f.yaml").write_text(
         f"name: same\nmission: m.xml\nrig: {RIG}\n"
@@ -34,8 +35,13 @@ def test_the_second_drone_lands_beside_the_first(tmp_path, capsys):
     )
     out = tmp_path / "run"
     args = ["fleet", str(tmp_path / "f.yaml"), "--out", str(out), "--no-report", "--store", "none"]
-    assert main(args) == 0
-    s = json.loads((out / "summary.json").read_text())
+    code = main(args)
+    return code, json.loads((out / "summary.json").read_text())
+
+
+def test_the_second_drone_lands_beside_the_first(tmp_path, capsys):
+    code, s = _fly_same_point(tmp_path)
+    assert code == 0
     assert s["status"] == "SUCCESS" and s["collisions"]["drones"] == 0
     sep = s["separation"]
     assert sep["landings_moved"] == 1 and sep["violations"] == 0
@@ -72,15 +78,8 @@ def test_drones_that_touch_fail_the_fleet(tmp_path, monkeypatch, capsys):
     """Where no spot beside is free the drone lands where it is: on the other one. That is
     a collision: the fleet fails, says which drones, and exits 1."""
     monkeypatch.setattr(Airspace, "land_spot", lambda self, name, start, ground_z: None)
-    (tmp_path / "m.xml").write_text(SAME_POINT)
-    (tmp_path / "f.yaml").write_text(
-        f"name: same\nmission: m.xml\nrig: {RIG}\n"
-        "drones:\n  - {name: cf1, pad: pad-1}\n  - {name: cf2, pad: pad-2}\n"
-    )
-    out = tmp_path / "run"
-    args = ["fleet", str(tmp_path / "f.yaml"), "--out", str(out), "--no-report", "--store", "none"]
-    assert main(args) == 1
-    s = json.loads((out / "summary.json").read_text())
+    code, s = _fly_same_point(tmp_path)
+    assert code == 1
     assert s["status"] == "FAILURE" and s["collisions"]["drones"] == 1
     assert sorted(s["collisions"]["drone_pair"]) == ["cf1", "cf2"]
     assert "collision: cf1 and cf2 came within" in capsys.readouterr().out

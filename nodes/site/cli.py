@@ -24,29 +24,27 @@ from bt_engine.arg_types import count
 from store import InventoryStore, StoreError, default_url, disabled
 
 
+def _limit(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--limit",
+        type=count("a number of runs"),
+        default=None,
+        metavar="N",
+        help="the newest N runs",
+    )
+
+
 def setup(p: argparse.ArgumentParser) -> None:
     """Arguments of ``btrun inventory``."""
     sub = p.add_subparsers(dest="inventory_command", metavar="SUBCOMMAND", required=True)
     hi = sub.add_parser("history", help="what was found at a place, run by run")
     hi.add_argument("place", help="place name, e.g. A-03-2")
-    hi.add_argument(
-        "--limit",
-        type=count("a number of runs"),
-        default=None,
-        metavar="N",
-        help="the newest N runs",
-    )
+    _limit(hi)
     di = sub.add_parser("diff", help="what changed between two inventories")
     di.add_argument("run_a", help="the earlier run (its folder's name, or the folder)")
     di.add_argument("run_b", help="the later run")
     rs = sub.add_parser("runs", help="the runs the store holds")
-    rs.add_argument(
-        "--limit",
-        type=count("a number of runs"),
-        default=None,
-        metavar="N",
-        help="the newest N runs",
-    )
+    _limit(rs)
     im = sub.add_parser("import", help="record run folders (flown before, or offline)")
     im.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
     for sp in (hi, di, rs, im):
