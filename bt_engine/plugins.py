@@ -184,6 +184,19 @@ def _where_raised(exc: BaseException) -> str:
     return f" ({frames[-1].filename}:{frames[-1].lineno})" if frames else ""
 
 
+def _syntax_said(exc: SyntaxError) -> str:
+    """A plug-in's syntax error as ``path:line:col: Kind: message`` and the offending line
+    (Python's own text names the file without its folder: ``(plug.py, line 2)``)."""
+    where = os.path.abspath(exc.filename) if exc.filename else "<plug-in>"
+    where += f":{exc.lineno}" if exc.lineno else ""
+    where += f":{exc.offset}" if exc.lineno and exc.offset else ""
+    said = f"{where}: {type(exc).__name__}: {exc.msg}"
+    line = (exc.text or "").rstrip("\n")
+    if line.strip():
+        said += f" in {line.strip()!r}"
+    return said
+
+
 def _load(spec: str, source: str = "") -> Plugin:
     module, _, attr = spec.partition(":")
     named = f"plug-in {spec!r}" + (f" ({source})" if source else "")
@@ -191,6 +204,8 @@ def _load(spec: str, source: str = "") -> Plugin:
         obj: Any = importlib.import_module(module)
         for part in attr.split(".") if attr else ():
             obj = getattr(obj, part)
+    except SyntaxError as exc:  # the plug-in's own source: file:line:col and the line
+        raise PluginError(f"{named} could not be loaded: {_syntax_said(exc)}") from exc
     except Exception as exc:  # any failure of a third party's import: one located line
         raise PluginError(
             f"{named} could not be loaded: {type(exc).__name__}: {exc}{_where_raised(exc)}"

@@ -75,6 +75,11 @@ def plugin_env(tmp_path, monkeypatch):
             "import os\n\nraise RuntimeError('no licence file')\n",
             "could not be loaded: RuntimeError: no licence file (",
         ),
+        (
+            "syntax_plugin",
+            "import os\n\ndef leaf(:\n    pass\n",
+            "syntax_plugin.py:3:10: SyntaxError: invalid syntax in 'def leaf(:'",
+        ),
     ],
 )
 def test_a_plugin_that_cannot_load_is_one_line_and_exit_2(
@@ -88,6 +93,8 @@ def test_a_plugin_that_cannot_load_is_one_line_and_exit_2(
     assert not (tmp_path / "run").exists()
     if spec == "raising_plugin":  # where in the plug-in's own code it failed
         assert f"{tmp_path / 'raising_plugin.py'}:3)" in err
+    if spec == "syntax_plugin":  # the whole path, not Python's bare file name
+        assert f"{tmp_path / 'syntax_plugin.py'}:3:10:" in err
 
 
 _LEAF = """
