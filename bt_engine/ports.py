@@ -28,6 +28,11 @@ class PortType:
     name = "any"
     expected = "any value"
 
+    def samples(self) -> tuple[Any, ...] | None:
+        """Values a port of this type may hold, to tell whether another type can read them
+        (:func:`bt_engine.validate_types.converts_from`); None: any value at all."""
+        return None
+
     def convert(self, value: Any) -> Any:
         """Convert ``value`` (text from XML or a native YAML value) or raise PortValueError."""
         return value
@@ -70,6 +75,9 @@ class FloatType(PortType):
     name = "float"
     expected = "a number"
 
+    def samples(self) -> tuple[Any, ...]:
+        return (0.0, 1.5)
+
     def convert(self, value: Any) -> float:
         if isinstance(value, bool):
             raise PortValueError(f"expected {self.expected}, got boolean {value}")
@@ -90,6 +98,9 @@ class IntType(PortType):
 
     name = "int"
     expected = "a whole number"
+
+    def samples(self) -> tuple[Any, ...]:
+        return (0, 1, 2)
 
     def convert(self, value: Any) -> int:
         if isinstance(value, bool):
@@ -123,6 +134,9 @@ class BoolType(PortType):
     _TRUE = {"true", "1", "yes", "on"}
     _FALSE = {"false", "0", "no", "off"}
 
+    def samples(self) -> tuple[Any, ...]:
+        return (True, False)
+
     def convert(self, value: Any) -> bool:
         if isinstance(value, bool):
             return value
@@ -152,6 +166,9 @@ class EnumType(PortType):
         self._by_upper = {k.upper(): k for k in self.members}
         listing = ", ".join(f"{k} ({v})" for k, v in self.members.items())
         self.expected = f"one of {listing}"
+
+    def samples(self) -> tuple[Any, ...]:
+        return tuple(self.members)
 
     def convert(self, value: Any) -> str:
         if isinstance(value, bool):
@@ -196,6 +213,9 @@ class Vec3Type(PortType):
     name = "vec3"
     expected = 'three numbers "x;y;z"'
 
+    def samples(self) -> tuple[Any, ...]:
+        return ((0.0, 0.0, 0.0),)
+
     def convert(self, value: Any) -> tuple[float, float, float]:
         if isinstance(value, str):
             count = value.count(";") + value.count(",") + 1  # before splitting a huge value
@@ -227,6 +247,9 @@ class PathType(PortType):
 
     name = "path"
     expected = 'points "x;y;z|x;y;z|..."'
+
+    def samples(self) -> tuple[Any, ...]:
+        return (((0.0, 0.0, 0.0),), ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0)))
 
     def convert(self, value: Any) -> tuple[tuple[float, float, float], ...]:
         if isinstance(value, str):
@@ -274,6 +297,12 @@ class QueueType(PortType):
         self.element = element
         self.name = f"{element.name} queue"
         self.expected = f'a queue of {element.name} items "a;b;c"'
+
+    def samples(self) -> tuple[Any, ...] | None:
+        items = self.element.samples()
+        if items is None:
+            return None
+        return tuple([v] for v in items) + (list(items) * 3,)
 
     def convert(self, value: Any) -> list[Any]:
         if isinstance(value, str):
@@ -330,6 +359,9 @@ class DurationType(PortType):
 
     name = "duration"
     expected = 'a duration like "2.5", "2.5s" or "500ms"'
+
+    def samples(self) -> tuple[Any, ...]:
+        return (0.0, 1.5)
 
     def convert(self, value: Any) -> float:
         if isinstance(value, bool):

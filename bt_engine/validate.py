@@ -37,6 +37,7 @@ from bt_engine.spec import (
     plural,
 )
 from bt_engine.validate_expansion import _ExpansionChecks
+from bt_engine.validate_types import _TypeChecks
 from bt_engine.validate_warnings import KNOWN_ENTRIES, _WarningChecks
 
 CONDITION_ATTRS = (
@@ -80,7 +81,7 @@ def _order(p: Problem) -> tuple:
     return (p.loc.file, p.loc.line, p.loc.col, p.message)
 
 
-class _Validator(_ExpansionChecks, _WarningChecks):
+class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
     def __init__(self, spec: MissionSpec, registry: Registry) -> None:
         self.spec = spec
         self.registry = registry
@@ -133,6 +134,7 @@ class _Validator(_ExpansionChecks, _WarningChecks):
         if main in spec.trees:
             self.expansion(main)
         self.unknown_entries()
+        self.entry_types()
         self.unbounded_loops()
         self.warnings = sorted(set(self.warnings), key=_order)
         return sorted(set(self.problems), key=_order)

@@ -274,3 +274,23 @@ def test_converting_a_mission_that_would_not_fly_warns(tmp_path, capsys):
     assert main(["convert", str(src), str(tmp_path / "m.yaml")]) == 0
     err = capsys.readouterr().err
     assert (tmp_path / "m.yaml").exists() and f"warning: {src} has 1 problem" in err
+
+
+def test_an_entry_read_as_a_type_its_writer_cannot_give_is_refused():
+    """A float written by LoopDouble and read as RunOnce's bool can never work: refused at
+    the reading port, naming the writer; a float read as a whole number may (2.0) work."""
+    loop = '<LoopDouble queue="1.5;2" value="{v}"><AlwaysSuccess/></LoopDouble>'
+    found = one(
+        wrap(f'<Sequence>{loop}\n<RunOnce then_skip="{{v}}"><AlwaysSuccess/></RunOnce></Sequence>')
+    )
+    assert found.startswith("m.xml:4:10: port 'then_skip' of RunOnce reads {v} as bool")
+    assert "port 'value' of LoopDouble (m.xml:3:37) writes it as float" in found
+    assert "no float converts to bool" in found
+    assert problems_of(wrap(f'<Sequence>{loop}<Sleep msec="{{v}}"/></Sequence>')) == []
+    # another tree has a blackboard of its own; {@v} is the main tree's {v}
+    sub = f'<Sequence>{loop}<SubTree ID="Other"/></Sequence>'
+    for entry in ("v", "@v"):
+        other = f'<BehaviorTree ID="Other"><RunOnce then_skip="{{{entry}}}">'
+        other += "<AlwaysSuccess/></RunOnce></BehaviorTree>"
+        found = problems_of(wrap(sub, other))
+        assert found == [] if entry == "v" else "reads {@v} as bool" in found[0]
