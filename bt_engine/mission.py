@@ -33,7 +33,7 @@ from bt_engine.node import (
 )
 from bt_engine.registry import REGISTRY, Registry
 from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
-from bt_engine.validate import referenced_entries, validate
+from bt_engine.validate import root_inputs, validate
 
 
 def check_file(path: str, registry: Registry | None = None) -> tuple[MissionSpec, list[Problem]]:
@@ -78,14 +78,24 @@ def parse_set_value(text: str) -> Any:
     return parsed if isinstance(parsed, (int, float, bool, str, list)) else text
 
 
-def declared_inputs(spec: MissionSpec, registry: Registry | None = None) -> set[str]:
+class Inputs(set):
+    """A mission's inputs (a set of names) and, in ``inner``, where names that are not
+    inputs are read: inside SubTrees that never see the root blackboard's entry."""
+
+    inner: dict[str, Any]
+
+
+def declared_inputs(spec: MissionSpec, registry: Registry | None = None) -> Inputs:
     """The blackboard entries a mission takes from outside (``--set NAME=VALUE``).
 
     They are the ports of the main tree's ``<TreeNodesModel>`` entry (with or without a
-    default) and every entry the mission reads: ``{name}`` references on any port and the
-    names its scripts read, in any of its trees.
+    default) and every entry the mission reads on its root blackboard: ``{name}``
+    references on any port and the names its scripts read, in the main tree and in the
+    SubTrees that see the root's entry (remapped ``{name}``, ``_autoremap``, ``{@name}``).
     """
-    names = set(referenced_entries(spec, registry or REGISTRY))
+    found, inner = root_inputs(spec, registry or REGISTRY)
+    names = Inputs(found)
+    names.inner = inner
     main = spec.main_tree_id()
     model = spec.models.get(main) if main else None
     if model is not None:
@@ -98,6 +108,14 @@ def undeclared_input(key: str, declared: Collection[str], mission: str) -> str |
     does): a "did you mean" from ``declared``, the mission's inputs, the ``bb.`` way out."""
     if key in declared:
         return None
+    where = getattr(declared, "inner", {}).get(key)
+    if where is not None:
+        return (
+            f"{key}: {mission} reads '{key}' only inside a SubTree ({where}) whose calls give "
+            f"it a value of their own, so --set {key} would change nothing; pass it in from "
+            f'the main tree ({key}="{{{key}}}" in the SubTree calls, or _autoremap="true") '
+            f"to set it from the command line"
+        )
     close = difflib.get_close_matches(key, sorted(declared), n=1, cutoff=0.6)
     hint = f"; did you mean {close[0]}?" if close else ""
     listed = sorted(declared)

@@ -25,6 +25,7 @@ from typing import Any
 
 from bt_engine.ports import NO_DEFAULT, PortValueError, blackboard_ref
 from bt_engine.registry import CONTROL, DECORATOR, SUBTREE, Registry, suggest_name
+from bt_engine.root_entries import root_entries
 from bt_engine.spec import (
     MAX_NESTING_DEPTH,
     MAX_SUBTREE_DEPTH,
@@ -395,10 +396,29 @@ def referenced_entries(spec: MissionSpec, registry: Registry) -> set[str]:
     return {n.lstrip("@") for n in names if n.lstrip("@")}
 
 
+def root_inputs(spec: MissionSpec, registry: Registry) -> tuple[set[str], dict[str, Any]]:
+    """``(names, inner)``: the entries the mission names that are on its root blackboard
+    (what ``--set`` can change), and where the others are named (inside SubTrees that never
+    see the root's entry; :func:`bt_engine.root_entries.root_entries`)."""
+    v = _Validator(spec, registry)
+
+    def reads_of(node: NodeSpec):
+        for attr, script in v.scripts(node):
+            for name in sorted(script.reads):
+                yield name, attr.loc
+
+    found = root_entries(spec, reads_of)
+    if found is None:
+        return referenced_entries(spec, registry), {}
+    names, inner = found
+    return {n for n in names if n}, inner
+
+
 __all__ = [
     "validate",
     "check_script",
     "referenced_entries",
+    "root_inputs",
     "CONDITION_ATTRS",
     "KNOWN_ENTRIES",
     "NO_DEFAULT",

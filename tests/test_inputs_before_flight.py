@@ -137,6 +137,39 @@ def test_declared_inputs_are_main_tree_ports_references_and_script_reads(tmp_pat
     }
 
 
+_WAIT_TWICE = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <Sequence>
+      <SubTree ID="Wait" ms="10"/>
+      <SubTree ID="Wait" ms="{CALL}"/>
+      <SubTree ID="Nap" _autoremap="true"/>
+    </Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="Wait"><Sleep msec="{ms}"/></BehaviorTree>
+  <BehaviorTree ID="Nap"><SubTree ID="Wait" ms="{nap}"/></BehaviorTree>
+  <TreeNodesModel>
+    <SubTree ID="Wait"><input_port name="ms" type="int"/></SubTree>
+  </TreeNodesModel>
+</root>
+"""
+
+
+def test_an_entry_only_subtrees_read_with_their_own_value_is_no_input(tmp_path, capsys) -> None:
+    """A SubTree's blackboard is its own: when every call gives ``ms`` a literal, ``--set
+    ms=500`` would change nothing; it is refused, naming where ``ms`` is read. Passed in
+    (``ms="{ms}"``) it is an input; ``nap`` reaches the root through ``_autoremap``."""
+    path = tmp_path / "m.xml"
+    path.write_text(_WAIT_TWICE.replace("{CALL}", "20"))
+    assert declared_inputs(load_spec(str(path))) == {"nap"}
+    out = tmp_path / "run"
+    assert main([str(path), "--set", "ms=500", "--out", str(out), "-q"]) == 2
+    err = _err_lines(capsys)
+    assert err[0].startswith(f"--set ms: {path} reads 'ms' only inside a SubTree ({path}:9:34)")
+    assert "--set ms would change nothing" in err[0] and not out.exists()
+    path.write_text(_WAIT_TWICE.replace("{CALL}", "{ms}"))
+    assert declared_inputs(load_spec(str(path))) == {"ms", "nap"}
+
+
 _SET_PLAIN = re.compile(r"--set[ =]+[\"']?([A-Za-z_]\w*)=")
 #: the docs' example of a refused key
 _TYPOS = {"hieght"}
