@@ -214,6 +214,17 @@ def _entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]],
         if not place:
             problems.append(Problem(where_place, "a row without a place (expected place,pallet)"))
             continue
+        extra = [c for c in cells[len(header) :] if c.strip()]
+        if extra:  # "A-01-1,Box, large,1001": every column after the stray one is shifted
+            problems.append(
+                Problem(
+                    Loc(path, row.line, row.col(len(header))),
+                    f"'{place}': {len(cells)} cells where the header has {len(header)} "
+                    f"({extra[0].strip()[:30]!r} past its last column): a '{delimiter}' inside "
+                    "a cell shifts the columns after it; put that cell in double quotes",
+                )
+            )
+            continue
         if qc >= len(cells):  # not "A-01-1," (empty): a line cut short is no answer
             problems.append(
                 Problem(

@@ -131,6 +131,9 @@ def test_the_same_as_json_in_three_shapes(tmp_path, world):
         ("s.json", '{"A-01-1": false}', (1, 2), "A-01-1: pallet must be text or null, got false"),
         # commas inside a quoted header cell of a semicolon file: split at the semicolons
         ("s.csv", 'place;pallet;"a,b,c,d"\nA-01-1;109;x\nA-1-2;3;y\n', (3, 1), "unknown place 'A-1-2'"),
+        # a separator inside an unquoted cell shifts the pallet column: refused, not misread;
+        # empty cells past the header (a spreadsheet's export) are fine
+        ("s.csv", "place,note,pallet\nA-01-2,ok,109,,\nA-01-1,Box, large,110\n", (3, 19), "'A-01-1': 4 cells where the header has 3 ('110' past its last column)"),
     ],
 )  # fmt: skip
 def test_every_problem_is_located_in_the_file(tmp_path, world, name, text, where, message):
