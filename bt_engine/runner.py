@@ -299,7 +299,8 @@ class Runner:
         return self.outcome
 
     def _interrupt_outcome(self) -> tuple[str, str]:
-        return "ABORTED", f"operator interrupt ({self.interrupt_source})"
+        twice = f"; {self.interrupt_source} again: emergency stop" if self._interrupted >= 2 else ""
+        return "ABORTED", f"operator interrupt ({self.interrupt_source}){twice}"
 
     def _step_outcome(self) -> tuple[str, str] | None:
         if self._interrupted:
@@ -361,6 +362,9 @@ class Runner:
             # Signals stay routed while the shutdown hooks land the drone: a second
             # SIGINT/SIGTERM raises KeyboardInterrupt there (the supervisor cuts the motors).
             self._shutdown_hooks(reason if result != "SUCCESS" else "mission complete")
+            again = f"; {self.interrupt_source} again: emergency stop"
+            if self._interrupted >= 2 and again not in reason:  # it came during the landing
+                reason += again
         finally:
             self._close_watchdog()
             if self.log is not None:

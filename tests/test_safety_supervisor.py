@@ -325,3 +325,25 @@ def test_a_final_state_the_drone_did_not_report_is_not_claimed_as_confirmed() ->
     platform.summary = lambda: {k: v for k, v in truth().items() if k != "collisions"}
     s = sup.summary()  # as a real drone's platform: no ground truth
     assert s["confirmed"] is False and "what btrun last commanded" in s["note"]
+
+
+def test_a_second_interrupt_during_the_landing_is_in_the_reason() -> None:
+    """The run's reason says the emergency stop (it was only in the supervisor's actions:
+    the console line read as if the drone had landed)."""
+    m, runner, platform, sup = flown()
+    runner.run_until(lambda mm: mm.clock.now() >= 5.0, 1000)
+    runner.interrupt()
+    calls = {"n": 0}
+    real = platform.before_tick
+
+    def step(t: float) -> None:  # the second Ctrl-C, as the signal handler gives it
+        calls["n"] += 1
+        if calls["n"] == 10:
+            runner.interrupt()
+            raise KeyboardInterrupt
+        real(t)
+
+    platform.before_tick = step
+    res = runner.run(60)
+    assert res.reason == "operator interrupt (Ctrl-C); Ctrl-C again: emergency stop"
+    assert sup.summary()["motors_cut"]
