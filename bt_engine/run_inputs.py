@@ -13,6 +13,7 @@ from typing import Any
 
 from bt_engine.mission import UNCHECKED_PREFIX, parse_set_value, undeclared_input
 from bt_engine.spec import Loc, Problem
+from bt_engine.ticklog import header_path
 
 
 def parse_sets(
@@ -136,7 +137,7 @@ def resume_settings(args) -> list[Problem]:
         if getattr(args, "seed", None) is None:
             args.seed = 0
         return []
-    from bt_engine.ticklog import header_path, read_log
+    from bt_engine.ticklog import read_log
 
     where = Loc("--resume", 0, 0)
     log = os.path.join(previous, "ticks.jsonl")
@@ -182,5 +183,42 @@ def resume_settings(args) -> list[Problem]:
     if args.rig is None and header.get("rig_arg"):
         args.rig = header_path(header, header["rig_arg"])  # resumed from another folder
     if isinstance(header.get("sets"), list):  # kept; a key given again takes its new value
-        args.set = [str(item) for item in header["sets"]] + list(args.set or [])
+        again = {str(item).partition("=")[0].strip() for item in args.set or []}
+        carried, problems = carried_sets(header, [str(item) for item in header["sets"]], again)
+        if problems:
+            return problems
+        args.set = carried + list(args.set or [])
     return []
+
+
+def carried_sets(
+    header: dict, items: list[str], again: set[str] = frozenset()
+) -> tuple[list[str], list[Problem]]:
+    """The interrupted run's ``--set`` items as a run from this folder must read them: a
+    value that named a file relative to the folder the run was started from (the header's
+    ``cwd``: ``expected=stock.csv``) becomes that file's absolute path, so a resume from
+    another folder reads the same file, not another of the same name or none. A relative
+    file name found only here, not there, is a problem (unless ``again`` holds its key: this
+    call gives it anew)."""
+    cwd = header.get("cwd") if isinstance(header, dict) else None
+    if not isinstance(cwd, str) or not cwd or os.path.abspath(cwd) == os.getcwd():
+        return items, []
+    out, problems = [], []
+    for item in items:
+        key, eq, value = item.partition("=")
+        name = value.strip()
+        path = header_path(header, name) if eq and name and not os.path.isabs(name) else None
+        if path is not None and os.path.exists(path):
+            out.append(f"{key}={path}")
+            continue
+        if path is not None and os.path.isfile(name) and key.strip() not in again:
+            problems.append(
+                Problem(
+                    Loc("--resume", 0, 0),
+                    f"the interrupted run's --set {item} named a file relative to {cwd}, "
+                    f"where it no longer is; {name} here may be another file: give "
+                    f"--set {key.strip()}=... again (an absolute path)",
+                )
+            )
+        out.append(item)
+    return out, problems

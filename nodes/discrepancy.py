@@ -160,7 +160,13 @@ def grade_rows(
 def write_discrepancies(run_dir: str, rows: list[dict], stock: ExpectedStock) -> None:
     """``discrepancies.json`` (format, the expected stock's file, counts, rows) and
     ``discrepancies.csv``, each written atomically."""
-    doc = {"format": FORMAT, "expected": stock.path, "counts": counts(rows), "rows": rows}
+    doc = {
+        "format": FORMAT,
+        "expected": stock.path,
+        "expected_source": stock.source(),
+        "counts": counts(rows),
+        "rows": rows,
+    }
     atomic_write_text(os.path.join(run_dir, "discrepancies.json"), json.dumps(doc, indent=1))
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=FIELDS, lineterminator="\n")

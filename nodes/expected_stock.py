@@ -23,6 +23,7 @@ places.
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import os
@@ -54,6 +55,12 @@ class ExpectedStock:
     path: str
     places: dict[str, str | None] = field(default_factory=dict)
     locs: dict[str, Loc] = field(default_factory=dict)
+    #: SHA-256 of the file's bytes as read (which WMS export a report was made against)
+    sha256: str = ""
+
+    def source(self) -> dict[str, str]:
+        """Which file the stock was read from: its absolute path and SHA-256."""
+        return {"path": os.path.abspath(self.path), "sha256": self.sha256}
 
     def at(self, place: str) -> str | None:
         """The pallet expected at ``place``: its name, ``""`` when the place should be
@@ -546,7 +553,7 @@ def read_expected(
         else:
             entries, problems = _entries_csv(path, text)
     names = list(getattr(world, "places", None) or {})
-    stock = ExpectedStock(path)
+    stock = ExpectedStock(path, sha256=hashlib.sha256(data).hexdigest())
     pallet_at: dict[str, tuple[str, Loc]] = {}
     if len(entries) > MAX_EXPECTED_PLACES:  # said first: the rest is not read
         problems.insert(

@@ -226,6 +226,7 @@ class InventoryLog:
         if self.expected is not None:
             found = discrepancy.discrepancy_rows(_with_planned(rows, self.planned), self.expected)
             out["expected"] = self.expected.path
+            out["expected_source"] = self.expected.source()
             out["discrepancies"] = discrepancy.counts(found)
             out["discrepancy_rows"] = found
             truth = self.truth()

@@ -568,3 +568,23 @@ def test_odd_headers_sheets_and_names(tmp_path, world):
     _, problems = _read(tmp_path, "c.csv", many, world)
     assert problems[0].message == "more than 100000 places listed"
     assert problems[0].loc.line == 100_002
+
+
+def test_the_report_names_the_file_it_was_made_against(tmp_path, world, monkeypatch):
+    """summary.json and discrepancies.json name the expected stock by its absolute path and
+    SHA-256: a relative name alone could not tell later which WMS export was used."""
+    import hashlib
+
+    text = "place,pallet\nA-01-1,109\n"
+    monkeypatch.chdir(tmp_path)
+    stock, problems = _read(tmp_path, "s.csv", text, world)
+    assert problems == []
+    digest = hashlib.sha256(text.encode()).hexdigest()
+    assert stock.source() == {"path": str(tmp_path / "s.csv"), "sha256": digest}
+    log = InventoryLog(str(tmp_path / "run"), drone="cf1")
+    log.expected = stock
+    log.plan(["A-01-1"])
+    log.record({"place": "A-01-1", "answer": "109A", "status": "identified"})
+    assert log.run_summary()["expected_source"]["sha256"] == digest
+    doc = json.loads((tmp_path / "run" / "discrepancies.json").read_text())
+    assert doc["expected_source"] == stock.source()

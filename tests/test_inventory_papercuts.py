@@ -244,6 +244,56 @@ def test_a_resume_keeps_the_runs_settings_and_adds_the_new_ones(tmp_path) -> Non
     assert args.seed == 777 and args.rig == os.path.join(REPO, "rigs", "site.yaml")
 
 
+def test_a_resume_from_another_folder_reads_the_runs_own_files(tmp_path, monkeypatch) -> None:
+    """``--set expected=stock.csv`` is relative to the folder the run was started from: a
+    resume from another folder read that folder's ``stock.csv`` (another WMS file, no word
+    said) or none. It now reads the run's own file; a same-named file found only here is
+    refused rather than guessed."""
+    import argparse
+
+    from bt_engine.run_cmd import resume_settings
+
+    folder = str(tmp_path / "solo")
+    _fake_solo_run(folder, 777, [])
+    started, other = tmp_path / "started", tmp_path / "other"
+    started.mkdir()
+    other.mkdir()
+    (started / "stock.csv").write_text("place,pallet\n")
+    (other / "stock.csv").write_text("place,pallet\n")
+    with open(os.path.join(folder, "ticks.jsonl"), encoding="utf-8") as f:
+        record = json.loads(f.readline())
+    record["header"]["sets"] = ["expected=stock.csv", "battery_reserve=0.2"]
+    record["header"]["cwd"] = str(started)
+    with open(os.path.join(folder, "ticks.jsonl"), "w", encoding="utf-8") as f:
+        f.write(json.dumps(record) + "\n")
+    monkeypatch.chdir(other)
+
+    def resumed(*sets: str):
+        args = argparse.Namespace(resume=folder, mission=MISSION, seed=None, rig=None, set=[*sets])
+        return resume_settings(args), args.set
+
+    assert resumed() == ([], [f"expected={started / 'stock.csv'}", "battery_reserve=0.2"])
+    os.remove(started / "stock.csv")  # moved away: the one here is not taken for it
+    problems, _ = resumed()
+    assert len(problems) == 1 and "--set expected=stock.csv named a file relative to" in str(
+        problems[0]
+    )
+    assert resumed("expected=stock.csv")[0] == []  # given again: this folder's, on purpose
+    # a fleet's record keeps its folder as well
+    from nodes.fleet.check import common_sets, previous_run
+
+    fleet = str(tmp_path / "fleet")
+    _fake_fleet_run(fleet, [])
+    (started / "stock.csv").write_text("place,pallet\n")
+    with open(os.path.join(fleet, "fleet.json"), "w", encoding="utf-8") as f:
+        record = {"fleet": FLEET, "seed": 0, "set": ["expected=stock.csv"], "places": None}
+        json.dump({**record, "cwd": str(started)}, f)
+    assert common_sets(None, ["x=1"], previous_run(fleet)) == [
+        f"expected={started / 'stock.csv'}",
+        "x=1",
+    ]
+
+
 def test_a_fleet_resume_flies_with_the_runs_settings_and_places(tmp_path, capsys) -> None:
     """A resumed fleet used to keep only its seed: a run of ``--set places=A-01-1;A-02-1``
     with an emptier stock, resumed, planned all 16 places in another stock. It now flies

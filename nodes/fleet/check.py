@@ -17,6 +17,7 @@ from bt_engine.files import read_text
 from bt_engine.loading import check_mission
 from bt_engine.preflight import check_before_flight
 from bt_engine.registry import REGISTRY
+from bt_engine.run_inputs import carried_sets
 from bt_engine.spec import Loc, MissionError, Problem, plural
 from drivers.safety.policies import SafetyConfig
 from drivers.settings import ConfigError
@@ -40,7 +41,10 @@ def common_sets(spec: FleetSpec, sets: list[str], previous: dict | None = None) 
     if previous is None:
         base = [f"{k}={text(v)}" for k, v in spec.data["set"].items()]
     else:
-        base = list(previous["set"])
+        again = {item.partition("=")[0].strip() for item in sets}
+        base, problems = carried_sets({"cwd": previous.get("cwd")}, list(previous["set"]), again)
+        if problems:
+            raise MissionError(problems)
         if previous["places"] is not None:
             base.append("places=" + ";".join(previous["places"]))
     return base + list(sets)
@@ -123,7 +127,7 @@ def previous_run(resume: str | None) -> dict | None:
         raise MissionError(
             [Problem(Loc(path, 1, 1), "not a fleet record: 'places' is not a list of places")]
         )
-    return {"seed": record["seed"], "set": sets, "places": places}
+    return {"seed": record["seed"], "set": sets, "places": places, "cwd": record.get("cwd")}
 
 
 def resumed_seed(previous: dict | None, seed: int | None, resume: str | None) -> int | None:

@@ -154,6 +154,7 @@ def run(args: Any) -> int:
                 "seed": seed,
                 "started": started_now(),
                 "set": [item for item in common if item.partition("=")[0] != "places"],
+                "cwd": os.getcwd(),  # what relative paths in "set" are relative to
                 "places": merged.planned if shares is not None else None,
             },
             indent=1,
