@@ -234,6 +234,7 @@ def prepare(
         "seed": args.seed,
         "rig_arg": args.rig,
         "cwd": os.getcwd(),  # relative paths above and in sets are relative to it
+        "run_dir": os.path.abspath(run_dir),  # the folder's name then (it may be renamed)
         "sets": list(args.set),
         "rate_hz": args.rate,
         "started": started_now(),

@@ -120,6 +120,26 @@ def test_an_interrupted_runs_export_keeps_every_planned_place(root):
     assert export.table(info, "discrepancies")[1] == []  # no expected stock, no grades
 
 
+def test_a_resumed_runs_carried_rows_keep_the_time_of_the_run_that_answered_them(root):
+    """A carried row's mission time counts from its own run's start: the export stamped it
+    with the resumed run's start plus that time (hours or days off for a WMS). A row of a
+    run that cannot be found has no time rather than a wrong one; the run's own rows keep
+    theirs after the folder is renamed (its name when it flew is recorded)."""
+    first = {**_row("A-01-1", "101A", "identified"), "run": "inv-1"}
+    _run(root, "inv-1", [first], ["A-01-1"], {"started": "2026-11-27T08:00:00Z"})
+    rows = [first, {**_row("A-02-1", "102A", "identified"), "run": "inv-2"}]
+    header = {"started": "2026-11-28T09:00:00Z", "run_dir": "/elsewhere/runs/inv-2"}
+    _run(root, "inv-2 renamed", rows, ["A-01-1", "A-02-1"], header)
+    lines = export.wms_rows(run_info(RunsRoot(str(root)), "inv-2 renamed", True))
+    assert [(r["place"], r["time"]) for r in lines] == [
+        ("A-01-1", "2026-11-27T08:00:10Z"),
+        ("A-02-1", "2026-11-28T09:00:10Z"),
+    ]
+    os.rename(root / "inv-1", root / "gone")
+    lines = export.wms_rows(run_info(RunsRoot(str(root)), "inv-2 renamed", True))
+    assert [r["time"] for r in lines] == ["", "2026-11-28T09:00:10Z"]
+
+
 def test_runs_are_listed_by_their_start_and_odd_names_are_said(root):
     """Newest started first, whatever the folders' times (a review or a copy touches them);
     a run under a name with spaces or accents is listed; one the console cannot serve is

@@ -4,7 +4,8 @@ One line per place with the columns a warehouse management system's stock-count 
 expects: ``place``, ``pallet`` (the identity; empty for an empty or unknown place),
 ``status`` (``identified``, ``reviewed`` when an operator decided it, ``unknown``,
 ``empty``, ``not_scanned``, or the run's own status), ``time`` (when the place was
-answered, UTC ISO 8601: the run's start plus the row's mission time) and ``drone``.
+answered, UTC ISO 8601: the start of the run that answered it, plus the row's mission time;
+empty when that run's start is not known) and ``drone``.
 The discrepancies add ``expected``, ``category`` and ``review``. A review decision
 replaces the run's answer in the export; the run's own files stay as they were.
 """
@@ -35,6 +36,7 @@ def wms_rows(info: dict) -> list[dict]:
     (an interrupted run) as ``not_scanned``, so that a WMS does not take a place missing
     from the file for one not in the count."""
     reviews = latest_by_place(info.get("review") or [])
+    starts = info.get("run_starts") or {}  # a carried row counts from its own run's start
     out = []
     rows = list(info.get("rows") or [])
     answered = {r["place"] for r in rows}
@@ -49,7 +51,8 @@ def wms_rows(info: dict) -> list[dict]:
             status = "unknown"
         pallet = "" if answer in ("", "unknown", "empty") else answer
         t = r.get("mission_time_s")
-        when = info["started"] + t if isinstance(t, (int, float)) else None
+        start = starts.get(r.get("run") or "", info["started"]) if starts else info["started"]
+        when = start + t if isinstance(t, (int, float)) and start is not None else None
         out.append(
             {
                 "place": r["place"],

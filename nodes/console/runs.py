@@ -149,6 +149,35 @@ def _start_time(name: str, run_dir: str, fleet: Any, header: dict, ticks: str) -
     return _mtime(fleet_json) if os.path.exists(fleet_json) else _mtime(ticks)
 
 
+#: the most earlier runs whose start a resumed run's export looks up
+_MAX_EARLIER_RUNS = 20
+
+
+def run_starts(root: RunsRoot, name: str, record: Any, started: float, rows: list) -> dict:
+    """Run name -> its start (seconds since 1970, None: not known) for every ``run`` the
+    rows name: a resumed run carries rows answered in earlier runs, whose times count from
+    their own run's start (a run folder beside this one, found by name). The run's own name
+    is its folder's and the one it had when it flew (``record``: fleet.json or the tick
+    log's header, ``run_dir``); a run from before that was recorded takes a name it cannot
+    find for its own."""
+    recorded = record.get("run_dir") if isinstance(record, dict) else None
+    own = {name}
+    if isinstance(recorded, str) and recorded:
+        own.add(os.path.basename(os.path.normpath(recorded)))
+    out: dict[str, float | None] = dict.fromkeys(own, started)
+    others = sorted({r.get("run") for r in rows if isinstance(r.get("run"), str)} - own - {""})
+    for other in others[:_MAX_EARLIER_RUNS]:
+        try:
+            other_dir = root.run_dir(other)
+        except PathRefused:
+            out[other] = None if isinstance(recorded, str) else started
+            continue
+        fleet = read_json(os.path.join(other_dir, "fleet.json"), 1_000_000)
+        first = os.path.join(other_dir, next(iter(drone_dirs(other_dir).values())), "ticks.jsonl")
+        out[other] = _start_time(other, other_dir, fleet, read_header(first), first)
+    return out
+
+
 def layout_of(rows: list[dict], planned: list[str], summary: Any, world: Any) -> dict:
     """Place -> [rack, bay, level]: the summary's layout, else the world's, else parsed from
     the names (``A-03-2``)."""
@@ -301,12 +330,13 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
         right = sum(1 for g in counted.values() if g == "right")
         accuracy = round(right / len(counted), 4) if counted else None
     exceptions = [r["place"] for r in rows if needs_review(r)]
+    started = _start_time(name, run_dir, fleet, header, first)
     info: dict[str, Any] = {
         "name": name,
         "kind": "fleet" if fleet is not None or drones.get("") is None else "run",
         "mission": os.path.basename(mission) if isinstance(mission, str) else "",
         "status": status,
-        "started": _start_time(name, run_dir, fleet, header, first),
+        "started": started,
         "modified": max(_mtime(run_dir), _mtime(os.path.join(run_dir, "inventory.json"))),
         "places": places_n,
         "answered": answered,
@@ -321,6 +351,7 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
     }
     if not full:
         return info
+    info["run_starts"] = run_starts(root, name, fleet or header, started, rows)
     by_drone = {n: rel for n, rel in drones.items()}
     ev = {}
     for r in rows:

@@ -155,6 +155,7 @@ def run(args: Any) -> int:
                 "started": started_now(),
                 "set": [item for item in common if item.partition("=")[0] != "places"],
                 "cwd": os.getcwd(),  # what relative paths in "set" are relative to
+                "run_dir": os.path.abspath(out),  # the folder's name then (it may be renamed)
                 "places": merged.planned if shares is not None else None,
             },
             indent=1,
