@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 
 from bt_engine.arg_types import port_number, positive
@@ -15,13 +16,16 @@ from bt_engine.plugins import Command, PluginError, plugin_commands
 from bt_engine.spec import MissionError, MissionSpec, Problem, plural
 
 COMMANDS = ("run", "validate", "show", "convert", "nodes", "replay", "campaign")
+_MORE = re.compile(r"\.\.\. and (\d+) more problems\b")
 
 
 def _print_problems(problems: list[Problem], stream=None) -> None:
     stream = stream or sys.stderr
+    n = 0
     for p in problems:
         print(str(p), file=stream)
-    n = len(problems)
+        more = _MORE.match(p.message)  # a list cut short: "... and 19950 more problems"
+        n += int(more.group(1)) if more else 1
     print(f"{n} problem{'s' if n != 1 else ''} found; nothing was run.", file=stream)
 
 

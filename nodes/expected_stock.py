@@ -40,8 +40,42 @@ from perception.expected import pallet_of
 MAX_EXPECTED_BYTES = 16_000_000
 #: the most places an expected stock may list
 MAX_EXPECTED_PLACES = 100_000
-#: spellings of "no pallet here" in the pallet column
-EMPTY_SPELLINGS = ("", "empty", "none", "-")
+#: spellings of "no pallet here" in the pallet column (as WMS and database exports write it)
+EMPTY_SPELLINGS = ("", "empty", "none", "-", "n/a", "null", "nil")
+#: unknown places that get a spelling hint (difflib over every place is slow on big files)
+_HINTED = 50
+
+
+def _canonical(name: str) -> str:
+    """A place name without case and leading zeros in its numbers: ``a-1-1`` -> ``A-1-1``,
+    as ``A-01-1`` -> ``A-1-1``."""
+    return re.sub(r"\d+", lambda m: str(int(m.group())), name.strip().upper())
+
+
+class PlaceHints:
+    """`` (did you mean 'A-01-1'?)`` for an unknown place: the place that differs only in
+    case or leading zeros first (``a-1-1``), else the closest spelling (for the first
+    :data:`_HINTED` asked), else the range of the world's places."""
+
+    def __init__(self, names: list[str]) -> None:
+        self.names = names
+        self._by_canon: dict[str, str] = {}
+        for n in names:
+            self._by_canon.setdefault(_canonical(n), n)
+        self._asked = 0
+
+    def hint(self, name: str) -> str:
+        """The hint for unknown place ``name`` (with its leading space)."""
+        same = self._by_canon.get(_canonical(name))
+        if same is not None:
+            return f" (did you mean '{same}'?)"
+        self._asked += 1
+        close = did_you_mean(name, self.names) if self._asked <= _HINTED else ""
+        if not self.names:
+            return close
+        return close or f" (places: {self.names[0]} .. {self.names[-1]})"
+
+
 _LONGEST = 200  # a place or pallet name longer than this is not one
 #: the most problems of one expected-stock file said (a wrong file would print thousands)
 MAX_PROBLEMS_SAID = 50
@@ -553,8 +587,9 @@ def read_expected(
         else:
             entries, problems = _entries_csv(path, text)
     names = list(getattr(world, "places", None) or {})
+    known, hints = set(names), PlaceHints(names)
     stock = ExpectedStock(path, sha256=hashlib.sha256(data).hexdigest())
-    pallet_at: dict[str, tuple[str, Loc]] = {}
+    pallet_at: dict[str, tuple[str, Loc, str]] = {}
     if len(entries) > MAX_EXPECTED_PLACES:  # said first: the rest is not read
         problems.insert(
             0,
@@ -572,9 +607,8 @@ def read_expected(
                 Problem(where_place, f"a control character in '{shown.decode()[:60]}': not a name")
             )
             continue
-        if names and place not in names:
-            hint = did_you_mean(place, names) or f" (places: {names[0]} .. {names[-1]})"
-            problems.append(Problem(where_place, f"unknown place '{place}'{hint}"))
+        if names and place not in known:
+            problems.append(Problem(where_place, f"unknown place '{place}'{hints.hint(place)}"))
             continue
         if place in stock.places:
             first = stock.locs[place]
@@ -592,16 +626,24 @@ def read_expected(
             continue
         key = pallet_of(pallet)
         if key in pallet_at:
-            other, loc = pallet_at[key]
+            other, loc, written = pallet_at[key]
+            if written.upper() == pallet.upper():
+                said = f"pallet '{pallet}' expected at two places"
+            elif key in (written, pallet):  # 109 and 109B: the pallet and one of its sides
+                said = f"pallet '{key}' (written '{written}' and '{pallet}') expected at two places"
+            else:  # 7A and 7B: read as the two sides of pallet 7
+                said = (
+                    f"'{written}' and '{pallet}' are read as two sides of one pallet '{key}' "
+                    "(a name ending in a digit and a letter names a side), expected at two places"
+                )
             problems.append(
                 Problem(
                     where_pallet,
-                    f"pallet '{pallet}' expected at two places: {other} (line {loc.line}) and "
-                    f"{place}; a pallet stands in one place",
+                    f"{said}: {other} (line {loc.line}) and {place}; a pallet stands in one place",
                 )
             )
         else:
-            pallet_at[key] = (place, where_place)
+            pallet_at[key] = (place, where_place, pallet)
     if not entries and not problems:
         problems.append(Problem(Loc(path, 1, 1), "the expected stock lists no place"))
     if len(problems) > MAX_PROBLEMS_SAID:  # a wrong file altogether: the first ones say it
@@ -614,6 +656,7 @@ def read_expected(
 
 __all__ = [
     "EMPTY_SPELLINGS",
+    "PlaceHints",
     "ExpectedStock",
     "NotText",
     "CsvRow",

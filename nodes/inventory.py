@@ -28,11 +28,12 @@ from bt_engine.node import FAILURE, SUCCESS, BTNode, NodeStatus, SyncActionNode
 from bt_engine.ports import ANY, FLOAT, INT, STRING, input_port, output_port
 from bt_engine.registry import register
 from bt_engine.spec import Loc, Problem, plural
-from drivers.settings import ConfigError, did_you_mean
+from drivers.settings import ConfigError
 from nodes.common import geofence_config
 from nodes.expected_stock import (
     ExpectedStock,
     NotText,
+    PlaceHints,
     byte_loc,
     csv_rows,
     export_text,
@@ -80,10 +81,10 @@ def all_places_order(world: Any) -> list[str]:
     return out
 
 
-def _match(token: str, names: list[str]) -> list[str]:
+def _match(token: str, names: list[str], known: set[str]) -> list[str]:
     if any(c in token for c in "*?["):
         return [n for n in names if fnmatch.fnmatchcase(n, token)]
-    return [token] if token in names else []
+    return [token] if token in known else []
 
 
 def resolve_places(
@@ -116,12 +117,15 @@ def resolve_places(
     else:
         tokens = [(t.strip(), where) for t in re.split(r"[;,]", text) if t.strip()]
     out: list[str] = []
+    hints, known, seen = PlaceHints(names), set(names), set()
     for token, loc in tokens[:MAX_PLACES]:
-        found = _match(token, names)
+        found = _match(token, names, known)
         if not found:
-            hint = did_you_mean(token, names) or f" (places: {names[0]} .. {names[-1]})"
-            problems.append(Problem(loc, f"unknown place '{token}'{hint}"))
-        out += [n for n in found if n not in out]
+            problems.append(Problem(loc, f"unknown place '{token}'{hints.hint(token)}"))
+        for n in found:
+            if n not in seen:
+                seen.add(n)
+                out.append(n)
     if len(tokens) > MAX_PLACES:
         problems.append(Problem(where, f"more than {MAX_PLACES} places listed"))
     return out, problems
@@ -368,8 +372,7 @@ class LookUpPlace(SyncActionNode):
                     "fly inventories in a world with racks, e.g. --rig rigs/aisle.yaml",
                 )
             ]
-        hint = did_you_mean(name, names) or f" (places: {names[0]} .. {names[-1]})"
-        return [("place", f"unknown place '{name}'{hint}")]
+        return [("place", f"unknown place '{name}'{PlaceHints(names).hint(name)}")]
 
     def _look_point_problems(self, world: Any) -> list[tuple[str, str]]:
         return reach_problems(self, world, "look_distance", "no rescan can fly")

@@ -113,9 +113,11 @@ def test_the_same_as_json_in_three_shapes(tmp_path, world):
 @pytest.mark.parametrize(
     "name, text, where, message",
     [
-        ("s.csv", "place,pallet\nA-01-1,109\nA-1-2,3\n", (3, 1), "unknown place 'A-1-2' (did you mean"),
+        ("s.csv", "place,pallet\nA-01-1,109\nA-1-2,3\n", (3, 1), "unknown place 'A-1-2' (did you mean 'A-01-2'?)"),
+        ("s.csv", "place,pallet\nA-01-1,109\na-02-1,3\n", (3, 1), "unknown place 'a-02-1' (did you mean 'A-02-1'?"),
         ("s.csv", "place,pallet\nA-01-1,109\nA-01-1,3\n", (3, 1), "place 'A-01-1' listed twice (first at line 2)"),
-        ("s.csv", "place,pallet\nA-01-1,109\nA-02-1,109B\n", (3, 8), "pallet '109B' expected at two places: A-01-1 (line 2)"),
+        ("s.csv", "place,pallet\nA-01-1,109\nA-02-1,109B\n", (3, 8), "pallet '109' (written '109' and '109B') expected at two places: A-01-1 (line 2)"),
+        ("s.csv", "place,pallet\nA-01-1,PAL7A\nA-02-1,PAL7B\n", (3, 8), "'PAL7A' and 'PAL7B' are read as two sides of one pallet 'PAL7'"),
         ("s.csv", "location,pallet_id\nA-01-1,109\n", (1, 1), "expected a header 'place,pallet'"),
         ("s.csv", "", (1, 1), "the expected stock is empty"),
         ("s.json", '{"A-01-1": "109",\n "A-01-2": ', (2, 12), "not JSON"),
@@ -170,7 +172,7 @@ def test_a_wms_xlsx_is_read_as_its_csv_would_be(tmp_path, world):
     got = sorted((p.loc.line, p.loc.col, p.message.split(" (")[0]) for p in problems)
     assert got == [
         (3, 1, "unknown place 'A-1-2'"),
-        (4, 2, "pallet '109B' expected at two places: A-01-1"),
+        (4, 2, "pallet '109'"),
         (5, 1, "a row without a place"),
     ]
     assert all(p.loc.file == path for p in problems)
@@ -588,3 +590,32 @@ def test_the_report_names_the_file_it_was_made_against(tmp_path, world, monkeypa
     assert log.run_summary()["expected_source"]["sha256"] == digest
     doc = json.loads((tmp_path / "run" / "discrepancies.json").read_text())
     assert doc["expected_source"] == stock.source()
+
+
+def test_an_unknown_place_is_hinted_by_case_and_leading_zeros_first():
+    """difflib alone pointed at real, wrong places on the site: 'b-03-2' -> 'D-03-2',
+    'A-1-1' -> 'A-12-1' (an operator following the hint would count the wrong rack)."""
+    from nodes.expected_stock import PlaceHints
+
+    hints = PlaceHints(["A-01-1", "A-12-1", "B-03-2", "D-03-2"])
+    assert hints.hint("b-03-2") == " (did you mean 'B-03-2'?)"
+    assert hints.hint("A-1-1") == " (did you mean 'A-01-1'?)"
+    assert hints.hint("Q-99-9") == " (places: A-01-1 .. D-03-2)"
+
+
+def test_the_spellings_of_no_pallet_a_wms_or_database_writes_are_empty(tmp_path, world):
+    text = "place,pallet\nA-01-1,EMPTY\nA-01-2,n/a\nA-02-1,NULL\nA-02-2,-\nA-03-1,nil\n"
+    stock, problems = _read(tmp_path, "s.csv", text, world)
+    assert problems == [] and set(stock.places.values()) == {None}
+
+
+def test_a_file_wrong_throughout_counts_every_problem(tmp_path, world, capsys):
+    """50 problems are said, and the count is of all of them (it said '51 problems found'
+    under '... and 19950 more')."""
+    from bt_engine.cli import _print_problems
+
+    text = "place,pallet\n" + "".join(f"Z-{i:03d}-1,{i}\n" for i in range(120))
+    _, problems = _read(tmp_path, "s.csv", text, world)
+    assert len(problems) == 51 and problems[-1].message == "... and 70 more problems in this file"
+    _print_problems(problems)
+    assert capsys.readouterr().err.splitlines()[-1] == "120 problems found; nothing was run."
