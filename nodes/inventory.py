@@ -52,6 +52,7 @@ from nodes.inventory_log import (
 )
 from nodes.place_evidence import write_place_evidence
 from nodes.rack_geometry import footprints
+from perception.expected import pallet_of
 
 CATEGORY_INVENTORY = "inventory"
 MAX_PLACES = 10_000
@@ -79,6 +80,29 @@ def all_places_order(world: Any) -> list[str]:
         levels = sorted(places, key=lambda p: p.level, reverse=bool(k % 2))
         out += [p.name for p in levels]
     return out
+
+
+def not_in_gallery(stock: ExpectedStock | None, session: Any) -> list[str] | None:
+    """The pallets ``stock`` expects that no open gallery of the perception ``session``
+    enrols (by pallet: ``103`` is enrolled when ``103A`` is), sorted; None when there is no
+    stock or no gallery to tell."""
+    galleries = session.galleries() if session is not None else []
+    if stock is None or not galleries:
+        return None
+    enrolled = {pallet_of(i) for g in galleries for i in g.identities()}
+    expected = {pallet_of(p) for p in stock.places.values() if p}
+    return sorted(expected - enrolled)
+
+
+def not_enrolled_line(missing: list[str], stock: ExpectedStock) -> str:
+    """The console line that says which expected pallets the gallery does not know."""
+    expected = {pallet_of(p) for p in stock.places.values() if p}
+    shown = ", ".join(missing[:8]) + (f", ... ({len(missing)} in all)" if len(missing) > 8 else "")
+    return (
+        f"expected stock: {len(missing)} of {plural(len(expected), 'expected pallet')} "
+        f"not in the gallery ({shown}): their places cannot be verified 1:1 and come out as "
+        "mismatch or unverified (is the WMS naming them as the gallery does?)"
+    )
 
 
 def _match(token: str, names: list[str], known: set[str]) -> list[str]:
@@ -250,6 +274,9 @@ class InventoryPlan(SyncActionNode):
             return FAILURE
         todo = log.plan(places)
         log.expected = stock
+        log.expected_not_enrolled = not_in_gallery(stock, self.ctx.resources.get("perception"))
+        if log.expected_not_enrolled:
+            self.ctx.log(not_enrolled_line(log.expected_not_enrolled, stock))
         done = len(places) - len(todo)
         self.ctx.log(
             f"inventory: {plural(len(places), 'place')} planned"

@@ -83,6 +83,8 @@ class InventoryLog:
         self._truth: tuple[dict[str, str | None], set[str]] | None = None
         #: what the WMS expects (``expected=`` of InventoryPlan); None: no discrepancies
         self.expected: ExpectedStock | None = None
+        #: the expected pallets the gallery does not enrol (None: not known)
+        self.expected_not_enrolled: list[str] | None = None
         if resume_from:
             for row in read_inventory(resume_from):
                 self.rows[row["place"]] = dict(row)
@@ -196,6 +198,8 @@ class InventoryLog:
         self._plans[other.drone] = list(other.planned)
         if self.expected is None:
             self.expected = other.expected
+        if self.expected_not_enrolled is None:
+            self.expected_not_enrolled = other.expected_not_enrolled
         for place, row in other.rows.items():
             if place not in other.carried:
                 self.rows[place] = dict(row)
@@ -227,6 +231,11 @@ class InventoryLog:
             found = discrepancy.discrepancy_rows(_with_planned(rows, self.planned), self.expected)
             out["expected"] = self.expected.path
             out["expected_source"] = self.expected.source()
+            if self.expected_not_enrolled is not None:
+                out["expected_not_enrolled"] = {
+                    "count": len(self.expected_not_enrolled),
+                    "pallets": self.expected_not_enrolled[:100],
+                }
             out["discrepancies"] = discrepancy.counts(found)
             out["discrepancy_rows"] = found
             truth = self.truth()
@@ -311,6 +320,13 @@ def discrepancy_lines(s: dict, run_dir: str | None) -> list[str]:
     if "discrepancies" not in s:
         return []
     out = [discrepancy.counts_line(s["discrepancies"])]
+    missing = s.get("expected_not_enrolled") or {}
+    if missing.get("count"):
+        shown = ", ".join(missing["pallets"][:8]) + (", ..." if missing["count"] > 8 else "")
+        out.append(
+            f"discrepancies: {missing['count']} expected pallets not in the gallery ({shown}): "
+            "their places could not be verified 1:1"
+        )
     g = s.get("discrepancy_grades")
     if g:
         n = g["right"] + g["wrong"]

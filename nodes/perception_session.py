@@ -289,6 +289,10 @@ class PerceptionSession:
         self._galleries[key] = g
         return g
 
+    def galleries(self) -> list[Any]:
+        """The galleries opened so far (PerceptionReady opens the mission's)."""
+        return list(self._galleries.values())
+
     def close(self) -> None:
         """Stop the perception worker; close the open galleries."""
         if self.worker is not None:

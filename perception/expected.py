@@ -69,10 +69,13 @@ def load_thresholds(path: str = THRESHOLDS_PATH) -> ExpectedThresholds:
 
 def pallet_of(identity: str) -> str:
     """The pallet of a side name: ``103B`` -> ``103``, ``7A`` -> ``7`` (a digit followed by
-    one letter); any other name is its own pallet."""
+    one letter); any other name is its own pallet. A number is the pallet whatever zeros a
+    WMS or a spreadsheet pads it with: ``0111`` and ``00111B`` -> ``111``."""
     s = str(identity).strip()
     if len(s) >= 2 and s[-1].isalpha() and s[-2].isdigit():
-        return s[:-1]
+        s = s[:-1]
+    if s.isascii() and s.isdigit():
+        s = s.lstrip("0") or "0"
     return s
 
 
