@@ -13,6 +13,7 @@ This is the Python face of btrun for tests and tools::
 from __future__ import annotations
 
 import difflib
+import re
 from collections.abc import Callable, Collection, Iterator, MutableMapping
 from typing import Any
 
@@ -68,6 +69,10 @@ def mission_inputs(spec: MissionSpec) -> dict[str, Any]:
 UNCHECKED_PREFIX = "bb."
 
 
+_PLAIN_NUMBER = re.compile(r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?", re.ASCII)
+_PLAIN_INT = re.compile(r"[-+]?\d+", re.ASCII)
+
+
 def parse_set_value(text: str) -> Any:
     """A ``--set`` blackboard value as it goes on the blackboard: a YAML scalar or list
     (numbers, booleans), otherwise the text; the ports convert it when read."""
@@ -75,6 +80,13 @@ def parse_set_value(text: str) -> Any:
         parsed = yaml.safe_load(text) if text.strip() else ""
     except yaml.YAMLError:
         return text
+    if isinstance(parsed, (int, float)) and not isinstance(parsed, bool):
+        # YAML 1.1 reads 010 as 8, 1:30 as 90 and 0_5 as 5: only plain decimal numbers
+        # are numbers here; any other text is left to the ports, which refuse or read it
+        t = text.strip()
+        if not _PLAIN_NUMBER.fullmatch(t):
+            return text
+        return int(t, 10) if _PLAIN_INT.fullmatch(t) else float(t)
     return parsed if isinstance(parsed, (int, float, bool, str, list)) else text
 
 

@@ -22,6 +22,12 @@ class PortValueError(ValueError):
     """A value that does not convert to a port's type; the message says what was expected."""
 
 
+def _odd_digits(text: str) -> bool:
+    """True for number text Python reads but BehaviorTree.CPP and a reader do not: ``_``
+    between digits (``0_5`` is 5.0 to ``float``) or digits outside ASCII (``１０``, ``٣``)."""
+    return "_" in text or not text.isascii()
+
+
 class PortType:
     """Base class of port types: a name for files and docs, and two conversions."""
 
@@ -81,6 +87,8 @@ class FloatType(PortType):
     def convert(self, value: Any) -> float:
         if isinstance(value, bool):
             raise PortValueError(f"expected {self.expected}, got boolean {value}")
+        if isinstance(value, str) and _odd_digits(value):
+            raise PortValueError(f"expected {self.expected} (plain digits), got {_short(value)}")
         try:
             out = float(value.strip() if isinstance(value, str) else value)
         except (TypeError, ValueError):
@@ -113,6 +121,10 @@ class IntType(PortType):
             raise PortValueError(f"expected {self.expected}, got {_short(value)}")
         if isinstance(value, str):
             text = value.strip()
+            if _odd_digits(text):
+                raise PortValueError(
+                    f"expected {self.expected} (plain digits), got {_short(value)}"
+                )
             try:
                 return int(text, 0)
             except ValueError:
@@ -180,7 +192,7 @@ class EnumType(PortType):
             if text.upper() in self._by_upper:
                 return self._by_upper[text.upper()]
             try:
-                number = int(text)
+                number = int(text) if not _odd_digits(text) else None
             except ValueError:
                 number = None
             if number in self._by_value:
@@ -197,6 +209,8 @@ def _floats(parts: Sequence[Any], what: str) -> tuple[float, ...]:
     for p in parts:
         if isinstance(p, bool):
             raise PortValueError(f"expected {what}, got boolean {p}")
+        if isinstance(p, str) and _odd_digits(p):
+            raise PortValueError(f"expected {what} (plain digits), got {_short(p)} in it")
         try:
             f = float(p.strip() if isinstance(p, str) else p)
         except (TypeError, ValueError):
@@ -337,7 +351,7 @@ class QueueType(PortType):
 # The number of a duration, matched against text already stripped of spaces and unit: no
 # two quantifiers here can match the same characters, so matching is linear (a pattern with
 # ``\s*(unit)?\s*$`` backtracks quadratically on a long run of trailing spaces).
-_DURATION_NUMBER = re.compile(r"[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?")
+_DURATION_NUMBER = re.compile(r"[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?", re.ASCII)
 _DURATION_UNITS = (("ms", 1e-3), ("min", 60.0), ("s", 1.0))
 
 

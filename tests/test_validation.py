@@ -294,3 +294,36 @@ def test_an_entry_read_as_a_type_its_writer_cannot_give_is_refused():
         other += "<AlwaysSuccess/></RunOnce></BehaviorTree>"
         found = problems_of(wrap(sub, other))
         assert found == [] if entry == "v" else "reads {@v} as bool" in found[0]
+
+
+@pytest.mark.parametrize(
+    "attr, fragment",
+    [
+        ('<Sleep msec="1_000"/>', "got '1_000'"),  # int("1_000") is 1000 to Python
+        ('<Delay delay_msec="１０"><AlwaysSuccess/></Delay>', "got '１０'"),
+        ('<Timeout msec="٣"><AlwaysSuccess/></Timeout>', "got '٣'"),
+        ('<Script code="x := ١٠"/>', "unexpected character '١'"),
+    ],
+)
+def test_numbers_python_reads_but_a_reader_would_not_are_refused(attr, fragment):
+    """``max_speed="0_5"`` flew at 5 m/s: ``float`` reads ``_`` between digits, and digits
+    of any script; BehaviorTree.CPP reads neither."""
+    found = one(wrap(attr))
+    assert ("(plain digits)" in found or "Script" in attr) and fragment in found
+
+
+def test_a_set_value_is_a_number_only_when_written_as_one():
+    """YAML 1.1 read ``--set n=010`` as 8, ``1:30`` as 90 and ``0_5`` as 5."""
+    from bt_engine.mission import parse_set_value
+    from bt_engine.ports import FLOAT, PortValueError, Vec3Type
+
+    assert [parse_set_value(t) for t in ("010", "1.5", "-2", "1:30", "0_5")] == [
+        10,
+        1.5,
+        -2,
+        "1:30",
+        "0_5",
+    ]
+    for port, text in ((FLOAT, "0_5"), (FLOAT, "１０"), (Vec3Type(), "1_0;0;1")):
+        with pytest.raises(PortValueError, match="plain digits"):
+            port.convert(text)
