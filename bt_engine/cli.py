@@ -9,9 +9,11 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import subprocess
 import sys
 
 from bt_engine.arg_types import port_number, positive
+from bt_engine.files import write_output
 from bt_engine.plugins import Command, PluginError, plugin_commands
 from bt_engine.spec import MissionError, MissionSpec, Problem, plural
 
@@ -375,15 +377,17 @@ def _cmd_show(args) -> int:
     dot = dot_source(spec)
     if args.format == "dot":
         if args.output:
-            with open(args.output, "w") as f:
-                f.write(dot)
+            why = write_output(args.output, dot)
+            if why:
+                print(f"btrun show: {why}", file=sys.stderr)
+                return 2
         else:
             print(dot, end="")
         return 0
     out = args.output or os.path.splitext(os.path.basename(args.mission))[0] + f".{args.format}"
     try:
         render_dot(dot, args.format, out)
-    except RuntimeError as exc:
+    except (RuntimeError, OSError, subprocess.CalledProcessError) as exc:
         print(f"btrun show: {exc}", file=sys.stderr)
         return 2
     print(f"wrote {out}")
@@ -413,15 +417,17 @@ def _cmd_nodes(args) -> int:
     from bt_engine.registry import REGISTRY
 
     wrote = False
-    if args.groot:
-        with open(args.groot, "w", encoding="utf-8") as f:
-            f.write(groot_palette(REGISTRY))
-        print(f"wrote Groot2 palette {args.groot}")
-        wrote = True
-    if args.markdown:
-        with open(args.markdown, "w", encoding="utf-8") as f:
-            f.write(catalogue_markdown(REGISTRY))
-        print(f"wrote node reference {args.markdown}")
+    for path, make, what in (
+        (args.groot, groot_palette, "Groot2 palette"),
+        (args.markdown, catalogue_markdown, "node reference"),
+    ):
+        if not path:
+            continue
+        why = write_output(path, make(REGISTRY))
+        if why:
+            print(f"btrun nodes: {why}", file=sys.stderr)
+            return 2
+        print(f"wrote {what} {path}")
         wrote = True
     if not wrote:
         print(catalogue_text(REGISTRY, args.kind, args.verbose), end="")

@@ -132,6 +132,27 @@ def read_text(
         return None
 
 
+def write_output(path: str, text: str) -> str | None:
+    """Write a command's output file ``path`` (a Groot2 palette, a converted mission, a dot
+    file); return why it could not be written (None: written). Only a regular file (or a
+    new one) is written: a FIFO would block the command, a device or folder is no output."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        return f"cannot write {path}: {exc.strerror or exc}"
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        kind = "a folder" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+        return f"cannot write {path}: {kind}"
+    try:
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text)
+    except OSError as exc:
+        return f"cannot write {path}: {exc.strerror or exc}"
+    return None
+
+
 def atomic_write_text(path: str, text: str) -> None:
     """Write ``text`` to ``path`` so that a crash at any moment leaves either the old file or
     the new one, whole: a temporary file beside it, flushed to disk, then renamed over it

@@ -19,7 +19,7 @@ import contextvars
 import os
 from collections.abc import Iterable, Iterator
 
-from bt_engine.files import read_text
+from bt_engine.files import read_text, write_output
 from bt_engine.registry import Registry
 from bt_engine.spec import Loc, MissionSpec, Problem
 from bt_engine.validate import validate
@@ -224,12 +224,8 @@ def convert_file(
         return [
             Problem(Loc(dst, 0, 0), f"unknown output type '{ext}' (expected .xml, .yaml or .yml)")
         ]
-    try:
-        with open(dst, "w", encoding="utf-8") as f:
-            f.write(text)
-    except OSError as exc:
-        return [Problem(Loc(dst, 0, 0), f"cannot write {dst}: {exc.strerror or exc}")]
-    return []
+    why = write_output(dst, text)
+    return [Problem(Loc(dst, 0, 0), why)] if why else []
 
 
 def _xml_comment(text: str) -> str:

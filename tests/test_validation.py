@@ -327,3 +327,22 @@ def test_a_set_value_is_a_number_only_when_written_as_one():
     for port, text in ((FLOAT, "0_5"), (FLOAT, "１０"), (Vec3Type(), "1_0;0;1")):
         with pytest.raises(PortValueError, match="plain digits"):
             port.convert(text)
+
+
+def test_an_output_that_cannot_be_written_is_said_not_a_traceback(tmp_path, capsys):
+    """``btrun show --output`` and ``btrun nodes --groot/--markdown`` raised on a missing
+    folder or a folder; ``convert`` to a FIFO blocked for ever."""
+    import os
+
+    missing = str(tmp_path / "no" / "x.dot")
+    assert main(["show", "--format", "dot", "--output", missing, "missions/square.xml"]) == 2
+    assert main(["nodes", "--groot", str(tmp_path / "no" / "p.xml")]) == 2
+    assert main(["nodes", "--markdown", str(tmp_path)]) == 2
+    fifo = str(tmp_path / "f.xml")
+    os.mkfifo(fifo)
+    assert main(["convert", "missions/square.xml", fifo]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert f"btrun show: cannot write {missing}: No such file or directory" in err
+    assert f"btrun nodes: cannot write {tmp_path}: a folder" in err
+    assert f"cannot write {fifo}: not a regular file" in err
