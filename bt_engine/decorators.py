@@ -80,7 +80,7 @@ class Repeat(DecoratorNode):
 
     bt_id = "Repeat"
     category = CATEGORY
-    ports = (input_port("num_cycles", INT, description="repetitions (-1: forever)"),)
+    ports = (input_port("num_cycles", INT, description="repetitions (-1: forever)", low=-1),)
 
     def __init__(self, name: str, ctx=None) -> None:
         super().__init__(name, ctx)
@@ -130,7 +130,7 @@ class RetryUntilSuccessful(DecoratorNode):
     bt_id = "RetryUntilSuccessful"
     aliases = ("RetryUntilSuccesful",)
     category = CATEGORY
-    ports = (input_port("num_attempts", INT, description="attempts (-1: forever)"),)
+    ports = (input_port("num_attempts", INT, description="attempts (-1: forever)", low=-1),)
 
     def __init__(self, name: str, ctx=None) -> None:
         super().__init__(name, ctx)
@@ -178,7 +178,7 @@ class Timeout(DecoratorNode):
 
     bt_id = "Timeout"
     category = CATEGORY
-    ports = (input_port("msec", INT, description="time limit in milliseconds"),)
+    ports = (input_port("msec", INT, description="time limit in milliseconds", low=0),)
 
     def __init__(self, name: str, ctx=None) -> None:
         super().__init__(name, ctx)
@@ -214,7 +214,7 @@ class Delay(DecoratorNode):
 
     bt_id = "Delay"
     category = CATEGORY
-    ports = (input_port("delay_msec", INT, description="delay in milliseconds"),)
+    ports = (input_port("delay_msec", INT, description="delay in milliseconds", low=0),)
 
     def __init__(self, name: str, ctx=None) -> None:
         super().__init__(name, ctx)

@@ -50,7 +50,7 @@ class Sleep(StatefulActionNode):
 
     bt_id = "Sleep"
     category = CATEGORY
-    ports = (input_port("msec", INT, description="how long, in milliseconds"),)
+    ports = (input_port("msec", INT, description="how long, in milliseconds", low=0),)
 
     def __init__(self, name: str, ctx=None) -> None:
         super().__init__(name, ctx)

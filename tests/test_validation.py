@@ -346,3 +346,25 @@ def test_an_output_that_cannot_be_written_is_said_not_a_traceback(tmp_path, caps
     assert f"btrun show: cannot write {missing}: No such file or directory" in err
     assert f"btrun nodes: cannot write {tmp_path}: a folder" in err
     assert f"cannot write {fifo}: not a regular file" in err
+
+
+@pytest.mark.parametrize(
+    "body, fragment",
+    [
+        ('<Sleep msec="-1"/>', "msec -1: expected at least 0"),
+        ('<Timeout msec="-5"><AlwaysSuccess/></Timeout>', "msec -5: expected at least 0"),
+        ('<Delay delay_msec="-1"><AlwaysSuccess/></Delay>', "delay_msec -1: expected at least 0"),
+        (
+            '<Repeat num_cycles="-2"><AlwaysSuccess/></Repeat>',
+            "num_cycles -2: expected at least -1",
+        ),
+        (
+            '<RetryUntilSuccessful num_attempts="-7"><AlwaysSuccess/></RetryUntilSuccessful>',
+            "num_attempts -7: expected at least -1",
+        ),
+    ],
+)
+def test_counts_and_times_no_node_can_use_are_refused(body, fragment):
+    """A negative time, or a loop count below -1 (a typo for -1, forever), was accepted: the
+    Repeat then never ticked its child and succeeded."""
+    assert fragment in one(wrap(body))
