@@ -13,6 +13,7 @@ This is the Python face of btrun for tests and tools::
 from __future__ import annotations
 
 import difflib
+import math
 import re
 from collections.abc import Callable, Collection, Iterator, MutableMapping
 from typing import Any
@@ -34,7 +35,7 @@ from bt_engine.node import (
 )
 from bt_engine.registry import REGISTRY, Registry
 from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
-from bt_engine.validate import root_inputs, validate
+from bt_engine.validate import referenced_entries, root_inputs, validate, written_entries
 
 
 def check_file(path: str, registry: Registry | None = None) -> tuple[MissionSpec, list[Problem]]:
@@ -84,6 +85,8 @@ def parse_set_value(text: str) -> Any:
         # YAML 1.1 reads 010 as 8, 1:30 as 90 and 0_5 as 5: only plain decimal numbers
         # are numbers here; any other text is left to the ports, which refuse or read it
         t = text.strip()
+        if isinstance(parsed, float) and not math.isfinite(parsed):
+            return parsed  # .nan, .inf: said by the ports as no finite number
         if not _PLAIN_NUMBER.fullmatch(t):
             return text
         return int(t, 10) if _PLAIN_INT.fullmatch(t) else float(t)
@@ -113,6 +116,37 @@ def declared_inputs(spec: MissionSpec, registry: Registry | None = None) -> Inpu
     if model is not None:
         names.update(p.name for p in model.ports.values() if not p.name.startswith("__"))
     return names
+
+
+def missing_inputs(
+    spec: MissionSpec, given: Collection[str], registry: Registry | None = None
+) -> list[Problem]:
+    """The main tree's declared inputs without a default that the mission reads, nothing in
+    it writes and ``given`` (the ``--set`` entries) does not hold: the first leaf to read
+    one would fail in flight (``{target}, which is not set``), so the run is refused."""
+    main = spec.main_tree_id()
+    model = spec.models.get(main) if main else None
+    if model is None:
+        return []
+    reg = registry or REGISTRY
+    written = written_entries(spec, reg)
+    if written is None:
+        return []
+    read = referenced_entries(spec, reg)
+    return [
+        Problem(
+            model.loc,
+            f"mission input '{p.name}' has no default and nothing in the mission writes it: "
+            f"give it with --set {p.name}=VALUE (or a default in <TreeNodesModel>)",
+        )
+        for p in model.ports.values()
+        if p.direction == "input"
+        and p.default is None
+        and not p.name.startswith("__")
+        and p.name not in given
+        and p.name not in written
+        and p.name in read
+    ]
 
 
 def undeclared_input(key: str, declared: Collection[str], mission: str) -> str | None:

@@ -17,7 +17,7 @@ from typing import Any, TextIO
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.display import spec_rows
 from bt_engine.loading import check_mission
-from bt_engine.mission import Mission, declared_inputs
+from bt_engine.mission import Mission, declared_inputs, missing_inputs
 from bt_engine.plugins import Platform, RunTarget, load_target, run_sections, write_report
 from bt_engine.registry import REGISTRY
 from bt_engine.run_inputs import (  # noqa: F401 - importable from here as before
@@ -149,6 +149,8 @@ def prepare(
     declared = None if problems else declared_inputs(spec)  # a typo never flies the default
     bb, rig_over, set_problems = parse_sets(args.set, declared, args.mission)
     problems += set_problems
+    if declared is not None and not set_problems:  # an input no one gives: refused, not
+        problems += missing_inputs(spec, set(bb))  # found by the first leaf in the air
     if getattr(args, "max_time", None) is None and not problems:
         args.max_time, limit_problem = mission_time_limit(spec, bb)
         problems += [limit_problem] if limit_problem is not None else []

@@ -396,6 +396,32 @@ def referenced_entries(spec: MissionSpec, registry: Registry) -> set[str]:
     return {n.lstrip("@") for n in names if n.lstrip("@")}
 
 
+def written_entries(spec: MissionSpec, registry: Registry) -> set[str] | None:
+    """Every entry something in the mission may write (scripts, output and inout ports,
+    SubTree ports either way, unknown nodes' ports, SetBlackboard), whatever the scope;
+    None when a SetBlackboard's key is chosen at run time (anything may be written)."""
+    v = _Validator(spec, registry)
+    names: set[str] = set()
+    for node in v.nodes():
+        model = registry.get(node.type)
+        for _, script in v.scripts(node):
+            names.update(script.writes)
+        for key, attr in node.attrs.items():
+            ref = blackboard_ref(attr.value)
+            if model is not None and model.id == "SetBlackboard" and key == "output_key":
+                if ref is not None:
+                    return None
+                names.add(str(attr.value).strip())
+            if ref is None:
+                continue
+            name = key if ref == "=" else ref
+            if model is None or model.kind == SUBTREE:
+                names.update((name, key))
+            elif key in model.ports and model.ports[key].writes:
+                names.add(name)
+    return {n.lstrip("@") for n in names}
+
+
 def root_inputs(spec: MissionSpec, registry: Registry) -> tuple[set[str], dict[str, Any]]:
     """``(names, inner)``: the entries the mission names that are on its root blackboard
     (what ``--set`` can change), and where the others are named (inside SubTrees that never
@@ -419,6 +445,7 @@ __all__ = [
     "check_script",
     "referenced_entries",
     "root_inputs",
+    "written_entries",
     "CONDITION_ATTRS",
     "KNOWN_ENTRIES",
     "NO_DEFAULT",

@@ -606,3 +606,35 @@ def test_a_missing_world_file_is_said_at_the_rig_line(tmp_path, capsys) -> None:
     assert main(["validate", str(rig)]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"{rig}:3:9: world.path '/nonexistent/world.yaml': no such world file")
+
+
+_NEEDS_TARGET = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <Sequence><TakeOff height="0.5"/><GoTo pose="{target}"/><Land/></Sequence>
+  </BehaviorTree>
+  <TreeNodesModel>
+    <SubTree ID="Main"><input_port name="target" type="string"/></SubTree>
+  </TreeNodesModel>
+</root>
+"""
+
+
+def test_a_mission_input_without_a_default_must_be_given(tmp_path, capsys) -> None:
+    """A declared input nobody gives took off and aborted at the GoTo (``{target}, which is
+    not set``); it is refused on the ground. Given, or written by the mission, it flies."""
+    path = tmp_path / "m.xml"
+    path.write_text(_NEEDS_TARGET)
+    out = tmp_path / "run"
+    assert main([str(path), "--out", str(out), "-q"]) == 2
+    err = _err_lines(capsys)
+    assert err[0] == (
+        f"{path}:6:5: mission input 'target' has no default and nothing in the mission writes "
+        "it: give it with --set target=VALUE (or a default in <TreeNodesModel>)"
+    )
+    assert not out.exists()
+    args = ["--set", "target=1;0;0.5", "--out", str(out), "-q", "--no-report", "--no-mcap"]
+    assert main([str(path), *args]) == 0
+    path.write_text(
+        _NEEDS_TARGET.replace("<Sequence>", "<Sequence><Script code=\"target := '1;0;0.5'\"/>")
+    )
+    assert main([str(path), "--out", str(tmp_path / "run2"), "-q", "--no-report", "--no-mcap"]) == 0
