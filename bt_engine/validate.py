@@ -136,9 +136,20 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
             self.expansion(main)
         self.unknown_entries()
         self.entry_types()
+        if main in spec.trees:
+            self.subtree_reads()
         self.unbounded_loops()
         self.warnings = sorted(set(self.warnings), key=_order)
         return sorted(set(self.problems), key=_order)
+
+    def enum_names(self) -> set[str]:
+        """Names scripts read that are no entries: enum members of every port type, and
+        the entries plug-ins write from outside the tree (:data:`KNOWN_ENTRIES`)."""
+        names = set(KNOWN_ENTRIES)
+        for model in self.registry.models():
+            for port in model.ports.values():
+                names.update(getattr(port.type, "members", None) or ())
+        return names
 
     # -- walks used by the warnings and by referenced_entries ------------------------------
     def nodes(self):
@@ -254,6 +265,12 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
             )
             return
         model = self.spec.models.get(target)
+        auto = node.attrs.get("_autoremap")
+        if auto is not None and str(auto.value).strip().lower() not in ("true", "false", "1", "0"):
+            self.add(  # BehaviorTree.CPP throws; anything else read as false hid the entries
+                auto.loc,
+                f"_autoremap {auto.value!r}: expected true or false",
+            )
         for key, attr in node.attrs.items():
             if key in ("ID", "_autoremap") or key in SPECIAL_ATTRS or key in CONDITION_ATTRS:
                 continue

@@ -292,7 +292,7 @@ def test_an_entry_read_as_a_type_its_writer_cannot_give_is_refused():
     for entry in ("v", "@v"):
         other = f'<BehaviorTree ID="Other"><RunOnce then_skip="{{{entry}}}">'
         other += "<AlwaysSuccess/></RunOnce></BehaviorTree>"
-        found = problems_of(wrap(sub, other))
+        found = [p for p in problems_of(wrap(sub, other)) if "as bool" in p]
         assert found == [] if entry == "v" else "reads {@v} as bool" in found[0]
 
 
@@ -368,3 +368,53 @@ def test_counts_and_times_no_node_can_use_are_refused(body, fragment):
     """A negative time, or a loop count below -1 (a typo for -1, forever), was accepted: the
     Repeat then never ticked its child and succeeded."""
     assert fragment in one(wrap(body))
+
+
+_GO_HOME = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <Sequence>
+      <Script code="home := 1"/>
+      <SubTree ID="GoHome"CALL/>
+    </Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="GoHome"><Sleep msec="{home}"/></BehaviorTree>
+  MODEL
+</root>
+"""
+
+
+@pytest.mark.parametrize(
+    "call, model, refused",
+    [
+        ("", "", True),
+        (' home="{home}"', "", False),
+        (' home="5"', "", False),
+        (' _autoremap="true"', "", False),
+        (' _autoremap="True "', "", False),
+        (
+            "",
+            '<TreeNodesModel><SubTree ID="GoHome"><input_port name="home" default="5"/>'
+            "</SubTree></TreeNodesModel>",
+            False,
+        ),
+    ],
+)
+def test_a_subtree_call_that_leaves_an_entry_it_reads_unset_is_refused(call, model, refused):
+    """A SubTree's blackboard is its own: a call that neither passes {home} nor autoremaps
+    took off and aborted at the SubTree's first read (the "nothing writes" warning counted
+    the main tree's write)."""
+    found = problems_of(_GO_HOME.replace("CALL", call).replace("MODEL", model))
+    if not refused:
+        assert found == []
+        return
+    assert found == [
+        "m.xml:5:7: SubTree 'GoHome' reads {home} (m.xml:8:36), but this call does not pass it "
+        "in and nothing in 'GoHome' writes it (a SubTree's blackboard is its own): pass it "
+        '(home="{home}") or call it with _autoremap="true"'
+    ]
+
+
+def test_autoremap_takes_true_or_false_only():
+    """``_autoremap="flase"`` was read as false, silently (BehaviorTree.CPP throws)."""
+    found = problems_of(_GO_HOME.replace("CALL", ' _autoremap="flase"').replace("MODEL", ""))
+    assert "m.xml:5:28: _autoremap 'flase': expected true or false" in found
