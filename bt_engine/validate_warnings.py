@@ -81,6 +81,8 @@ class _WarningChecks:
                         return  # the entry written is chosen at run time: anything may be
                     known.add(str(attr.value).strip())
                 if ref is None:
+                    if model is not None and model.kind == SUBTREE and not key.startswith("_"):
+                        known.add(key)  # a literal given to a SubTree port sets it inside
                     continue
                 name = key if ref == "=" else ref
                 if model is None or model.kind == SUBTREE:

@@ -418,3 +418,12 @@ def test_autoremap_takes_true_or_false_only():
     """``_autoremap="flase"`` was read as false, silently (BehaviorTree.CPP throws)."""
     found = problems_of(_GO_HOME.replace("CALL", ' _autoremap="flase"').replace("MODEL", ""))
     assert "m.xml:5:28: _autoremap 'flase': expected true or false" in found
+
+
+def test_a_literal_given_to_a_subtree_port_counts_as_written():
+    """``<SubTree ID="Sub" p="10"/>`` sets {p} inside: no "nothing writes" warning."""
+    xml = wrap(
+        '<SubTree ID="Sub" p="10"/>', '<BehaviorTree ID="Sub"><Sleep msec="{p}"/></BehaviorTree>'
+    )
+    warnings: list = []
+    assert validate(load_xml("m.xml", text=xml), REGISTRY, warnings) == [] and warnings == []
