@@ -331,9 +331,13 @@ class BTNode(py_trees.behaviour.Behaviour):
         p = self.port_decl(name)
         if p is not None and p.type is not ANY and p.type is not STRING and value is not None:
             try:
-                return p.type.convert(value)
+                converted = p.type.convert(value)
             except PortValueError as exc:
                 raise NodeRuntimeError(self, f"input port '{name}' from {{{val}}}: {exc}") from None
+            outside = p.out_of_range(converted) if p.low is not None or p.high is not None else None
+            if outside is not None:  # a value written in flight: the range a literal has too
+                raise NodeRuntimeError(self, f"input port '{name}' from {{{val}}}: {outside}")
+            return converted
         return value
 
     def set_output(self, name: str, value: Any) -> bool:

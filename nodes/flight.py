@@ -164,6 +164,7 @@ class _Motion(StatefulActionNode):
 
     def _fail(self, reason: str) -> NodeStatus:
         self.ctx.log(f"{self.describe()} failed: {reason}")
+        self.failure_reason = reason  # the run's result line and summary say why
         return self._finish(FAILURE, reason)
 
     def on_halted(self) -> None:

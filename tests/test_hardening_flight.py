@@ -310,3 +310,27 @@ def test_a_long_tick_on_the_ground_is_allowed_in_the_air_it_is_not(monkeypatch) 
                 assert result.status == "SUCCESS", result
     finally:
         REGISTRY._models, REGISTRY._aliases = saved
+
+
+def test_a_value_written_in_flight_keeps_the_ports_range_and_a_refusal_says_why(tmp_path) -> None:
+    """``spd := 100`` read as GoTo's max_speed (0.01 to 5 m/s) flew: ranges held for
+    literals and --set only. And a motion the vehicle refused said only "GoTo failed"."""
+    flight = """    <Sequence>
+      <TakeOff height="0.5" speed="0.5"/>
+      <Script code="spd := 100"/>
+      <GoTo pose="0.5;0;0.5" max_speed="{spd}"/>
+      <Land speed="0.5"/>
+    </Sequence>"""
+    (tmp_path / "fast").mkdir()
+    s = fly(tmp_path / "fast", wrap(flight))
+    assert s["status"] == "ABORTED", s["reason"]
+    assert "input port 'max_speed' from {spd}: max_speed 100.0: expected 0.01 to 5" in s["reason"]
+    assert_down(s)
+    high = """    <Sequence>
+      <Script code="h := 10"/>
+      <TakeOff height="{h}" speed="0.5"/>
+    </Sequence>"""
+    (tmp_path / "high").mkdir()
+    s = fly(tmp_path / "high", wrap(high))
+    assert s["status"] == "FAILURE" and "refused: " in s["reason"], s["reason"]
+    assert "max_altitude" in s["reason"]
