@@ -176,12 +176,20 @@ def _columns(line: str, delimiter: str) -> list[int]:
 
 def export_text(data: bytes) -> str:
     """The text of a WMS's or a spreadsheet's text export: UTF-8 (with or without a byte
-    order mark), UTF-16 with one (Excel's "Unicode Text"), else Windows-1252 (Excel's "CSV"
+    order mark), UTF-16 with one (Excel's "Unicode Text") or without (told by its zero
+    bytes), else Windows-1252 (Excel's "CSV"
     on Windows: a ``Kühlregal`` in a column btrun does not read must not refuse the file).
     Raises :class:`UnicodeDecodeError` (UTF-8's) for bytes none of them reads."""
     if data.startswith((b"\xff\xfe", b"\xfe\xff")):
         try:
             return data.decode("utf-16")
+        except UnicodeDecodeError:
+            pass
+    head = data[:512]
+    if len(head) >= 4 and head.count(0) * 4 >= len(head):  # UTF-16 saved without its mark
+        little = head[1::2].count(0) >= head[0::2].count(0)
+        try:
+            return data.decode("utf-16-le" if little else "utf-16-be")
         except UnicodeDecodeError:
             pass
     try:

@@ -70,6 +70,9 @@ def test_a_csv_with_semicolons_or_tabs_reads_as_with_commas(tmp_path, world, del
         ("utf-16", "Place\tPallet\tNote\nA-01-1\t109\tK\u00fchlregal\nA-1-3\t5\t\n"),
         ("cp1252", "Place;Pallet;Note\r\nA-01-1;109;K\u00fchlregal\r\nA-1-3;5;\r\n"),
         ("utf-8", "sep=;\nPlace;Pallet\nA-01-1;109\nA-1-3;5\n"),
+        # UTF-16 without its byte order mark (a refused header full of NUL bytes before)
+        ("utf-16-le", "place,pallet,note\nA-01-1,109,K\u00fchlregal\nA-1-3,5,\n"),
+        ("utf-16-be", "place,pallet,note\nA-01-1,109,K\u00fchlregal\nA-1-3,5,\n"),
     ],
 )
 def test_what_excel_saves_reads_as_a_utf8_csv(tmp_path, world, encoding, text):
