@@ -477,6 +477,48 @@ def _offset_loc(path: str, text: str, offset: int) -> Loc:
     return Loc(path, text.count("\n", 0, offset) + 1, offset - line_start + 1)
 
 
+def _row_starts(text: str) -> list[int] | None:
+    """The offset of every element of the JSON list of rows in ``text`` (the top-level list,
+    or the one under ``"rows"``), found by decoding the elements one after another; None
+    when the text is laid out otherwise."""
+    dec = json.JSONDecoder()
+    n = len(text)
+
+    def skip(i: int) -> int:
+        while i < n and text[i] in " \t\r\n":
+            i += 1
+        return i
+
+    try:
+        i = skip(0)
+        if text[i] == "{":  # {"rows": [...], ...}: walk the keys to "rows"
+            i += 1
+            while True:
+                key, i = dec.raw_decode(text, skip(i))
+                i = skip(skip(i) + 1)  # the ':'
+                if key == "rows":
+                    break
+                _, i = dec.raw_decode(text, i)
+                i = skip(i)
+                if text[i] != ",":
+                    return None
+                i += 1
+        if text[i] != "[":
+            return None
+        i, starts = i + 1, []
+        while True:
+            i = skip(i)
+            if text[i] == "]":
+                return starts
+            starts.append(i)
+            _, i = dec.raw_decode(text, i)
+            i = skip(i)
+            if text[i] == ",":
+                i += 1
+    except (IndexError, ValueError, RecursionError):
+        return None
+
+
 def _entries_json(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
     """(place, pallet, where, where) per JSON entry: a list of {place, pallet} objects (or
     that list under "rows"), or a {place: pallet} object; each located by a search of the
@@ -497,9 +539,15 @@ def _entries_json(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]]
     if not isinstance(data, list):
         return [], [Problem(Loc(path, 1, 1), "expected a list of {place, pallet} rows")]
     out, problems, pos = [], [], 0
+    starts = _row_starts(text)
+    if starts is not None and len(starts) != len(data):
+        starts = None
     for i, item in enumerate(data):
-        start = text.find("{", pos)
-        pos = start + 1 if start >= 0 else pos
+        if starts is not None:  # where each row begins, whatever it is
+            start = starts[i]
+        else:
+            start = text.find("{", pos)
+            pos = start + 1 if start >= 0 else pos
         where = _offset_loc(path, text, max(start, 0))
         obj = (
             dict(item)

@@ -630,3 +630,20 @@ def test_a_file_wrong_throughout_counts_every_problem(tmp_path, world, capsys):
     assert len(problems) == 51 and problems[-1].message == "... and 70 more problems in this file"
     _print_problems(problems)
     assert capsys.readouterr().err.splitlines()[-1] == "120 problems found; nothing was run."
+
+
+@pytest.mark.parametrize(
+    "text, where",
+    [
+        ('[{"place": "A-01-1", "pallet": "1"}, "x",\n  {"place": "Z-01-1", "pallet": "3"}]', [(1, 38), (2, 3)]),
+        ('{"rows": ["x",\n {"place": "Z-01-1", "pallet": "3"}]}', [(1, 11), (2, 2)]),
+    ],
+)  # fmt: skip
+def test_a_json_row_that_is_no_object_does_not_shift_the_rows_after_it(
+    tmp_path, world, text, where
+):
+    """Rows were found by searching for the next '{': a row "x" made the next row's problem
+    point at the object after it (or at 1:1)."""
+    _, problems = _read(tmp_path, "s.json", text, world)
+    assert [(p.loc.line, p.loc.col) for p in problems] == where, problems
+    assert "expected {" in problems[0].message and "unknown place 'Z-01-1'" in problems[1].message
