@@ -164,3 +164,18 @@ def test_a_critical_battery_level_above_the_low_one_is_refused(tmp_path, capsys)
     assert main(["validate", str(rig)]) == 2
     err = capsys.readouterr().err
     assert f"{rig}:2:" in err and "battery_critical_v 3.5 V must be below battery_low_v 3 V" in err
+
+
+def test_an_import_of_several_folders_checks_them_all_first(tmp_path, capsys):
+    """It stopped at the first bad folder with exit 2 and no word of the good one before it,
+    which it had already recorded."""
+    store = f"sqlite:///{tmp_path}/site.sqlite"
+    good = _run_folder(tmp_path / "night", [("A-01-1", "3A", "identified")])
+    bad = tmp_path / "scan"
+    bad.mkdir()
+    assert main(["inventory", "import", good, str(bad), "--store", store]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: not an inventory run (no inventory.json)" in err
+    assert "nothing imported (1 folder refused)" in err
+    assert main(["inventory", "runs", "--store", store, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == []

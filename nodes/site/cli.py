@@ -21,6 +21,7 @@ import time
 from typing import Any
 
 from bt_engine.arg_types import count
+from bt_engine.spec import plural
 from store import InventoryStore, StoreError, default_url, disabled
 
 
@@ -183,9 +184,20 @@ def _runs(store: InventoryStore, args: argparse.Namespace) -> int:
 
 
 def _import(store: InventoryStore, args: argparse.Namespace) -> int:
-    from nodes.site.importer import import_run
+    from nodes.site.importer import check_run, import_run
     from nodes.site.recording import run_id
 
+    refused = []
+    for run_dir in args.run_dirs:  # every folder checked before any is written
+        try:
+            check_run(run_dir)
+        except StoreError as exc:
+            refused.append(str(exc))
+    if refused:
+        for why in refused:
+            print(f"btrun inventory import: {why}", file=sys.stderr)
+        print(f"nothing imported ({plural(len(refused), 'folder')} refused)", file=sys.stderr)
+        return 2
     done = {}
     for run_dir in args.run_dirs:
         done[run_id(run_dir)] = import_run(store, run_dir)

@@ -14,10 +14,9 @@ from nodes.site.recording import read_json, run_id, run_info
 from store import InventoryStore, StoreError
 
 
-def import_run(store: InventoryStore, run_dir: str) -> int:
-    """Record the run folder ``run_dir`` (its ``inventory.json``, tick log or fleet record
-    and ``summary.json``) in ``store``; the number of rows. Idempotent: importing again
-    replaces. :class:`StoreError` for a folder without an inventory."""
+def check_run(run_dir: str) -> list[dict]:
+    """The rows of run folder ``run_dir`` as :func:`import_run` would record them;
+    :class:`StoreError` for a folder it would refuse (nothing is written)."""
     if not os.path.isdir(run_dir):
         raise StoreError(f"{run_dir}: no such run folder")
     parent = os.path.dirname(os.path.abspath(run_dir))
@@ -32,9 +31,16 @@ def import_run(store: InventoryStore, run_dir: str) -> int:
     if not os.path.exists(os.path.join(run_dir, "inventory.json")):
         raise StoreError(f"{run_dir}: not an inventory run (no inventory.json)")
     try:
-        rows = read_inventory(run_dir)
+        return read_inventory(run_dir)
     except InventoryError as exc:
         raise StoreError(str(exc)) from None
+
+
+def import_run(store: InventoryStore, run_dir: str) -> int:
+    """Record the run folder ``run_dir`` (its ``inventory.json``, tick log or fleet record
+    and ``summary.json``) in ``store``; the number of rows. Idempotent: importing again
+    replaces. :class:`StoreError` for a folder without an inventory."""
+    rows = check_run(run_dir)
     run = run_id(run_dir)
     store.begin_run(run, **run_info(run_dir, imported=True))
     n = store.record_rows(run, rows)
