@@ -165,7 +165,7 @@ def _runs(store: InventoryStore, args: argparse.Namespace) -> int:
         print(json.dumps(runs, indent=1))
         return 0
     _table(
-        f"{len(runs)} runs ({store.shown})",
+        f"{plural(len(runs), 'run')} ({store.shown})",
         ["run", "started", "status", "rows", "fleet", "seed", "host"],
         [
             [
