@@ -64,6 +64,10 @@ def mission_inputs(spec: MissionSpec) -> dict[str, Any]:
     }
 
 
+#: The input name that is btrun's own, in every mission: its mission-time limit in s
+#: (``--set max_time=S``; :func:`bt_engine.run_inputs.mission_time_limit`).
+MAX_TIME_INPUT = "max_time"
+
 #: Prefix of a ``--set`` key (and of a campaign or fleet setting) that puts an entry on the
 #: blackboard unchecked: ``--set bb.NAME=VALUE`` sets ``NAME`` even if the mission does not
 #: declare it (an entry a plug-in leaf reads without a port).
@@ -109,7 +113,7 @@ def declared_inputs(spec: MissionSpec, registry: Registry | None = None) -> Inpu
     SubTrees that see the root's entry (remapped ``{name}``, ``_autoremap``, ``{@name}``).
     """
     found, inner = root_inputs(spec, registry or REGISTRY)
-    names = Inputs(found)
+    names = Inputs(found | {MAX_TIME_INPUT})  # btrun's own: the mission's time limit
     names.inner = inner
     main = spec.main_tree_id()
     model = spec.models.get(main) if main else None
@@ -401,7 +405,7 @@ class Mission:
             if not decl.reads or (decl.low is None and decl.high is None):
                 continue
             try:
-                value = node.get_input(decl.name)
+                value = node.get_input(decl.name, ranged=False)
             except Exception:  # noqa: BLE001 - written in flight, or a bad value said elsewhere
                 continue
             why = decl.out_of_range(value)
@@ -430,7 +434,7 @@ class Mission:
                 if entry in done:
                     continue
                 try:
-                    node.get_input(decl.name)
+                    node.get_input(decl.name, ranged=False)  # ranges: _range_problems
                 except NodeRuntimeError as exc:
                     text = str(exc)
                     if "which is not set" in text:  # an output writes it in flight

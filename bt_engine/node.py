@@ -87,6 +87,10 @@ class NodeRuntimeError(RuntimeError):
         super().__init__(f"{where}{node.bt_id} '{node.name}': {message}")
 
 
+class PortRangeError(NodeRuntimeError):
+    """A value read from the blackboard outside its port's declared range."""
+
+
 @dataclass
 class MissionContext:
     """What nodes of one mission share: its clock, the vehicle (if any) and resources.
@@ -302,11 +306,12 @@ class BTNode(py_trees.behaviour.Behaviour):
         p = self.port_decl(name)
         return p is not None and p.default is not NO_DEFAULT
 
-    def get_input(self, name: str) -> Any:
+    def get_input(self, name: str, *, ranged: bool = True) -> Any:
         """Return the value of input port ``name`` converted to its declared type.
 
         Raises :class:`NodeRuntimeError` (located) if a referenced entry is missing or its
-        value does not convert.
+        value does not convert, :class:`PortRangeError` if a blackboard value is outside the
+        port's range (``ranged=False``: not checked; the pre-flight checks say it their way).
         """
         b = self._bindings.get(name)
         if b is None:
@@ -334,9 +339,10 @@ class BTNode(py_trees.behaviour.Behaviour):
                 converted = p.type.convert(value)
             except PortValueError as exc:
                 raise NodeRuntimeError(self, f"input port '{name}' from {{{val}}}: {exc}") from None
-            outside = p.out_of_range(converted) if p.low is not None or p.high is not None else None
+            ranges = ranged and (p.low is not None or p.high is not None)
+            outside = p.out_of_range(converted) if ranges else None
             if outside is not None:  # a value written in flight: the range a literal has too
-                raise NodeRuntimeError(self, f"input port '{name}' from {{{val}}}: {outside}")
+                raise PortRangeError(self, f"input port '{name}' from {{{val}}}: {outside}")
             return converted
         return value
 

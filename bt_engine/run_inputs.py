@@ -11,7 +11,12 @@ import os
 from collections.abc import Collection
 from typing import Any
 
-from bt_engine.mission import UNCHECKED_PREFIX, parse_set_value, undeclared_input
+from bt_engine.mission import (
+    MAX_TIME_INPUT,
+    UNCHECKED_PREFIX,
+    parse_set_value,
+    undeclared_input,
+)
 from bt_engine.spec import Loc, Problem
 from bt_engine.ticklog import header_path
 
@@ -61,7 +66,6 @@ def parse_sets(
 #: the mission-time limit of a run when neither ``--max-time`` nor the mission says (s)
 DEFAULT_MAX_TIME_S = 900.0
 #: the main tree's input that sets its own limit (``<input_port name="max_time" ...>``)
-MAX_TIME_INPUT = "max_time"
 
 
 def mission_time_limit(spec: Any, bb: dict[str, Any]) -> tuple[float, Problem | None]:

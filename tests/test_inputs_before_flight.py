@@ -134,6 +134,7 @@ def test_declared_inputs_are_main_tree_ports_references_and_script_reads(tmp_pat
         "pause",
         "inner_pause",
         "no_default",
+        "max_time",  # btrun's own, in every mission
     }
 
 
@@ -160,14 +161,14 @@ def test_an_entry_only_subtrees_read_with_their_own_value_is_no_input(tmp_path, 
     (``ms="{ms}"``) it is an input; ``nap`` reaches the root through ``_autoremap``."""
     path = tmp_path / "m.xml"
     path.write_text(_WAIT_TWICE.replace("{CALL}", "20"))
-    assert declared_inputs(load_spec(str(path))) == {"nap"}
+    assert declared_inputs(load_spec(str(path))) == {"nap", "max_time"}
     out = tmp_path / "run"
     assert main([str(path), "--set", "ms=500", "--out", str(out), "-q"]) == 2
     err = _err_lines(capsys)
     assert err[0].startswith(f"--set ms: {path} reads 'ms' only inside a SubTree ({path}:9:34)")
     assert "--set ms would change nothing" in err[0] and not out.exists()
     path.write_text(_WAIT_TWICE.replace("{CALL}", "{ms}"))
-    assert declared_inputs(load_spec(str(path))) == {"ms", "nap"}
+    assert declared_inputs(load_spec(str(path))) == {"ms", "nap", "max_time"}
 
 
 _SET_PLAIN = re.compile(r"--set[ =]+[\"']?([A-Za-z_]\w*)=")
