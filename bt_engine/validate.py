@@ -203,6 +203,9 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
             port = model.ports.get(key)
             if port is None:
                 hint = suggest_name(key, list(model.ports))
+                if key.startswith("_"):  # a pre/post-condition in the wrong case: _skipif
+                    same = [a for a in CONDITION_ATTRS if a.lower() == key.lower()]
+                    hint = same[0] if same else suggest_name(key, list(CONDITION_ATTRS)) or hint
                 known = ", ".join(model.ports) or "none"
                 self.add(
                     attr.loc,

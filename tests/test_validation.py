@@ -31,6 +31,7 @@ CASES = [
     ("<Sleep/>", "m.xml:3:1", "Sleep needs port 'msec'"),
     ('<Sleep msec="1" colour="x"/>', "m.xml:3:17", "Sleep has no port 'colour'"),
     ('<Sleep msecs="1" msec="2"/>', "m.xml:3:8", "did you mean 'msec'?"),
+    ('<AlwaysSuccess _skipif="true"/>', "m.xml:3:16", "did you mean '_skipIf'?"),
     ("<Inverter/>", "m.xml:3:1", "Inverter is a decorator node and takes 1 child; found 0"),
     (
         "<Inverter><AlwaysSuccess/><AlwaysFailure/></Inverter>",
