@@ -23,6 +23,7 @@ from bt_engine.node import (
 )
 from bt_engine.ports import INT, input_port
 from bt_engine.registry import REGISTRY
+from bt_engine.spec import plural
 
 CATEGORY = "built-in"
 
@@ -284,9 +285,13 @@ class Parallel(ControlNode):
         need_success = _threshold(s_raw, n)
         need_failure = _threshold(f_raw, n)
         if n < need_success:
-            raise NodeRuntimeError(self, f"success_count={s_raw} but only {n} children")
+            raise NodeRuntimeError(
+                self, f"success_count={s_raw} but only {plural(n, 'child', 'children')}"
+            )
         if n < need_failure:
-            raise NodeRuntimeError(self, f"failure_count={f_raw} but only {n} children")
+            raise NodeRuntimeError(
+                self, f"failure_count={f_raw} but only {plural(n, 'child', 'children')}"
+            )
         self.set_status(RUNNING)
         skipped = 0
         for i, child in enumerate(children):
@@ -343,7 +348,9 @@ class ParallelAll(ControlNode):
         n = len(children)
         threshold = _threshold(self.get_input("max_failures"), n)
         if n < threshold:
-            raise NodeRuntimeError(self, f"max_failures={threshold} but only {n} children")
+            raise NodeRuntimeError(
+                self, f"max_failures={threshold} but only {plural(n, 'child', 'children')}"
+            )
         self.set_status(RUNNING)
         skipped = 0
         for i, child in enumerate(children):

@@ -188,7 +188,8 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
             else:
                 want = f"{lo} to {hi} children"
             kind = {CONTROL: "control", DECORATOR: "decorator"}.get(model.kind, model.kind.lower())
-            self.add(loc, f"{node.type} is a {kind} node and takes {want}; found {n}")
+            article = "an" if kind[:1] in "aeiou" else "a"
+            self.add(loc, f"{node.type} is {article} {kind} node and takes {want}; found {n}")
         for key, attr in node.attrs.items():
             if key in CONDITION_ATTRS:
                 err = check_script(str(attr.value))
