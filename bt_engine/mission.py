@@ -33,6 +33,7 @@ from bt_engine.node import (
     NodeRuntimeError,
     NodeStatus,
 )
+from bt_engine.ports import PortValueError, declared_type
 from bt_engine.registry import REGISTRY, Registry
 from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
 from bt_engine.validate import referenced_entries, root_inputs, validate, written_entries
@@ -151,6 +152,36 @@ def missing_inputs(
         and p.name not in written
         and p.name in read
     ]
+
+
+def typed_inputs(spec: MissionSpec, bb: dict[str, Any]) -> list[Problem]:
+    """``--set`` values (in ``bb``, changed in place) of main-tree inputs whose
+    ``<TreeNodesModel>`` port declares a type (``type="int"``): a value of another type is a
+    problem (a script reading it failed in flight), a number or truth value is put on the
+    blackboard as that type (``--set laps=5.0`` for an int input: 5)."""
+    main = spec.main_tree_id()
+    model = spec.models.get(main) if main else None
+    if model is None:
+        return []
+    out = []
+    for port in model.ports.values():
+        kind = declared_type(port.type)
+        if kind is None or port.name not in bb or bb[port.name] is None:
+            continue
+        try:
+            value = kind.convert(bb[port.name])
+        except PortValueError as exc:
+            out.append(
+                Problem(
+                    Loc("--set", 0, 0),
+                    f"{port.name}={bb[port.name]}: {exc} (the input is declared "
+                    f'type="{port.type}" at {model.loc})',
+                )
+            )
+            continue
+        if isinstance(value, (bool, int, float)):
+            bb[port.name] = value
+    return out
 
 
 def undeclared_input(key: str, declared: Collection[str], mission: str) -> str | None:

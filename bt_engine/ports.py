@@ -552,3 +552,27 @@ def blackboard_ref(value: Any) -> str | None:
         if m:
             return m.group(1)
     return None
+
+
+#: BehaviorTree.CPP's (and btrun's own) type names in a ``<TreeNodesModel>``, as port types
+_DECLARED = {
+    **dict.fromkeys(("double", "float"), FLOAT),
+    **dict.fromkeys(
+        ("int", "unsigned", "unsigned int", "long", "unsigned long", "int32_t", "int64_t"), INT
+    ),
+    "uint32_t": INT,
+    "uint64_t": INT,
+    "bool": BOOL,
+    "std::string": STRING,
+    "string": STRING,
+    "vec3": Vec3Type(),
+    "path": PATH,
+    "duration": DURATION,
+}
+
+
+def declared_type(name: str | None) -> PortType | None:
+    """The port type a ``<TreeNodesModel>`` port's ``type="..."`` names (``double``,
+    ``int``, ``bool``, ``std::string``, btrun's ``vec3`` ...); None for a type btrun cannot
+    check (a plug-in's, a C++ struct)."""
+    return _DECLARED.get((name or "").strip())

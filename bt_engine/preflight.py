@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from bt_engine.mission import Mission, declared_inputs
+from bt_engine.mission import Mission, declared_inputs, missing_inputs, typed_inputs
 from bt_engine.plugins import load_target
 from bt_engine.run_cmd import parse_sets, wall_echo
 from bt_engine.run_inputs import mission_time_limit
@@ -22,6 +22,8 @@ def check_before_flight(
     ``loads=False`` leaves out the checks that load models or build a gallery. Returns
     every located problem."""
     bb, overrides, problems = parse_sets(sets, declared_inputs(spec), spec.file)
+    if not problems:  # inputs no one gives, or given as no value of their declared type
+        problems += missing_inputs(spec, set(bb)) + typed_inputs(spec, bb)
     _limit, limit_problem = mission_time_limit(spec, bb)  # --set max_time=0 is refused too
     problems += [limit_problem] if limit_problem is not None else []
     try:

@@ -17,7 +17,7 @@ from typing import Any, TextIO
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.display import spec_rows
 from bt_engine.loading import check_mission
-from bt_engine.mission import Mission, declared_inputs, missing_inputs
+from bt_engine.mission import Mission, declared_inputs, missing_inputs, typed_inputs
 from bt_engine.plugins import Platform, RunTarget, load_target, run_sections, write_report
 from bt_engine.registry import REGISTRY
 from bt_engine.run_inputs import (  # noqa: F401 - importable from here as before
@@ -151,6 +151,7 @@ def prepare(
     problems += set_problems
     if declared is not None and not set_problems:  # an input no one gives: refused, not
         problems += missing_inputs(spec, set(bb))  # found by the first leaf in the air
+        problems += typed_inputs(spec, bb)  # and one given as no value of its type
     if getattr(args, "max_time", None) is None and not problems:
         args.max_time, limit_problem = mission_time_limit(spec, bb)
         problems += [limit_problem] if limit_problem is not None else []

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bt_engine.ports import NO_DEFAULT, PortValueError, blackboard_ref
+from bt_engine.ports import NO_DEFAULT, PortValueError, blackboard_ref, declared_type
 from bt_engine.registry import CONTROL, DECORATOR, SUBTREE, Registry, suggest_name
 from bt_engine.root_entries import root_entries
 from bt_engine.spec import (
@@ -132,6 +132,7 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
                         too_deep = True  # one problem per tree
                         self.add(node.loc, nesting_message(depth))
                     self.node(node)
+        self.model_defaults()
         if main in spec.trees:
             self.expansion(main)
         self.unknown_entries()
@@ -141,6 +142,23 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
         self.unbounded_loops()
         self.warnings = sorted(set(self.warnings), key=_order)
         return sorted(set(self.problems), key=_order)
+
+    def model_defaults(self) -> None:
+        """A ``<TreeNodesModel>`` port's default must be a value of its declared type
+        (``type="int" default="five"`` was taken, and failed only where it was read)."""
+        for model in self.spec.models.values():
+            for port in model.ports.values():
+                kind = declared_type(port.type)
+                if kind is None or port.default in (None, ""):
+                    continue
+                try:
+                    kind.convert(port.default)
+                except PortValueError as exc:
+                    self.add(
+                        model.loc,
+                        f"<TreeNodesModel> port '{port.name}' of '{model.id}': default "
+                        f'{port.default!r} is no {port.type} (type="{port.type}"): {exc}',
+                    )
 
     def enum_names(self) -> set[str]:
         """Names scripts read that are no entries: enum members of every port type, and

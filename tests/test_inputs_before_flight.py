@@ -639,3 +639,38 @@ def test_a_mission_input_without_a_default_must_be_given(tmp_path, capsys) -> No
         _NEEDS_TARGET.replace("<Sequence>", "<Sequence><Script code=\"target := '1;0;0.5'\"/>")
     )
     assert main([str(path), "--out", str(tmp_path / "run2"), "-q", "--no-report", "--no-mcap"]) == 0
+
+
+_LAPS = """<root BTCPP_format="4" main_tree_to_execute="Main">
+  <BehaviorTree ID="Main">
+    <Sequence><Script code="done := laps + 1"/></Sequence>
+  </BehaviorTree>
+  <TreeNodesModel>
+    <SubTree ID="Main"><input_port name="laps" type="int" default="DEFAULT"/></SubTree>
+  </TreeNodesModel>
+</root>
+"""
+
+
+def test_a_declared_input_type_holds_for_its_default_and_set(tmp_path, capsys) -> None:
+    """``type="int"`` was never used: ``default="five"`` validated, ``--set laps=three``
+    took off (a script read it and failed in flight), ``--set laps=5.0`` was 5.0."""
+    path = tmp_path / "m.xml"
+    path.write_text(_LAPS.replace("DEFAULT", "five"))
+    assert main(["validate", str(path)]) == 2
+    assert (
+        f"{path}:6:5: <TreeNodesModel> port 'laps' of 'Main': default 'five' is no int "
+        "(type=\"int\"): expected a whole number, got 'five'"
+    ) in capsys.readouterr().err
+    path.write_text(_LAPS.replace("DEFAULT", "2"))
+    out = tmp_path / "run"
+    assert main([str(path), "--set", "laps=three", "--out", str(out), "-q"]) == 2
+    assert _err_lines(capsys)[0] == (
+        "--set laps=three: expected a whole number, got 'three' (the input is declared "
+        f'type="int" at {path}:6:5)'
+    )
+    assert not out.exists()
+    args = ["--set", "laps=5.0", "--out", str(out), "-q", "--no-report", "--no-mcap"]
+    assert main([str(path), *args]) == 0
+    with open(out / "summary.json", encoding="utf-8") as f:
+        assert json.load(f)["blackboard"]["done"] == 6  # an int, not 6.0
