@@ -36,7 +36,13 @@ from bt_engine.node import (
 from bt_engine.ports import PortValueError, declared_type
 from bt_engine.registry import REGISTRY, Registry
 from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
-from bt_engine.validate import referenced_entries, root_inputs, validate, written_entries
+from bt_engine.validate import (
+    port_read_entries,
+    referenced_entries,
+    root_inputs,
+    validate,
+    written_entries,
+)
 
 
 def check_file(path: str, registry: Registry | None = None) -> tuple[MissionSpec, list[Problem]]:
@@ -164,9 +170,12 @@ def typed_inputs(spec: MissionSpec, bb: dict[str, Any]) -> list[Problem]:
     if model is None:
         return []
     out = []
+    by_ports = port_read_entries(spec, REGISTRY)  # a port reading it says it, and where
     for port in model.ports.values():
         kind = declared_type(port.type)
         if kind is None or port.name not in bb or bb[port.name] is None:
+            continue
+        if port.name in by_ports or port.name == MAX_TIME_INPUT:  # (the time limit's own)
             continue
         try:
             value = kind.convert(bb[port.name])

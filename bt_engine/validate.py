@@ -146,10 +146,11 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
     def model_defaults(self) -> None:
         """A ``<TreeNodesModel>`` port's default must be a value of its declared type
         (``type="int" default="five"`` was taken, and failed only where it was read)."""
+        by_ports = port_read_entries(self.spec, self.registry)  # said there, with the node
         for model in self.spec.models.values():
             for port in model.ports.values():
                 kind = declared_type(port.type)
-                if kind is None or port.default in (None, ""):
+                if kind is None or port.default in (None, "") or port.name in by_ports:
                     continue
                 try:
                     kind.convert(port.default)
@@ -435,6 +436,24 @@ def referenced_entries(spec: MissionSpec, registry: Registry) -> set[str]:
     return {n.lstrip("@") for n in names if n.lstrip("@")}
 
 
+def port_read_entries(spec: MissionSpec, registry: Registry) -> set[str]:
+    """The entries some node's input port reads (``{name}``), in any tree: their values are
+    checked by those ports, which say where they are read."""
+    names: set[str] = set()
+    for tree in spec.trees.values():
+        for root in (r for r in (tree.root, *tree.extra_roots) if r is not None):
+            for node in root.walk():
+                model = registry.get(node.type)
+                if model is None or model.kind == SUBTREE:
+                    continue
+                for key, attr in node.attrs.items():
+                    ref = blackboard_ref(attr.value)
+                    port = model.ports.get(key)
+                    if ref is not None and port is not None and port.reads:
+                        names.add((key if ref == "=" else ref).lstrip("@"))
+    return names
+
+
 def written_entries(spec: MissionSpec, registry: Registry) -> set[str] | None:
     """Every entry something in the mission may write (scripts, output and inout ports,
     SubTree ports either way, unknown nodes' ports, SetBlackboard), whatever the scope;
@@ -485,6 +504,7 @@ __all__ = [
     "referenced_entries",
     "root_inputs",
     "written_entries",
+    "port_read_entries",
     "CONDITION_ATTRS",
     "KNOWN_ENTRIES",
     "NO_DEFAULT",
