@@ -30,17 +30,7 @@ from bt_engine.registry import register
 from bt_engine.spec import Loc, Problem, plural
 from drivers.settings import ConfigError
 from nodes.common import geofence_config
-from nodes.expected_stock import (
-    ExpectedStock,
-    NotText,
-    PlaceHints,
-    byte_loc,
-    csv_rows,
-    export_text,
-    not_text,
-    read_expected,
-    xlsx_table,
-)
+from nodes.expected_stock import ExpectedStock, PlaceHints, read_expected
 from nodes.inventory_log import (
     EMPTY,
     IDENTIFIED,
@@ -52,6 +42,7 @@ from nodes.inventory_log import (
 )
 from nodes.place_evidence import write_place_evidence
 from nodes.rack_geometry import footprints
+from nodes.stock_files import NotText, byte_loc, csv_rows, export_text, not_text, xlsx_table
 from perception.expected import pallet_of
 
 CATEGORY_INVENTORY = "inventory"

@@ -1,0 +1,515 @@
+"""The file formats of an expected stock (and of a place list): CSV as WMSs and
+spreadsheets export it (comma, semicolon or tab; UTF-8, UTF-16 or Windows-1252), an XLSX
+workbook's first shown sheet, JSON. Each reader returns ``(place, pallet, where the place
+is, where the pallet is)`` per row and the problems, located in the file;
+:func:`nodes.expected_stock.read_expected` checks the rows against the world.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import re
+from dataclasses import dataclass
+from typing import Any
+
+from bt_engine.spec import Loc, Problem
+
+#: the most places an expected stock may list
+MAX_EXPECTED_PLACES = 100_000
+
+#: what may stand between the columns of a WMS's CSV export: a comma, or a semicolon (what a
+#: spreadsheet writes where the decimal mark is a comma) or a tab
+DELIMITERS = (",", ";", "\t")
+
+
+#: Excel's first line naming the delimiter (``sep=;``), which it writes for a reader whose
+#: locale would split at another
+_SEP_LINE = re.compile(r'"?sep=(.)"?\r?')
+
+
+@dataclass
+class CsvRow:
+    """A row of a CSV file: the line it starts on, its cells, and the column each cell
+    starts at on that line (1-based, quotes and all: what an editor shows)."""
+
+    line: int
+    cells: list[str]
+    cols: list[int]
+
+    def col(self, index: int) -> int:
+        """The column of cell ``index`` (the end of the line for a cell the row lacks)."""
+        return self.cols[min(index, len(self.cols) - 1)]
+
+
+def csv_rows(text: str) -> tuple[list[CsvRow], str]:
+    """The rows of CSV ``text`` and the delimiter they were split at: the one of
+    :data:`DELIMITERS` found most often in the first line (a comma if none is), so that
+    ``place;pallet`` and tab-separated exports read as ``place,pallet`` does, or the one a
+    ``sep=;`` first line names (that line is not a row). Each row knows its line and its
+    cells' columns, so problems are located where they are, quoted cells, quoted line
+    breaks and all. Raises :class:`csv.Error` for a file the csv module cannot read."""
+    first, _, rest = text.partition("\n")
+    named = _SEP_LINE.fullmatch(first)
+    if named:
+        delimiter, body, skipped = named.group(1), rest, 1
+    else:
+        bare = re.sub(r'"[^"]*"', "", first)  # a separator inside quotes separates nothing
+        delimiter = max(DELIMITERS, key=lambda d: (bare.count(d), d == ","))
+        body, skipped = text, 0
+    lines = io.StringIO(body, newline="").readlines()  # as the reader splits them
+    reader = csv.reader(io.StringIO(body, newline=""), delimiter=delimiter)
+    rows: list[CsvRow] = []
+    start = 1
+    for cells in reader:
+        raw = lines[start - 1] if start <= len(lines) else ""
+        rows.append(CsvRow(start + skipped, cells, _columns(raw, delimiter)))
+        start = reader.line_num + 1
+    return rows, delimiter
+
+
+def _columns(line: str, delimiter: str) -> list[int]:
+    """Where each cell of CSV ``line`` starts (1-based); a delimiter inside quotes does not
+    end a cell."""
+    cols, quoted = [1], False
+    for i, ch in enumerate(line):
+        if ch == '"':
+            quoted = not quoted
+        elif ch == delimiter and not quoted:
+            cols.append(i + 2)
+    return cols
+
+
+def export_text(data: bytes) -> str:
+    """The text of a WMS's or a spreadsheet's text export: UTF-8 (with or without a byte
+    order mark), UTF-16 with one (Excel's "Unicode Text") or without (told by its zero
+    bytes), else Windows-1252 (Excel's "CSV"
+    on Windows: a ``Kühlregal`` in a column btrun does not read must not refuse the file).
+    Raises :class:`UnicodeDecodeError` (UTF-8's) for bytes none of them reads."""
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        try:
+            return data.decode("utf-16")
+        except UnicodeDecodeError:
+            pass
+    head = data[:512]
+    if len(head) >= 4 and head.count(0) * 4 >= len(head):  # UTF-16 saved without its mark
+        little = head[1::2].count(0) >= head[0::2].count(0)
+        try:
+            return data.decode("utf-16-le" if little else "utf-16-be")
+        except UnicodeDecodeError:
+            pass
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        try:
+            return data.decode("cp1252")
+        except UnicodeDecodeError:
+            raise exc from None
+
+
+#: how an old binary Office file (an .xls workbook, a .doc) starts
+_OLE2 = b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1"
+
+
+class NotText(ValueError):
+    """A file that is no text at all (an old .xls workbook): said as what it is."""
+
+
+def not_text(data: bytes) -> str:
+    """ "" for text-like ``data``; :class:`NotText` for an old binary Excel workbook (read as
+    Windows-1252 it was a header error that printed its binary to the terminal)."""
+    if data.startswith(_OLE2):
+        raise NotText("an old binary Excel workbook (.xls): save it as .xlsx or CSV")
+    return ""
+
+
+def byte_loc(path: str, data: bytes, offset: int) -> Loc:
+    """``path:line:col`` of byte ``offset`` of ``data`` (the column counted in bytes)."""
+    line_start = data.rfind(b"\n", 0, offset) + 1
+    return Loc(path, data.count(b"\n", 0, offset) + 1, offset - line_start + 1)
+
+
+def entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+    """(place, pallet, where the place is, where the pallet is) per CSV row."""
+    try:
+        rows, delimiter = csv_rows(text)
+    except csv.Error as exc:
+        return [], [Problem(Loc(path, 1, 1), f"not a readable CSV file: {exc}")]
+    if not rows:
+        return [], [Problem(Loc(path, 1, 1), "the expected stock is empty: a header place,pallet")]
+    header = [c.strip().lower() for c in rows[0].cells]
+    if "place" not in header or "pallet" not in header:
+        got = delimiter.join(rows[0].cells)[:80].replace("\t", "\\t")
+        return [], [
+            Problem(
+                Loc(path, rows[0].line, 1),
+                f"expected a header 'place,pallet' (as a WMS exports; a ';' or a tab between "
+                f"the columns reads too), got '{got}'",
+            )
+        ]
+    twice = [h for h in ("place", "pallet") if header.count(h) > 1]
+    if twice:
+        return [], [
+            Problem(
+                Loc(path, rows[0].line, 1),
+                f"two '{twice[0]}' columns in the header: which one is meant cannot be told",
+            )
+        ]
+    pc, qc = header.index("place"), header.index("pallet")
+    out = []
+    problems = []
+    for row in rows[1:]:
+        cells = row.cells
+        if not any(c.strip() for c in cells):
+            continue  # a blank line
+        place = cells[pc].strip() if pc < len(cells) else ""
+        pallet = cells[qc].strip() if qc < len(cells) else ""
+        where_place = Loc(path, row.line, row.col(pc))
+        where_pallet = Loc(path, row.line, row.col(qc))
+        if not place:
+            problems.append(Problem(where_place, "a row without a place (expected place,pallet)"))
+            continue
+        extra = [c for c in cells[len(header) :] if c.strip()]
+        if extra:  # "A-01-1,Box, large,1001": every column after the stray one is shifted
+            problems.append(
+                Problem(
+                    Loc(path, row.line, row.col(len(header))),
+                    f"'{place}': {len(cells)} cells where the header has {len(header)} "
+                    f"({extra[0].strip()[:30]!r} past its last column): a '{delimiter}' inside "
+                    "a cell shifts the columns after it; put that cell in double quotes",
+                )
+            )
+            continue
+        if qc >= len(cells):  # not "A-01-1," (empty): a line cut short is no answer
+            problems.append(
+                Problem(
+                    where_place,
+                    f"'{place}': the row ends before its pallet column (write "
+                    f"'{place}{delimiter}' for a place that should be empty)",
+                )
+            )
+            continue
+        out.append((place, pallet, where_place, where_pallet))
+    return out, problems
+
+
+#: how a ZIP archive (an XLSX workbook) starts
+ZIP_MAGIC = b"PK\x03\x04"
+#: the header row is looked for in this many columns of an XLSX sheet
+_XLSX_HEADER_COLUMNS = 50
+#: ... and in this many rows (a report's title, date and blank lines above it)
+_XLSX_HEADER_ROWS = 20
+
+
+def _cell_text(value: Any) -> str:
+    """A spreadsheet cell as the text a CSV export would hold (``1001`` for 1001.0)."""
+    if value is None:
+        return ""
+    if isinstance(value, float) and value.is_integer():
+        return str(int(value))
+    return str(value).strip()
+
+
+#: what a spreadsheet shows for a formula that failed
+_EXCEL_ERRORS = ("#N/A", "#REF!", "#DIV/0!", "#VALUE!", "#NAME?", "#NUM!", "#NULL!", "#SPILL!")
+
+
+def _odd_cell(value: Any) -> str | None:
+    """Why a spreadsheet cell is no name (a yes/no cell, a date, a fraction, a formula's
+    error), else None."""
+    import datetime
+
+    if isinstance(value, bool):
+        return f"a yes/no cell ({str(value).upper()}), not a name"
+    if isinstance(value, (datetime.date, datetime.time, datetime.timedelta)):
+        return f"a date or time cell ({value}), not a name"
+    if isinstance(value, float) and not value.is_integer():
+        return f"a number with a fraction ({value}), not a name"
+    if isinstance(value, str) and value.strip().upper() in _EXCEL_ERRORS:
+        return f"a formula's error ({value.strip()}), not a name"
+    return None
+
+
+def _shown_sheet(wb: Any) -> Any:
+    """The first sheet a spreadsheet shows (a hidden one before it is a lookup table)."""
+    shown = [w for w in wb.worksheets if getattr(w, "sheet_state", "visible") == "visible"]
+    return shown[0] if shown else wb.worksheets[0]
+
+
+def xlsx_table(
+    path: str,
+    data: bytes,
+    limit: int,
+    needs: tuple[str, ...] = (),
+    odd: dict[tuple[int, int], str] | None = None,
+) -> tuple[str, list[str], list[tuple[int, list[str]]], list[Problem]]:
+    """The first shown sheet of the XLSX workbook ``data`` (openpyxl; formulas by their saved
+    results): its title, its header row (cells as text, trailing empty cells left out) and
+    the non-blank rows below it as (row number, cells as text: ``1001`` for 1001.0) up to
+    ``limit`` rows, only as many columns as the header has; or the problems (located at
+    ``path``:1:1, or at the row past the limit). The header is the first of the sheet's
+    first :data:`_XLSX_HEADER_ROWS` rows that holds every name of ``needs`` (any case): a
+    WMS report may have a title and a date above it. Without one, it is the first row.
+    ``odd`` (if given) gets (row, column from 0) -> why for each body cell that is no name
+    (:func:`_odd_cell`)."""
+    from openpyxl import load_workbook
+
+    try:
+        wb = load_workbook(io.BytesIO(data), read_only=True, data_only=True)
+    except Exception as exc:  # a third party's parser of any file: one located line
+        return "", [], [], [Problem(Loc(path, 1, 1), f"not a readable XLSX workbook: {exc}")]
+    try:
+        if not wb.worksheets:
+            return "", [], [], [Problem(Loc(path, 1, 1), "the workbook has no sheet")]
+        ws = _shown_sheet(wb)
+        top = ws.iter_rows(
+            values_only=True, max_col=_XLSX_HEADER_COLUMNS, max_row=_XLSX_HEADER_ROWS
+        )
+        found = [[_cell_text(c) for c in row] for row in top]
+        at = next(
+            (
+                r
+                for r, cells in enumerate(found, start=1)
+                if needs and set(needs) <= {c.lower() for c in cells}
+            ),
+            1,
+        )
+        header = list(found[at - 1]) if found else []
+        while header and not header[-1]:
+            header.pop()
+        rows: list[tuple[int, list[str]]] = []
+        if not header:
+            return ws.title, header, rows, []
+        body = ws.iter_rows(min_row=at + 1, values_only=True, max_col=len(header))
+        for i, row in enumerate(body, start=at + 1):
+            if i > limit + at:
+                return ws.title, header, rows, [Problem(Loc(path, i, 1), f"more than {limit} rows")]
+            cells = [_cell_text(c) for c in row]
+            if any(cells):
+                rows.append((i, cells))
+                if odd is not None:
+                    for j, c in enumerate(row):
+                        why = _odd_cell(c)
+                        if why:
+                            odd[(i, j)] = why
+        return ws.title, header, rows, []
+    except Exception as exc:  # a sheet openpyxl cannot read to the end
+        return "", [], [], [Problem(Loc(path, 1, 1), f"not a readable XLSX workbook: {exc}")]
+    finally:
+        wb.close()
+
+
+def entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+    """(place, pallet, where, where) per row of the first sheet of an XLSX workbook (as a
+    WMS exports it: a header row with ``place`` and ``pallet``), located as
+    ``file:row:column``."""
+    odd: dict[tuple[int, int], str] = {}
+    title, header, rows, problems = xlsx_table(
+        path, data, MAX_EXPECTED_PLACES, ("place", "pallet"), odd
+    )
+    if problems and not rows:
+        return [], problems
+    names = [h.lower() for h in header]
+    if "place" not in names or "pallet" not in names:
+        return [], [
+            Problem(
+                Loc(path, 1, 1),
+                f"expected a header row with 'place' and 'pallet' in the first "
+                f"{_XLSX_HEADER_ROWS} rows of the first sheet ('{title}'), got "
+                f"'{','.join(header)[:80]}'",
+            )
+        ]
+    twice = [h for h in ("place", "pallet") if names.count(h) > 1]
+    if twice:
+        return [], [
+            Problem(
+                Loc(path, 1, 1),
+                f"two '{twice[0]}' columns in the header row of sheet '{title}': which one is "
+                "meant cannot be told",
+            )
+        ]
+    pc, qc = names.index("place"), names.index("pallet")
+    unsaved = _unsaved_formulas(
+        data, {i for i, cells in rows if not cells[qc : qc + 1] or not cells[qc]}, qc
+    )
+    out = []
+    for i, cells in rows:
+        place = cells[pc] if pc < len(cells) else ""
+        pallet = cells[qc] if qc < len(cells) else ""
+        if not place:
+            problems.append(Problem(Loc(path, i, pc + 1), "a row without a place"))
+            continue
+        why = odd.get((i, pc)) or odd.get((i, qc))
+        if why is None and i in unsaved:
+            why = (
+                f"a formula without a saved result ({unsaved[i][:40]}): the workbook was "
+                "written by a program, not saved by a spreadsheet; open and save it"
+            )
+        if why is not None:
+            col = pc if (i, pc) in odd else qc
+            problems.append(Problem(Loc(path, i, col + 1), why))
+            continue
+        out.append((place, pallet, Loc(path, i, pc + 1), Loc(path, i, qc + 1)))
+    return out, problems
+
+
+def _unsaved_formulas(data: bytes, rows: set[int], col: int) -> dict[int, str]:
+    """Row -> formula of the first sheet's cells in column ``col`` (from 0) of ``rows``
+    that hold a formula: read as values they are empty when no spreadsheet saved their
+    result, and an empty pallet means "this place should be empty"."""
+    if not rows:
+        return {}
+    from openpyxl import load_workbook
+
+    found: dict[int, str] = {}
+    try:
+        wb = load_workbook(io.BytesIO(data), read_only=True, data_only=False)
+        try:
+            ws = _shown_sheet(wb)
+            body = ws.iter_rows(min_row=min(rows), max_row=max(rows), values_only=True)
+            for i, row in enumerate(body, start=min(rows)):
+                v = row[col] if col < len(row) else None
+                if i in rows and isinstance(v, str) and v.startswith("="):
+                    found[i] = v
+        finally:
+            wb.close()
+    except Exception:  # noqa: BLE001 - read once already; this pass only adds a reason
+        return found
+    return found
+
+
+def _offset_loc(path: str, text: str, offset: int) -> Loc:
+    line_start = text.rfind("\n", 0, offset) + 1
+    return Loc(path, text.count("\n", 0, offset) + 1, offset - line_start + 1)
+
+
+def _row_starts(text: str) -> list[int] | None:
+    """The offset of every element of the JSON list of rows in ``text`` (the top-level list,
+    or the one under ``"rows"``), found by decoding the elements one after another; None
+    when the text is laid out otherwise."""
+    dec = json.JSONDecoder()
+    n = len(text)
+
+    def skip(i: int) -> int:
+        while i < n and text[i] in " \t\r\n":
+            i += 1
+        return i
+
+    try:
+        i = skip(0)
+        if text[i] == "{":  # {"rows": [...], ...}: walk the keys to "rows"
+            i += 1
+            while True:
+                key, i = dec.raw_decode(text, skip(i))
+                i = skip(skip(i) + 1)  # the ':'
+                if key == "rows":
+                    break
+                _, i = dec.raw_decode(text, i)
+                i = skip(i)
+                if text[i] != ",":
+                    return None
+                i += 1
+        if text[i] != "[":
+            return None
+        i, starts = i + 1, []
+        while True:
+            i = skip(i)
+            if text[i] == "]":
+                return starts
+            starts.append(i)
+            _, i = dec.raw_decode(text, i)
+            i = skip(i)
+            if text[i] == ",":
+                i += 1
+    except (IndexError, ValueError, RecursionError):
+        return None
+
+
+def entries_json(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+    """(place, pallet, where, where) per JSON entry: a list of {place, pallet} objects (or
+    that list under "rows"), or a {place: pallet} object; each located by a search of the
+    text from the previous entry on."""
+    try:
+        data = json.loads(text, object_pairs_hook=list)
+    except json.JSONDecodeError as exc:
+        return [], [Problem(Loc(path, exc.lineno, exc.colno), f"not JSON: {exc.msg}")]
+    except (ValueError, RecursionError) as exc:
+        return [], [Problem(Loc(path, 1, 1), f"not JSON: {exc}")]
+    if isinstance(data, list) and all(isinstance(p, tuple) for p in data):  # an object
+        pairs = data
+        keys = [k for k, _ in pairs]
+        if keys == ["rows"] or ("rows" in keys and isinstance(dict(pairs)["rows"], list)):
+            data = dict(pairs)["rows"]
+        else:
+            return _mapping(path, text, pairs)
+    if not isinstance(data, list):
+        return [], [Problem(Loc(path, 1, 1), "expected a list of {place, pallet} rows")]
+    out, problems, pos = [], [], 0
+    starts = _row_starts(text)
+    if starts is not None and len(starts) != len(data):
+        starts = None
+    for i, item in enumerate(data):
+        if starts is not None:  # where each row begins, whatever it is
+            start = starts[i]
+        else:
+            start = text.find("{", pos)
+            pos = start + 1 if start >= 0 else pos
+        where = _offset_loc(path, text, max(start, 0))
+        obj = (
+            dict(item)
+            if isinstance(item, list) and all(isinstance(p, tuple) for p in item)
+            else None
+        )
+        if obj is None or not isinstance(obj.get("place"), str):
+            problems.append(
+                Problem(
+                    where,
+                    f'rows[{i}]: expected {{"place": ..., "pallet": ...}} with the place as '
+                    f"text, got {_shown(item)}",
+                )
+            )
+            continue
+        pallet = obj.get("pallet")
+        if pallet is not None and (isinstance(pallet, bool) or not isinstance(pallet, (str, int))):
+            problems.append(
+                Problem(where, f"rows[{i}]: pallet must be text or null, got {_shown(pallet)}")
+            )
+            continue
+        out.append(
+            (obj["place"].strip(), "" if pallet is None else str(pallet).strip(), where, where)
+        )
+    return out, problems
+
+
+def _shown(value: object, most: int = 60) -> str:
+    """A JSON value as the file wrote it, shortened (the reader keeps objects as lists of
+    pairs, which Python would print as ``[('x', 1)]``)."""
+
+    def plain(v: object) -> object:
+        if isinstance(v, list):
+            if v and all(isinstance(p, tuple) and len(p) == 2 for p in v):
+                return {str(k): plain(x) for k, x in v}
+            return [plain(x) for x in v]
+        return v
+
+    text = json.dumps(plain(value), ensure_ascii=False)
+    return text if len(text) <= most else text[: most - 3] + "..."
+
+
+def _mapping(
+    path: str, text: str, pairs: list
+) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+    out, problems, pos = [], [], 0
+    for place, pallet in pairs:
+        m = re.compile(r'"' + re.escape(json.dumps(place)[1:-1]) + r'"\s*:').search(text, pos)
+        start = m.start() if m else pos
+        pos = m.end() if m else pos
+        where = _offset_loc(path, text, start)
+        if pallet is not None and (isinstance(pallet, bool) or not isinstance(pallet, (str, int))):
+            problems.append(
+                Problem(where, f"{place}: pallet must be text or null, got {_shown(pallet)}")
+            )
+            continue
+        out.append((place.strip(), "" if pallet is None else str(pallet).strip(), where, where))
+    return out, problems
