@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import sys
 
-from bt_engine.mission import Mission, declared_inputs, missing_inputs, typed_inputs
+from bt_engine.inputs import declared_inputs, missing_inputs, typed_inputs
+from bt_engine.mission import Mission
 from bt_engine.plugins import load_target
 from bt_engine.run_cmd import parse_sets, wall_echo
 from bt_engine.run_inputs import mission_time_limit

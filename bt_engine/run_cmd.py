@@ -16,8 +16,9 @@ from typing import Any, TextIO
 
 from bt_engine.clock import SimClock, WallClock
 from bt_engine.display import spec_rows
+from bt_engine.inputs import declared_inputs, missing_inputs, typed_inputs
 from bt_engine.loading import check_mission
-from bt_engine.mission import Mission, declared_inputs, missing_inputs, typed_inputs
+from bt_engine.mission import Mission
 from bt_engine.plugins import Platform, RunTarget, load_target, run_sections, write_report
 from bt_engine.registry import REGISTRY
 from bt_engine.run_inputs import (  # noqa: F401 - importable from here as before

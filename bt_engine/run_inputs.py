@@ -11,7 +11,7 @@ import os
 from collections.abc import Collection
 from typing import Any
 
-from bt_engine.mission import (
+from bt_engine.inputs import (
     MAX_TIME_INPUT,
     UNCHECKED_PREFIX,
     parse_set_value,
@@ -29,7 +29,7 @@ def parse_sets(
     ``bb.NAME`` puts ``NAME`` on the blackboard unchecked. Other dotted keys
     (``world.scan_pallet``, ``control.setpoint_mode``) are rig/world settings; a leading
     ``rig.`` is stripped. Plain keys are blackboard entries and, when ``declared`` (the
-    mission's inputs, :func:`bt_engine.mission.declared_inputs`) is given, must be one of
+    mission's inputs, :func:`bt_engine.inputs.declared_inputs`) is given, must be one of
     them: an undeclared key is a problem ("did you mean"), so a typo never flies with the
     default. Blackboard values are read as YAML scalars (numbers, booleans), otherwise kept
     as text; ports convert them when read.

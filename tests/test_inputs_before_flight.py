@@ -13,8 +13,8 @@ import pytest
 from helpers import REPO
 
 from bt_engine.cli import main
+from bt_engine.inputs import declared_inputs
 from bt_engine.loading import load_spec
-from bt_engine.mission import declared_inputs
 from bt_engine.run_cmd import mission_time_limit, parse_sets
 
 SQUARE = os.path.join(REPO, "missions", "square.xml")

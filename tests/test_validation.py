@@ -315,7 +315,7 @@ def test_numbers_python_reads_but_a_reader_would_not_are_refused(attr, fragment)
 
 def test_a_set_value_is_a_number_only_when_written_as_one():
     """YAML 1.1 read ``--set n=010`` as 8, ``1:30`` as 90 and ``0_5`` as 5."""
-    from bt_engine.mission import parse_set_value
+    from bt_engine.inputs import parse_set_value
     from bt_engine.ports import FLOAT, PortValueError, Vec3Type
 
     assert [parse_set_value(t) for t in ("010", "1.5", "-2", "1:30", "0_5")] == [

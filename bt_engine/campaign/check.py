@@ -17,14 +17,14 @@ from typing import Any
 
 from bt_engine.campaign.rows import Row, value_text
 from bt_engine.campaign.spec import Campaign, FaultCase
-from bt_engine.loading import check_mission
-from bt_engine.mission import (
+from bt_engine.inputs import (
     UNCHECKED_PREFIX,
-    Mission,
     declared_inputs,
     parse_set_value,
     undeclared_input,
 )
+from bt_engine.loading import check_mission
+from bt_engine.mission import Mission
 from bt_engine.plugins import load_plugins, load_target
 from bt_engine.registry import REGISTRY
 from bt_engine.spec import Loc, MissionError, Problem

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from bt_engine.files import file_kind
-from bt_engine.mission import UNCHECKED_PREFIX, declared_inputs, undeclared_input
+from bt_engine.inputs import UNCHECKED_PREFIX, declared_inputs, undeclared_input
 from bt_engine.spec import Loc, MissionError, Problem
 from drivers.settings import ConfigError, Field, Marks, problem_at
 from drivers.settings_yaml import load_yaml_file
