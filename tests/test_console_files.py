@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import time
+import urllib.parse
 
 import pytest
 from console_helpers import REPO
@@ -99,6 +100,15 @@ def test_a_damaged_review_file_is_not_written_over(root):
         decide(RunsRoot(str(root)), "r", request, None, GalleryDesk())
     assert exc.value.status == 409 and "review.json" in str(exc.value)
     assert (run / REVIEW_JSON).read_bytes() == before and not (run / "review.csv").exists()
+    # nor is a count exported without the operators' decisions: 409, as for damaged rows
+    from console_helpers import console
+    from test_console_security import _raw
+
+    assert "review.json" in run_info(RunsRoot(str(root)), "r")["error"]
+    with console(str(root)) as server:
+        for kind in ("inventory.csv", "discrepancies.xlsx"):
+            status, body = _raw(server.port, "GET", f"/export/r/{kind}")
+            assert status == 409 and b"review decisions cannot be read" in body, (kind, body)
     (run / REVIEW_JSON).unlink()  # mended: the decision is taken, its cells defused
     request.update(reviewer="=cmd|' /C calc'!A0", reason="@SUM(A1)")
     decide(RunsRoot(str(root)), "r", request, None, GalleryDesk())
@@ -183,3 +193,42 @@ def test_a_runs_relative_rig_is_read_from_where_it_was_flown(root, tmp_path, mon
     assert exc.value.status == 409 and "/nowhere/else/rigs/aisle.yaml" in str(exc.value)
     assert "not on this machine" in str(exc.value)
     assert not (root / "site-gallery.sqlite").exists()
+
+
+def test_the_discrepancies_export_keeps_the_expected_places_not_scanned(root):
+    """An interrupted run's own discrepancies.csv lists the expected places it never reached
+    as not_scanned; the console's export and counts left them out (a WMS would never
+    recount them)."""
+    run = _run(root, "cut", [_row("A-01-1", "101A", "identified")], ["A-01-1", "A-02-1"])
+    doc = {
+        "format": "btrun-discrepancies-1",
+        "rows": [
+            {"place": "A-01-1", "expected": "101", "category": "confirmed"},
+            {"place": "A-02-1", "expected": "102", "category": "not_scanned"},
+        ],
+    }
+    (run / "discrepancies.json").write_text(json.dumps(doc))
+    info = run_info(RunsRoot(str(root)), "cut", True)
+    assert info["discrepancies"] == {"not_scanned": 1}
+    lines = export.table(info, "discrepancies")[1]
+    assert [(r["place"], r["category"], r["expected"]) for r in lines] == [
+        ("A-02-1", "not_scanned", "102")
+    ]
+
+
+def test_an_export_of_a_run_named_in_any_script_downloads(root):
+    """The download's file name went into a Latin-1 header: a 500 for '倉庫 Лагер'."""
+    from console_helpers import console
+    from test_console_security import _raw
+
+    _run(root, "倉庫 Лагер", [_row("A-01-1", "101A", "identified")], ["A-01-1"])
+    path = "/export/" + urllib.parse.quote("倉庫 Лагер") + "/inventory.csv"
+    with console(str(root)) as server:
+        status, body = _raw(server.port, "GET", path)
+    assert status == 200 and b"A-01-1,101A" in body, (status, body)
+    from nodes.console.app import attachment
+
+    assert attachment("倉庫-inventory.csv") == (
+        'attachment; filename="__-inventory.csv"; '
+        "filename*=UTF-8''%E5%80%89%E5%BA%AB-inventory.csv"
+    )

@@ -124,6 +124,18 @@ class BodyTooLarge(Exception):
     """A request body grew past :data:`MAX_BODY_BYTES` while it arrived."""
 
 
+def attachment(filename: str) -> str:
+    """A ``Content-Disposition`` for a download named ``filename`` in any script (RFC 6266:
+    an ASCII fallback, and the UTF-8 name percent-encoded): headers are Latin-1, and a run
+    named ``倉庫 Лагер`` made the export a 500."""
+    fallback = "".join(
+        c if c.isascii() and c.isprintable() and c not in '"\\' else "_" for c in filename
+    )
+    if fallback == filename:
+        return f'attachment; filename="{filename}"'
+    return f"attachment; filename=\"{fallback}\"; filename*=UTF-8''{urllib.parse.quote(filename, safe='')}"
+
+
 def _plain(status: int, text: str) -> Response:
     return Response(text + "\n", status_code=status, media_type="text/plain")
 
@@ -268,9 +280,10 @@ def make_app(config: ConsoleConfig) -> Starlette:
             return _refused(exc)
         if info.get("rows_error"):  # never an empty count handed to a WMS as if it were one
             return _plain(409, f"the run's rows cannot be read: {info['rows_error']}")
+        if info.get("review_error"):  # nor a count without the operators' decisions
+            return _plain(409, f"the run's review decisions cannot be read: {info['review_error']}")
         columns, lines = export.table(info, kind)
-        filename = f"{name}-{kind}.{fmt}"
-        disposition = {"Content-Disposition": f'attachment; filename="{filename}"'}
+        disposition = {"Content-Disposition": attachment(f"{name}-{kind}.{fmt}")}
         if fmt == "csv":
             body = export.to_csv(columns, lines)
             return Response(body, media_type="text/csv; charset=utf-8", headers=disposition)

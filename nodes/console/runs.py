@@ -16,7 +16,7 @@ import time
 from typing import Any
 
 from bt_engine.ticklog import header_path, run_started
-from nodes.console.files import read_header, read_json, read_review
+from nodes.console.files import ReviewFileError, read_header, read_json, read_review
 from nodes.console.paths import NAME, PathRefused, RunsRoot, plain
 from nodes.inventory_log import EMPTY, UNKNOWN, InventoryError, grade, read_inventory
 from nodes.place_evidence import CANDIDATES_FILE, PLACES_DIR
@@ -115,6 +115,13 @@ def with_discrepancies(run_dir: str, rows: list[dict]) -> list[dict]:
                 if isinstance(d.get(key), str):
                     r[key] = d[key]
         out.append(r)
+    seen = {r["place"] for r in rows}
+    for place, d in found.items():  # expected places not scanned (yet): in the report too
+        if place not in seen and isinstance(d.get("category"), str):
+            row = {"place": place, "status": "not_scanned", "discrepancy": d["category"]}
+            if isinstance(d.get("expected"), str):
+                row["expected"] = d["expected"]
+            out.append(row)
     return out
 
 
@@ -296,7 +303,12 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
     rows, planned, error = read_rows(run_dir)
     if error:
         problems.append(error)
-    reviews = read_review(run_dir)
+    try:
+        reviews = read_review(run_dir, strict=True)
+        review_error = None
+    except ReviewFileError as exc:  # the operators' decisions cannot be read: said, and
+        reviews, review_error = [], str(exc)  # no export is made without them
+        problems.append(review_error)
     mission = (summary or {}).get("mission") if isinstance(summary, dict) else None
     mission = mission or header.get("mission") or ""
     world = world_of(header) if full or not isinstance(summary, dict) else None
@@ -348,6 +360,7 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
         "drones": [d for d in drones if d],
         "error": "; ".join(problems) or None,
         "rows_error": error,
+        "review_error": review_error,
     }
     if not full:
         return info
