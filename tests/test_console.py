@@ -146,6 +146,51 @@ def test_a_review_decision_updates_the_gallery_with_an_audit_entry(runs, tmp_pat
         assert "NEW-1" not in g.identities()
 
 
+def test_a_decision_made_meanwhile_elsewhere_is_said_not_overwritten(runs):
+    """Two reviewers of one place were both "recorded" and the last won (their gallery
+    changes both stayed). A page's change of mind replaces its own decision; a decision made
+    since in another tab or console refuses it, and the page says by whom."""
+    from nodes.console.paths import RunsRoot
+    from nodes.console.review import GalleryDesk, decide
+
+    run_dir = os.path.join(runs, FLEET)
+    place = [r["place"] for r in _csv_rows(run_dir) if r["status"] == "unknown"][-1]
+
+    def mine() -> list[tuple[str, str, int]]:
+        if not os.path.exists(os.path.join(run_dir, "review.json")):
+            return []
+        doc = json.load(open(os.path.join(run_dir, "review.json")))
+        return [
+            (d["reviewer"], d["reason"], d["seq"]) for d in doc["decisions"] if d["place"] == place
+        ]
+
+    with console(runs) as server, browser_page() as page:
+        page.goto(f"{server.url}/runs/{FLEET}/review?token={TOKEN}")
+        item = page.locator(f'.review-item[data-place="{place}"]')
+        item.wait_for()
+        page.fill("#reviewer", "Ana")
+        item.locator('input[value="leave_unknown"]').check()
+        for why in ("no label", "label torn"):  # the second replaces the first
+            item.locator('input[name="reason"]').fill(why)
+            item.locator("button[type=submit]").click()
+            wait_for(lambda why=why: mine() and mine()[-1][1] == why, what=f"decision {why!r}")
+            item.locator(".result.ok").wait_for()
+        request = {"place": place, "decision": "leave_unknown", "reviewer": "Bob"}
+        request["replaces"] = mine()[-1][2]
+        decide(RunsRoot(runs), FLEET, request, None, GalleryDesk())  # another console
+        item.locator('input[name="reason"]').fill("third look")
+        item.locator("button[type=submit]").click()
+        refused = item.locator(".result.error")
+        refused.wait_for()
+        assert f"{place} was decided by Bob at" in refused.inner_text()
+        assert not page.errors
+    assert [(who, why) for who, why, _ in mine()[-3:]] == [
+        ("Ana", "no label"),
+        ("Ana", "label torn"),
+        ("Bob", ""),
+    ]
+
+
 def test_the_xlsx_export_reads_back(runs):
     from openpyxl import load_workbook
 

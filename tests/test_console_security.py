@@ -158,10 +158,13 @@ def test_a_decision_needs_the_token(runs):
         assert not os.path.exists(os.path.join(runs, RUN, "review.json"))
         status, body = _raw(port, "POST", path, decision, {**host, "X-Console-Token": TOKEN})
         assert status == 200 and json.loads(body)["decision"]["answer"] == "unknown"
-        # a form post with the token as a field works too; a settled place may be decided again
+        # a form post with the token as a field works too; a settled place may be decided
+        # again, naming the decision it replaces (not one made meanwhile it never saw)
         form = {"Host": host["Host"], "Content-Type": "application/x-www-form-urlencoded"}
         body = f"token={TOKEN}&place=A-01-2&decision=leave_unknown&reviewer=y".encode()
-        assert _raw(port, "POST", path, body, form)[0] == 200
+        status, said = _raw(port, "POST", path, body, form)
+        assert status == 409 and b"was decided by x at" in said, said
+        assert _raw(port, "POST", path, body + b"&replaces=1", form)[0] == 200
         # not an exception, unknown place, bad decision
         for bad, code in (
             ({"place": "A-01-1", "decision": "leave_unknown", "reviewer": "x"}, 409),

@@ -24,6 +24,8 @@ operator's decisions.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import re
 import sqlite3
@@ -181,11 +183,12 @@ def decide(
     gpath = gallery_path(root, run_dir, gallery_option)
     header = read_header(os.path.join(run_dir, rel, "ticks.jsonl"))
     rig = header_path(header, header.get("rig"))
-    with _LOCK:
+    with _LOCK, _run_lock(run_dir):  # one decision at a time, in every console process
         try:  # before the gallery changes: a decision that cannot be recorded is not taken
             decisions = read_review(run_dir, strict=True)
         except ReviewFileError as exc:
             raise ReviewError(str(exc), 409) from None
+        _not_decided_meanwhile(decisions, place, request)
         event = None
         if kind != "leave_unknown":
             crops = _crops(run_dir, evidence(run_dir, rel, place))
@@ -200,6 +203,7 @@ def decide(
             except (GalleryError, ModelError) as exc:
                 raise ReviewError(str(exc), 409) from None
         record = {
+            "seq": _next_seq(decisions),
             "place": place,
             "answer": ident if ident else "unknown",
             "decision": kind,
@@ -214,6 +218,55 @@ def decide(
         }
         write_review(run_dir, decisions + [record])
     return record
+
+
+def decision_seq(decisions: list[dict], index: int) -> int:
+    """The number of decision ``index`` of a run (1, 2, ...: its ``seq``, or its place in
+    ``review.json`` for one recorded before decisions were numbered)."""
+    seq = decisions[index].get("seq")
+    return seq if type(seq) is int else index + 1
+
+
+def _next_seq(decisions: list[dict]) -> int:
+    return max((decision_seq(decisions, i) for i in range(len(decisions))), default=0) + 1
+
+
+def _not_decided_meanwhile(decisions: list[dict], place: str, request: dict) -> None:
+    """A decision changes the place as its reviewer saw it: ``replaces`` names the place's
+    decision it replaces (its ``seq``; none for a first decision). Another reviewer's
+    decision since (in another tab, another console) refuses it, before the gallery is
+    touched: both were recorded, the last won and both gallery changes stayed."""
+    last = max((i for i, d in enumerate(decisions) if d.get("place") == place), default=None)
+    current = decision_seq(decisions, last) if last is not None else None
+    replaces = request.get("replaces")
+    if isinstance(replaces, str):  # a form field
+        replaces = int(replaces) if replaces.strip().isdigit() else (replaces.strip() or None)
+    if replaces is None and current is None:
+        return
+    if type(replaces) is int and replaces == current:
+        return
+    if current is None:
+        raise ReviewError(f"{place} has no decision {replaces!r:.20} to replace: reload", 409)
+    d = decisions[last]
+    raise ReviewError(
+        f"{place} was decided by {d.get('reviewer')} at {d.get('time')} "
+        f"({d.get('answer')}, decision {current}): reload to see it; to change it, decide "
+        f'again from there ("replaces": {current})',
+        409,
+    )
+
+
+@contextlib.contextmanager
+def _run_lock(run_dir: str):
+    """An exclusive lock on the run's review (``.review.lock`` in its folder): consoles in
+    other processes over the same runs folder wait for it too (a thread lock alone lost
+    decisions two consoles had both answered 200)."""
+    fd = os.open(os.path.join(run_dir, ".review.lock"), os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
 
 
 def _learn(

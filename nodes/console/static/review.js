@@ -5,14 +5,16 @@ const reviewApp = document.getElementById("app");
 
 function lastDecision(info, place) {
   let last = null;
-  for (const d of info.review || []) if (d.place === place) last = d;
+  (info.review || []).forEach((d, i) => {
+    if (d.place === place) last = { ...d, seq: Number.isInteger(d.seq) ? d.seq : i + 1 };
+  });
   return last;
 }
 
 function reviewItem(info, place) {
   const row = info.rows.find((r) => r.place === place) || {};
   const ev = info.evidence[place] || { crops: [], candidates: [] };
-  const done = lastDecision(info, place);
+  let done = lastDecision(info, place);  // the decision a new one replaces (null: none)
   const name = `decision-${place}`;
   const ids = [...new Set([...ev.candidates.map((c) => c[0]), ...info.gallery.identities])];
   const listId = `ids-${place}`;
@@ -33,7 +35,7 @@ function reviewItem(info, place) {
     localStorage.setItem("console-reviewer", reviewer);
     const body = {
       place, decision: fd.get(name), identity: fd.get("identity"), new_name: fd.get("new_name"),
-      reason: fd.get("reason"), reviewer,
+      reason: fd.get("reason"), reviewer, replaces: done ? done.seq : null,
     };
     if (!fd.get(name)) {
       result.textContent = "choose one first: this pallet, new pallet or leave unknown";
@@ -54,6 +56,7 @@ function reviewItem(info, place) {
       return;
     }
     const d = data.decision;
+    done = d;  // a change of mind from this page replaces this decision
     result.textContent = `recorded: ${d.answer} (${d.decision}) by ${d.reviewer}` + (d.gallery_event ? ` - gallery event #${d.gallery_event}` : "");
     result.className = "result ok";
     item.classList.add("decided");
