@@ -232,3 +232,18 @@ def test_an_export_of_a_run_named_in_any_script_downloads(root):
         'attachment; filename="__-inventory.csv"; '
         "filename*=UTF-8''%E5%80%89%E5%BA%AB-inventory.csv"
     )
+
+
+def test_a_run_that_went_silent_without_a_summary_ends_its_live_stream(root):
+    """A run whose guard died with it writes no summary: its live stream said RUNNING for
+    ever and held one of the console's stream slots."""
+    from nodes.console.live import RunFollower
+    from nodes.console.runs import RUNNING_WITHIN_S
+
+    run = _run(root, "ghost", [_row("A-01-1", "101A", "identified")], ["A-01-1", "A-02-1"])
+    follower = RunFollower(str(run))
+    assert ("status", {"status": "INCOMPLETE"}) not in follower.poll() and not follower.done
+    old = time.time() - RUNNING_WITHIN_S - 5
+    for name in ("ticks.jsonl", "inventory.json"):
+        os.utime(run / name, (old, old))
+    assert ("status", {"status": "INCOMPLETE"}) in follower.poll() and follower.done

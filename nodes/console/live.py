@@ -100,4 +100,8 @@ class RunFollower:
             if isinstance(summary, dict) and "status" in summary:
                 events.append(("status", {"status": run_status(self.run_dir, summary)}))
                 self.done = True
+                return events
+        if run_status(self.run_dir, None) == "INCOMPLETE":  # silent, and no summary will come
+            events.append(("status", {"status": "INCOMPLETE"}))  # (its guard died with it):
+            self.done = True  # the page says so and the stream ends, freeing its slot
         return events
