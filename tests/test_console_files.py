@@ -247,3 +247,17 @@ def test_a_run_that_went_silent_without_a_summary_ends_its_live_stream(root):
     for name in ("ticks.jsonl", "inventory.json"):
         os.utime(run / name, (old, old))
     assert ("status", {"status": "INCOMPLETE"}) in follower.poll() and follower.done
+
+
+def test_xlsx_cells_are_text_never_formulas_and_show_as_written():
+    """A cell the CSV defuses with a leading "'" is stored as text in XLSX: no formula runs,
+    and '-42' shows as -42, not '-42 (the quote was visible in the spreadsheet)."""
+    import io
+
+    from openpyxl import load_workbook
+
+    data = export.to_xlsx(("a", "b"), [{"a": "=cmd|' /C calc'!A0", "b": "-42"}], "t")
+    ws = load_workbook(io.BytesIO(data)).active
+    cells = list(ws.iter_rows(min_row=2))[0]
+    assert [c.value for c in cells] == ["=cmd|' /C calc'!A0", "-42"]
+    assert [c.data_type for c in cells] == ["s", "s"]

@@ -127,8 +127,11 @@ def to_xlsx(columns: tuple[str, ...], lines: list[dict], title: str) -> bytes:
     ws = wb.active
     ws.title = title[:31]
     ws.append(list(columns))
-    for line in lines:
-        ws.append([safe_cell(line.get(c)) for c in columns])
+    for r, line in enumerate(lines, start=2):
+        for i, c in enumerate(columns, start=1):
+            value = line.get(c)
+            cell = ws.cell(row=r, column=i, value="" if value is None else str(value))
+            cell.data_type = "s"  # text, never a formula: no "'" shown in front of "-42"
     for i, c in enumerate(columns):
         ws.column_dimensions[chr(ord("A") + i)].width = max(10, len(c) + 2)
     ws.freeze_panes = "A2"
