@@ -261,3 +261,17 @@ def test_xlsx_cells_are_text_never_formulas_and_show_as_written():
     cells = list(ws.iter_rows(min_row=2))[0]
     assert [c.value for c in cells] == ["=cmd|' /C calc'!A0", "-42"]
     assert [c.data_type for c in cells] == ["s", "s"]
+
+
+def test_a_runs_folder_past_the_listed_most_says_how_many_are_left_out(root, monkeypatch):
+    """521 run folders showed 500 with no word of the others."""
+    import nodes.console.runs as runs_mod
+
+    monkeypatch.setattr(runs_mod, "MAX_RUNS", 3)
+    for i in range(5):
+        _run(root, f"run-{i}", [], ["A-01-1"], {"started": f"2026-11-2{i}T10:00:00Z"})
+    skipped: list[str] = []
+    assert len(list_runs(RunsRoot(str(root)), skipped)) == 3
+    assert skipped == [
+        "2 older runs (the newest 3 of 5 are listed; move old run folders to an archive folder)"
+    ]

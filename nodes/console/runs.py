@@ -430,6 +430,11 @@ def list_runs(root: RunsRoot, skipped: list[str] | None = None) -> list[dict]:
         if is_run(path):
             found.append((max(_mtime(path), _mtime(os.path.join(path, "summary.json"))), e.name))
     found.sort(reverse=True)
+    if len(found) > MAX_RUNS and skipped is not None:  # said, not silently cut
+        skipped.append(
+            f"{len(found) - MAX_RUNS} older runs (the newest {MAX_RUNS} of {len(found)} are "
+            "listed; move old run folders to an archive folder)"
+        )
     out = []
     for _, name in found[:MAX_RUNS]:
         try:
