@@ -275,3 +275,16 @@ def test_a_runs_folder_past_the_listed_most_says_how_many_are_left_out(root, mon
     assert skipped == [
         "2 older runs (the newest 3 of 5 are listed; move old run folders to an archive folder)"
     ]
+
+
+def test_audit_text_takes_no_format_characters_and_trimmed_formulas_are_defused(root):
+    """A right-to-left override in a reviewer's name could disguise who decided; ' =2+2'
+    ran as a formula in an importer that trims."""
+    from nodes.console.files import safe_cell
+
+    assert safe_cell(" =2+2") == "' =2+2" and safe_cell("A-01-1") == "A-01-1"
+    run = _run(root, "r", [_row("A-01-2", "unknown", "unknown")], ["A-01-2"])
+    request = {"place": "A-01-2", "decision": "leave_unknown", "reviewer": "ana\u202elive"}
+    with pytest.raises(ReviewError, match="printable characters"):
+        decide(RunsRoot(str(root)), "r", request, None, GalleryDesk())
+    assert not (run / REVIEW_JSON).exists()

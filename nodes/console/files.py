@@ -95,7 +95,8 @@ def latest_by_place(decisions: list[dict]) -> dict[str, dict]:
 def safe_cell(value: Any) -> str:
     """A text cell a spreadsheet will not run as a formula (CSV injection)."""
     text = "" if value is None else str(value)
-    return "'" + text if text[:1] in ("=", "+", "-", "@", "\t", "\r") else text
+    lead = text.lstrip(" ")[:1]  # " =2+2": an importer that trims would run it
+    return "'" + text if text[:1] in ("\t", "\r") or lead in ("=", "+", "-", "@") else text
 
 
 def write_review(run_dir: str, decisions: list[dict]) -> None:

@@ -31,6 +31,7 @@ import re
 import sqlite3
 import threading
 import time
+import unicodedata
 from typing import Any
 
 from bt_engine.ticklog import header_path
@@ -137,7 +138,9 @@ def _text(value: Any, what: str, limit: int, required: bool = True) -> str:
     text = value.strip() if isinstance(value, str) else ""
     if required and not text:
         raise ReviewError(f"{what} is required")
-    if len(text) > limit or any(ord(c) < 32 for c in text):
+    if len(text) > limit or any(unicodedata.category(c) in ("Cc", "Cf") for c in text):
+        # control and format characters (a right-to-left override) could disguise who
+        # decided what in the audit files
         raise ReviewError(f"{what}: at most {limit} printable characters")
     return text
 

@@ -18,13 +18,16 @@ function reviewItem(info, place) {
   const name = `decision-${place}`;
   const ids = [...new Set([...ev.candidates.map((c) => c[0]), ...info.gallery.identities])];
   const listId = `ids-${place}`;
-  const result = el("p", { class: "result" }, done ? `decided: ${done.answer} (${done.decision}) by ${done.reviewer} at ${done.time}` : "");
+  const result = el("p", { class: "result", "aria-live": "polite" }, done ? `decided: ${done.answer} (${done.decision}) by ${done.reviewer} at ${done.time}` : "");
+  // the engine's closest candidate is only a suggestion where it identified the place: an
+  // unknown place's candidate was refused, and two clicks would teach the gallery a wrong one
+  const suggested = ev.candidates.length && row.status !== "unknown" && row.status !== "not_identified" ? ev.candidates[0][0] : "";
   const form = el("form", { class: "decide", "data-place": place },
     el("label", {}, el("input", { type: "radio", name, value: "identity", disabled: ev.crops.length !== 3 }), " this pallet: ",
-      el("input", { type: "text", name: "identity", list: listId, placeholder: "identity", value: ev.candidates.length ? ev.candidates[0][0] : "", size: 10 })),
+      el("input", { type: "text", name: "identity", list: listId, placeholder: "identity", "aria-label": `identity of ${place}`, value: suggested, size: 10 })),
     el("datalist", { id: listId }, ids.map((id) => el("option", { value: id }))),
     el("label", {}, el("input", { type: "radio", name, value: "new_pallet", disabled: ev.crops.length !== 3 }), " new pallet, enrol as ",
-      el("input", { type: "text", name: "new_name", placeholder: "new identity", size: 10 })),
+      el("input", { type: "text", name: "new_name", placeholder: "new identity", "aria-label": `new identity for ${place}`, size: 10 })),
     el("label", {}, el("input", { type: "radio", name, value: "leave_unknown" }), " leave unknown"),
     el("label", {}, "why ", el("input", { type: "text", name: "reason", placeholder: "reason (audit)", size: 28 })),
     el("button", { type: "submit" }, "Decide"));
@@ -63,8 +66,9 @@ function reviewItem(info, place) {
   });
   const item = el("div", { class: "review-item" + (done ? " decided" : ""), id: place, "data-place": place },
     el("h3", {}, place, " ", el("span", { class: "was" }, `${row.answer || "-"} (${row.status})`), row.drone ? ` - ${row.drone}` : ""),
+    row.discrepancy ? el("p", { class: "expected" }, `expected ${row.expected || "empty"}: ${row.discrepancy}` + (row.moved_from ? `, moved from ${row.moved_from}` : "")) : null,
     row.reason ? el("p", { class: "note" }, row.reason) : null,
-    el("div", { class: "crops" }, ev.crops.length ? ev.crops.map((c) => el("img", { src: fileUrl(RUN_NAME, c), alt: c, class: "crop" })) : el("span", { class: "note" }, "no crops")),
+    el("div", { class: "crops" }, ev.crops.length ? ev.crops.map((c, i) => el("img", { src: fileUrl(RUN_NAME, c), alt: `block ${i + 1} of ${place}`, class: "crop" })) : el("span", { class: "note" }, "no crops")),
     ev.candidates.length ? el("table", { class: "grid candidates" },
       el("thead", {}, el("tr", {}, el("th", {}, "candidate"), el("th", {}, "distance"))),
       el("tbody", {}, ev.candidates.slice(0, 5).map(([id, d]) => el("tr", {}, el("td", {}, id), el("td", { class: "num" }, fmtNumber(d, 3)))))) : null,
