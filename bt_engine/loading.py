@@ -82,6 +82,9 @@ class Includes:
 
     def __init__(self, folders: tuple[str, ...]) -> None:
         self.folders = folders
+        #: files merged already: two libraries that include one helper read it once (its
+        #: trees were "defined twice", at the same place)
+        self.merged: set[str] = set()
 
     def __call__(
         self, ref: str, loc: Loc, including: str, spec: MissionSpec, stack: tuple[str, ...]
@@ -116,6 +119,9 @@ class Includes:
         if not os.path.exists(full):
             spec.load_problems.append(Problem(loc, f"included file not found: {full}"))
             return
+        if real in self.merged:
+            return
+        self.merged.add(real)
         spec.includes.append(full)
         text = read_text(full, spec.load_problems, loc)
         if text is not None:

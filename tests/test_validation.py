@@ -197,6 +197,29 @@ def test_include_loop_and_missing_include(tmp_path):
     assert "included file not found" in str(problems[0])
 
 
+def test_two_libraries_sharing_a_helper_read_it_once(tmp_path):
+    """x.xml and y.xml both include common.xml: its tree was 'defined twice (first at' the
+    very same place), so two libraries sharing a helper could not be used together."""
+    from bt_engine.mission import check_file
+
+    (tmp_path / "lib").mkdir()
+    lib = '<root><include path="common.xml"/><BehaviorTree ID="{0}"><SubTree ID="Common"/></BehaviorTree></root>'
+    for name in ("X", "Y"):
+        (tmp_path / "lib" / f"{name.lower()}.xml").write_text(lib.format(name))
+    common = '<root><BehaviorTree ID="Common"><AlwaysSuccess/></BehaviorTree></root>'
+    (tmp_path / "lib" / "common.xml").write_text(common)
+    main_xml = tmp_path / "main.xml"
+    main_xml.write_text(
+        '<root main_tree_to_execute="Main"><include path="lib/x.xml"/><include path="lib/y.xml"/>'
+        '<BehaviorTree ID="Main"><Sequence><SubTree ID="X"/><SubTree ID="Y"/></Sequence>'
+        "</BehaviorTree></root>"
+    )
+    assert check_file(str(main_xml), REGISTRY)[1] == []
+    (tmp_path / "lib" / "other.xml").write_text(common)  # a second file defining it: refused
+    (tmp_path / "lib" / "y.xml").write_text(lib.format("Y").replace("common.xml", "other.xml"))
+    assert "tree 'Common' is defined twice" in str(check_file(str(main_xml), REGISTRY)[1][0])
+
+
 def test_cli_validate_exit_code_and_no_traceback(tmp_path, capsys):
     bad = tmp_path / "bad.xml"
     bad.write_text(wrap('<Sequence><Sleeep/><Sleep msec="x"/></Sequence>'))
