@@ -133,6 +133,7 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
                         self.add(node.loc, nesting_message(depth))
                     self.node(node)
         self.model_defaults()
+        self.orphan_models()
         if main in spec.trees:
             self.expansion(main)
         self.unknown_entries()
@@ -160,6 +161,22 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
                         f"<TreeNodesModel> port '{port.name}' of '{model.id}': default "
                         f'{port.default!r} is no {port.type} (type="{port.type}"): {exc}',
                     )
+
+    def orphan_models(self) -> None:
+        """A ``<TreeNodesModel>`` SubTree entry that names no tree (``main`` for ``Main``):
+        its ports (the mission's inputs, their defaults) are not the tree's, silently."""
+        for model in self.spec.models.values():
+            if model.kind != SUBTREE or model.id in self.spec.trees:
+                continue
+            hint = suggest_name(model.id, list(self.spec.trees))
+            same = [t for t in self.spec.trees if t.lower() == model.id.lower()]
+            hint = same[0] if same else hint
+            self.warn(
+                model.loc,
+                f"<TreeNodesModel> entry SubTree '{model.id}' names no tree of this mission"
+                + (f" (did you mean '{hint}'?)" if hint else "")
+                + ": its ports are no tree's inputs",
+            )
 
     def enum_names(self) -> set[str]:
         """Names scripts read that are no entries: enum members of every port type, and

@@ -328,6 +328,9 @@ class _Loader:
                         'inout_port name="...">',
                     )
                     continue
+                if pname in model.ports:  # the last one silently won
+                    self.problem(self.loc(p), f"port '{pname}' of model '{mid}' is declared twice")
+                    continue
                 model.ports[pname] = PortModel(
                     pname, direction, p.get("type", ""), p.get("default"), (p.text or "").strip()
                 )

@@ -451,3 +451,20 @@ def test_a_literal_given_to_a_subtree_port_counts_as_written():
     )
     warnings: list = []
     assert validate(load_xml("m.xml", text=xml), REGISTRY, warnings) == [] and warnings == []
+
+
+def test_a_model_naming_no_tree_is_warned_and_a_port_declared_twice_refused():
+    """``<SubTree ID="main">`` for tree Main lost the mission's inputs silently; a port
+    declared twice kept the last."""
+    model = '<TreeNodesModel><SubTree ID="main"><input_port name="h" default="1"/></SubTree></TreeNodesModel>'
+    warnings: list = []
+    spec = load_xml("m.xml", text=wrap("<AlwaysSuccess/>", model))
+    assert validate(spec, REGISTRY, warnings) == []
+    assert [str(w) for w in warnings] == [
+        "m.xml:5:17: warning: <TreeNodesModel> entry SubTree 'main' names no tree of this "
+        "mission (did you mean 'Main'?): its ports are no tree's inputs"
+    ]
+    twice = model.replace('ID="main"', 'ID="Main"').replace(
+        "</SubTree>", '<input_port name="h" default="2"/></SubTree>'
+    )
+    assert "port 'h' of model 'Main' is declared twice" in one(wrap("<AlwaysSuccess/>", twice))
