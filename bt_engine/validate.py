@@ -472,29 +472,9 @@ def port_read_entries(spec: MissionSpec, registry: Registry) -> set[str]:
 
 
 def written_entries(spec: MissionSpec, registry: Registry) -> set[str] | None:
-    """Every entry something in the mission may write (scripts, output and inout ports,
-    SubTree ports either way, unknown nodes' ports, SetBlackboard), whatever the scope;
-    None when a SetBlackboard's key is chosen at run time (anything may be written)."""
-    v = _Validator(spec, registry)
-    names: set[str] = set()
-    for node in v.nodes():
-        model = registry.get(node.type)
-        for _, script in v.scripts(node):
-            names.update(script.writes)
-        for key, attr in node.attrs.items():
-            ref = blackboard_ref(attr.value)
-            if model is not None and model.id == "SetBlackboard" and key == "output_key":
-                if ref is not None:
-                    return None
-                names.add(str(attr.value).strip())
-            if ref is None:
-                continue
-            name = key if ref == "=" else ref
-            if model is None or model.kind == SUBTREE:
-                names.update((name, key))
-            elif key in model.ports and model.ports[key].writes:
-                names.add(name)
-    return {n.lstrip("@") for n in names}
+    """Every entry something in the mission may write, whatever the scope; None when a
+    SetBlackboard's key is chosen at run time (:meth:`_Validator.written`)."""
+    return _Validator(spec, registry).written()
 
 
 def root_inputs(spec: MissionSpec, registry: Registry) -> tuple[set[str], dict[str, Any]]:

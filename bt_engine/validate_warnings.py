@@ -51,17 +51,44 @@ class _WarningChecks:
     spec: MissionSpec
     registry: Registry
 
+    def written(self) -> set[str] | None:
+        """Every entry something in the mission may write (scripts, output and inout ports,
+        SubTree ports either way and their literals, unknown nodes' ports, SetBlackboard),
+        whatever the scope; None when a SetBlackboard's key is chosen at run time."""
+        names: set[str] = set()
+        for node in self.nodes():
+            model = self.registry.get(node.type)
+            for _, script in self.scripts(node):
+                names.update(script.writes)
+            for key, attr in node.attrs.items():
+                ref = blackboard_ref(attr.value)
+                if model is not None and model.id == "SetBlackboard" and key == "output_key":
+                    if ref is not None:
+                        return None
+                    names.add(str(attr.value).strip())
+                if ref is None:
+                    if model is not None and model.kind == SUBTREE and not key.startswith("_"):
+                        names.add(key)  # a literal given to a SubTree port sets it inside
+                    continue
+                name = key if ref == "=" else ref
+                if model is None or model.kind == SUBTREE:
+                    names.update((name, key))
+                elif key in model.ports and model.ports[key].writes:
+                    names.add(name)
+        return {n.lstrip("@") for n in names}
+
     def unknown_entries(self) -> None:
         """Warn about entries scripts read that nothing in the mission writes or declares.
 
-        Written: script assignments, blackboard references on output/inout ports, on
-        SubTrees (either way) and on unknown nodes, SetBlackboard's ``output_key``;
-        declared: ports of every ``<TreeNodesModel>`` entry (the mission's inputs, SubTree
-        ports), enum names and :data:`KNOWN_ENTRIES`. Scopes are ignored (an entry written
-        anywhere counts), so a warning means the entry can only come from outside the
-        tree: ``--set``, ``Mission(blackboard=...)`` or a plug-in.
+        Written: :meth:`written`; declared: ports of every ``<TreeNodesModel>`` entry (the
+        mission's inputs, SubTree ports), enum names and :data:`KNOWN_ENTRIES`. Scopes are
+        ignored (an entry written anywhere counts), so a warning means the entry can only
+        come from outside the tree: ``--set``, ``Mission(blackboard=...)`` or a plug-in.
         """
-        known = set(KNOWN_ENTRIES)
+        written = self.written()
+        if written is None:
+            return  # the entry a SetBlackboard writes is chosen at run time: anything may be
+        known = set(KNOWN_ENTRIES) | written
         for m in self.spec.models.values():
             known.update(m.ports)
         for model in self.registry.models():
@@ -72,25 +99,13 @@ class _WarningChecks:
         for node in self.nodes():
             model = self.registry.get(node.type)
             for attr, script in self.scripts(node):
-                known.update(script.writes)
                 reads.extend((attr, name) for name in sorted(script.reads))
+            if model is None or model.kind == SUBTREE:
+                continue
             for key, attr in node.attrs.items():
                 ref = blackboard_ref(attr.value)
-                if model is not None and model.id == "SetBlackboard" and key == "output_key":
-                    if ref is not None:
-                        return  # the entry written is chosen at run time: anything may be
-                    known.add(str(attr.value).strip())
-                if ref is None:
-                    if model is not None and model.kind == SUBTREE and not key.startswith("_"):
-                        known.add(key)  # a literal given to a SubTree port sets it inside
-                    continue
-                name = key if ref == "=" else ref
-                if model is None or model.kind == SUBTREE:
-                    known.update((name, key))
-                elif key in model.ports and model.ports[key].writes:
-                    known.add(name)
-                elif key in model.ports:
-                    port_reads.append((attr, name, key))
+                if ref is not None and key in model.ports and not model.ports[key].writes:
+                    port_reads.append((attr, key if ref == "=" else ref, key))
         known = {k.lstrip("@") for k in known}
         for attr, name in reads:
             if name.lstrip("@") not in known:
