@@ -70,8 +70,8 @@ def discrepancy_rows(rows: list[dict], stock: ExpectedStock) -> list[dict]:
         expected = stock.at(place)
         category, found = categorise(expected, r.get("answer") or "", r.get("status") or "")
         moved = ""
-        if category == MISMATCH:
-            moved = stock.place_of(found) or ""
+        if category in (MISMATCH, UNEXPECTED) and found not in (_UNKNOWN, _EMPTY):
+            moved = stock.place_of(found) or ""  # where the stock expects what stands here
         out.append(
             {
                 "place": place,
@@ -113,7 +113,7 @@ def true_category(
     if truth is None:
         return (CONFIRMED if expected == "" else MISSING), ""
     if expected == "":
-        return UNEXPECTED, ""
+        return UNEXPECTED, stock.place_of(truth) or ""
     if truth in not_enrolled:
         return UNVERIFIED, ""
     if pallet_of(truth) == pallet_of(expected):

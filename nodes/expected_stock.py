@@ -97,6 +97,7 @@ class ExpectedStock:
     locs: dict[str, Loc] = field(default_factory=dict)
     #: SHA-256 of the file's bytes as read (which WMS export a report was made against)
     sha256: str = ""
+    _where: tuple[int, dict[str, str]] | None = field(default=None, repr=False, compare=False)
 
     def source(self) -> dict[str, str]:
         """Which file the stock was read from: its absolute path and SHA-256."""
@@ -111,11 +112,13 @@ class ExpectedStock:
 
     def place_of(self, pallet: str) -> str | None:
         """The place where ``pallet`` (or a side of it: ``103B``) is expected, or None."""
-        want = pallet_of(pallet)
-        for place, p in self.places.items():
-            if p is not None and pallet_of(p) == want:
-                return place
-        return None
+        if self._where is None or self._where[0] != len(self.places):
+            index: dict[str, str] = {}
+            for place, p in self.places.items():
+                if p is not None:
+                    index.setdefault(pallet_of(p), place)
+            self._where = (len(self.places), index)  # one pass, not one per question
+        return self._where[1].get(pallet_of(pallet))
 
 
 def read_expected(

@@ -333,6 +333,9 @@ def test_discrepancy_rows_name_where_a_found_pallet_was_expected():
     assert out["A-01-1"]["category"] == "mismatch" and out["A-01-1"]["moved_from"] == "A-01-2"
     assert out["A-01-2"]["moved_from"] == "A-01-1"
     assert (out["A-02-1"]["category"], out["A-02-1"]["found"]) == ("unexpected", "104")
+    # an unexpected pallet the stock expects elsewhere says where (the operator matched the
+    # 'missing' A-02-2 and the 'unexpected' A-02-1 by hand)
+    assert out["A-02-1"]["moved_from"] == "A-02-2"
     assert out["A-02-2"]["category"] == "missing"
 
 
