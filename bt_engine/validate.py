@@ -21,6 +21,7 @@ The expanded-tree checks are in :mod:`bt_engine.validate_expansion`, the warning
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from bt_engine.ports import NO_DEFAULT, PortValueError, blackboard_ref, declared_type
@@ -148,10 +149,25 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
         """A ``<TreeNodesModel>`` port's default must be a value of its declared type
         (``type="int" default="five"`` was taken, and failed only where it was read)."""
         by_ports = port_read_entries(self.spec, self.registry)  # said there, with the node
+        main = self.spec.models.get(self.spec.main_tree_id() or "")
+        limit = main.ports.get("max_time") if main is not None else None
+        if limit is not None and limit.default not in (None, ""):  # btrun's own input
+            try:
+                seconds = float(limit.default)
+            except ValueError:
+                seconds = math.nan
+            if not (math.isfinite(seconds) and seconds > 0):  # btrun run refused it; so
+                self.add(  # does btrun validate now
+                    main.loc,
+                    f"max_time: the mission's time limit must be a time in s > 0, got "
+                    f"{limit.default!r}",
+                )
         for model in self.spec.models.values():
             for port in model.ports.values():
                 kind = declared_type(port.type)
                 if kind is None or port.default in (None, "") or port.name in by_ports:
+                    continue
+                if port is limit:  # said above, as the time limit
                     continue
                 try:
                     kind.convert(port.default)

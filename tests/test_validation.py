@@ -468,3 +468,14 @@ def test_a_model_naming_no_tree_is_warned_and_a_port_declared_twice_refused():
         "</SubTree>", '<input_port name="h" default="2"/></SubTree>'
     )
     assert "port 'h' of model 'Main' is declared twice" in one(wrap("<AlwaysSuccess/>", twice))
+
+
+def test_a_time_limit_default_no_run_could_take_is_a_validation_error():
+    """``max_time`` default="-5": btrun validate said ok and btrun run refused it."""
+    model = (
+        '<TreeNodesModel><SubTree ID="Main"><input_port name="max_time" type="double" '
+        'default="-5"/></SubTree></TreeNodesModel>'
+    )
+    assert one(wrap("<AlwaysSuccess/>", model)) == (
+        "m.xml:5:17: max_time: the mission's time limit must be a time in s > 0, got '-5'"
+    )
