@@ -373,6 +373,22 @@ class InventoryStore:
             q += f" LIMIT {int(limit)}"
         return list(rows_as_dicts(self.conn.execute(q, (place,)), keys))[::-1]
 
+    def answers_like(self, text: str, limit: int | None = None) -> list[dict]:
+        """Rows whose answer contains ``text`` (the caller picks the pallet's own), run by run
+        (oldest first; the newest ``limit``), with the run's start and status; rows a resumed
+        run carried over are left out as in :meth:`history`."""
+        keys = ("run", "started", "run_status", *ROW_FIELDS)
+        pattern = "%" + text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
+        q = "SELECT i.run, r.started, r.status, "
+        q += ", ".join(f"i.{k}" for k in ROW_FIELDS)
+        q += " FROM inventory_rows i JOIN runs r ON r.run = i.run "
+        q += "WHERE i.answer LIKE ? ESCAPE '\\' AND (i.origin IS NULL OR i.origin = i.run "
+        q += "OR NOT EXISTS (SELECT 1 FROM runs o WHERE o.run = i.origin)) "
+        q += "ORDER BY r.started DESC, i.run DESC, i.place"
+        if limit:
+            q += f" LIMIT {int(limit)}"
+        return list(rows_as_dicts(self.conn.execute(q, (pattern,)), keys))[::-1]
+
     def counts(self) -> dict[str, tuple[int, int]]:
         """Run -> (rows, answered rows: every status but ``not_scanned``), in one query.
 

@@ -152,3 +152,25 @@ def test_a_run_folder_without_a_date_keeps_its_start(tmp_path, capsys) -> None:
     assert main(["inventory", "runs", "--store", store, "--json"]) == 0
     runs = json.loads(capsys.readouterr().out)
     assert {r["run"]: r["started"] for r in runs} == when
+
+
+@pytest.mark.parametrize("db", ["sqlite", "postgresql"])
+def test_where_a_pallet_was_seen_run_by_run(tmp_path, capsys, request, db) -> None:
+    """History took only a place: 'history 111' said "no row for place '111'"."""
+    store = f"sqlite:///{tmp_path}/site.sqlite"
+    if db == "postgresql":
+        store = request.getfixturevalue("postgresql_server").database("pallet_history")
+    a = _run_folder(
+        tmp_path / "inventory-20261101-080000",
+        [("A-01-1", "111A", "identified"), ("A-01-2", "1110B", "identified")],
+    )
+    b = _run_folder(tmp_path / "inventory-20261102-080000", [("B-03-2", "111B", "identified")])
+    assert main(["inventory", "import", a, b, "--store", store]) == 0
+    capsys.readouterr()
+    assert main(["inventory", "history", "--pallet", "0111", "--store", store, "--json"]) == 0
+    seen = [
+        (h["run"][-15:-7], h["place"], h["answer"]) for h in json.loads(capsys.readouterr().out)
+    ]
+    assert seen == [("20261101", "A-01-1", "111A"), ("20261102", "B-03-2", "111B")]
+    assert main(["inventory", "history", "111", "--store", store]) == 2
+    assert "(where a pallet was seen: history --pallet 111)" in capsys.readouterr().err

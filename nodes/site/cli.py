@@ -3,6 +3,7 @@
 ::
 
     btrun inventory history A-03-2                 # what was found at A-03-2, run by run
+    btrun inventory history --pallet 111           # where pallet 111 was seen, run by run
     btrun inventory diff RUN_A RUN_B               # places whose answer changed
     btrun inventory runs                           # the runs recorded
     btrun inventory import runs/inventory-*        # load run folders flown before
@@ -38,8 +39,13 @@ def _limit(parser: argparse.ArgumentParser) -> None:
 def setup(p: argparse.ArgumentParser) -> None:
     """Arguments of ``btrun inventory``."""
     sub = p.add_subparsers(dest="inventory_command", metavar="SUBCOMMAND", required=True)
-    hi = sub.add_parser("history", help="what was found at a place, run by run")
-    hi.add_argument("place", help="place name, e.g. A-03-2")
+    hi = sub.add_parser(
+        "history", help="what was found at a place, or where a pallet was seen, run by run"
+    )
+    hi.add_argument("place", nargs="?", help="place name, e.g. A-03-2")
+    hi.add_argument(
+        "--pallet", metavar="PALLET", help="where this pallet (any side: 111, 111B) was seen"
+    )
     _limit(hi)
     di = sub.add_parser("diff", help="what changed between two inventories")
     di.add_argument("run_a", help="the earlier run (its folder's name, or the folder)")
@@ -94,7 +100,42 @@ def _number(v: Any) -> str | None:
     return f"{v:.3f}" if isinstance(v, float) else None
 
 
+def _pallet_history(store: InventoryStore, args: argparse.Namespace) -> int:
+    from perception.expected import pallet_of
+
+    want = pallet_of(args.pallet)
+    found = [h for h in store.answers_like(want) if pallet_of(h["answer"] or "") == want]
+    found = found[-args.limit :] if args.limit else found
+    if not found:
+        raise StoreError(f"{store.shown}: pallet {args.pallet!r} was not seen in any run")
+    if args.json:
+        print(json.dumps(found, indent=1))
+        return 0
+    _table(
+        f"pallet {want}: seen {plural(len(found), 'time')} ({store.shown})",
+        ["run", "started", "place", "answer", "status", "drone", "distance", "run status"],
+        [
+            [
+                h["run"],
+                _when(h["started"]),
+                h["place"],
+                h["answer"],
+                h["status"],
+                h["drone"],
+                _number(h["distance"]),
+                h["run_status"],
+            ]
+            for h in found
+        ],
+    )
+    return 0
+
+
 def _history(store: InventoryStore, args: argparse.Namespace) -> int:
+    if (args.place is None) == (args.pallet is None):
+        raise StoreError("history takes a place (history A-03-2) or a pallet (--pallet 111)")
+    if args.pallet is not None:
+        return _pallet_history(store, args)
     found = store.history(args.place, args.limit)
     if not found:
         import difflib
@@ -106,7 +147,11 @@ def _history(store: InventoryStore, args: argparse.Namespace) -> int:
                 "carried over; each is in the history of the run that found it"
             )
         close = difflib.get_close_matches(args.place, places, n=1)
-        hint = f" (did you mean {close[0]}?)" if close else ""
+        hint = (
+            f" (did you mean {close[0]}?)"
+            if close
+            else f" (where a pallet was seen: history --pallet {args.place})"
+        )
         raise StoreError(f"{store.shown}: no row for place {args.place!r}{hint}")
     if args.json:
         print(json.dumps(found, indent=1))
