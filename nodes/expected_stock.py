@@ -41,6 +41,7 @@ from nodes.stock_files import (
     entries_xlsx,
     export_text,
     not_text,
+    with_cells,
 )
 from perception.expected import pallet_of
 
@@ -138,8 +139,9 @@ def read_expected(
     data = read_bytes(path, read, where, what="expected stocks", limit=MAX_EXPECTED_BYTES)
     if data is None:
         return None, [Problem(where, f"expected stock: {read[0].message}")]
+    sheet = ""  # an XLSX's sheet: its problems name their cells
     if path.lower().endswith((".xlsx", ".xlsm")) or data.startswith(ZIP_MAGIC):
-        entries, problems = entries_xlsx(path, data)
+        entries, problems, sheet = entries_xlsx(path, data)
     else:
         try:
             text = not_text(data) or export_text(data)
@@ -215,6 +217,7 @@ def read_expected(
             pallet_at[key] = (place, where_place, pallet)
     if not entries and not problems:
         problems.append(Problem(Loc(path, 1, 1), "the expected stock lists no place"))
+    problems = with_cells(path, sheet, problems)  # an XLSX: Stock!B6 besides row:column
     if len(problems) > MAX_PROBLEMS_SAID:  # a wrong file altogether: the first ones say it
         more = len(problems) - MAX_PROBLEMS_SAID
         problems = problems[:MAX_PROBLEMS_SAID] + [

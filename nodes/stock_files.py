@@ -300,14 +300,33 @@ def xlsx_table(
         wb.close()
 
 
-def entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+def cell_name(sheet: str, row: int, col: int) -> str:
+    """A spreadsheet's name of a cell: ``Stock!B6`` (``'My stock'!AA10``)."""
+    letters = ""
+    while col > 0:
+        col, rem = divmod(col - 1, 26)
+        letters = chr(ord("A") + rem) + letters
+    quoted = sheet if sheet.replace("_", "").isalnum() else "'" + sheet.replace("'", "''") + "'"
+    return f"{quoted}!{letters}{row}"
+
+
+def entries_xlsx(
+    path: str, data: bytes
+) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem], str]:
     """(place, pallet, where, where) per row of the first sheet of an XLSX workbook (as a
     WMS exports it: a header row with ``place`` and ``pallet``), located as
-    ``file:row:column``."""
+    ``file:row:column``, the problems, and the sheet's title (for :func:`with_cells`)."""
     odd: dict[tuple[int, int], str] = {}
     title, header, rows, problems = xlsx_table(
         path, data, MAX_EXPECTED_PLACES, ("place", "pallet"), odd
     )
+    entries, problems = _xlsx_entries(path, data, title, header, rows, problems, odd)
+    return entries, problems, title
+
+
+def _xlsx_entries(
+    path: str, data: bytes, title: str, header: list, rows: list, problems: list, odd: dict
+) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
     if problems and not rows:
         return [], problems
     names = [h.lower() for h in header]
@@ -352,6 +371,20 @@ def entries_xlsx(path: str, data: bytes) -> tuple[list[tuple[str, str, Loc, Loc]
             continue
         out.append((place, pallet, Loc(path, i, pc + 1), Loc(path, i, qc + 1)))
     return out, problems
+
+
+def with_cells(path: str, sheet: str, problems: list[Problem]) -> list[Problem]:
+    """``problems`` located in sheet ``sheet`` of the workbook ``path`` with the cell's name
+    added to their message (``... (cell Stock!B6)``): a spreadsheet user looks for a cell,
+    not a line."""
+    if not sheet:
+        return problems
+    return [
+        Problem(p.loc, f"{p.message} (cell {cell_name(sheet, p.loc.line, p.loc.col)})", p.severity)
+        if p.loc.file == path and p.loc.line > 0 and p.loc.col > 0
+        else p
+        for p in problems
+    ]
 
 
 def _unsaved_formulas(data: bytes, rows: set[int], col: int) -> dict[int, str]:

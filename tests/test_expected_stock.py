@@ -207,6 +207,17 @@ def test_xlsx_cells_that_are_no_pallet_name_are_refused(tmp_path, world):
         (6, 2, "a date or time cell"),
     ]
     assert "open and save it" in problems[0].message
+    # a spreadsheet user looks for a cell: each problem names it as the spreadsheet does
+    assert [p.message.rsplit(" (cell ", 1)[1] for p in problems] == [
+        "Stock!B2)",
+        "Stock!B3)",
+        "Stock!B4)",
+        "Stock!B5)",
+        "Stock!B6)",
+    ]
+    from nodes.stock_files import cell_name
+
+    assert cell_name("My stock", 10, 27) == "'My stock'!AA10"
 
 
 def test_a_wrong_file_says_its_first_problems_only(tmp_path, world):
