@@ -11,6 +11,9 @@ perhaps minutes into a flight; it is refused before anything flies.
 Entries are matched within one ``<BehaviorTree>`` (its own blackboard scope) and across
 trees for ``{@entry}`` (the root blackboard). Values passed through SubTree ports and
 written by scripts or ``SetBlackboard`` are not typed here.
+
+The second check of blackboard scopes here: a SubTree call that leaves an entry its tree
+reads unset (:meth:`_TypeChecks.subtree_reads`).
 """
 
 from __future__ import annotations
