@@ -288,3 +288,21 @@ def test_audit_text_takes_no_format_characters_and_trimmed_formulas_are_defused(
     with pytest.raises(ReviewError, match="printable characters"):
         decide(RunsRoot(str(root)), "r", request, None, GalleryDesk())
     assert not (run / REVIEW_JSON).exists()
+
+
+def test_a_link_to_a_run_in_the_runs_folder_is_not_a_second_run(root):
+    """runs/linkin -> r1 was listed as a run of its own (decisions through it went to r1)."""
+    _run(root, "r1", [_row("A-01-1", "101A", "identified")], ["A-01-1"])
+    os.symlink(root / "r1", root / "linkin")
+    skipped: list[str] = []
+    assert [r["name"] for r in list_runs(RunsRoot(str(root)), skipped)] == ["r1"]
+    assert skipped == ["'linkin' (a link to run 'r1')"]
+
+
+def test_a_place_the_run_never_scanned_says_so_when_reviewed(root):
+    """It said "no row for place 'A-02-1'" (404) for a place the run planned."""
+    _run(root, "cut", [_row("A-01-1", "unknown", "unknown")], ["A-01-1", "A-02-1"])
+    request = {"place": "A-02-1", "decision": "leave_unknown", "reviewer": "ana"}
+    with pytest.raises(ReviewError, match="A-02-1 was not scanned") as exc:
+        decide(RunsRoot(str(root)), "cut", request, None, GalleryDesk())
+    assert exc.value.status == 409

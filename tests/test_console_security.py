@@ -156,7 +156,14 @@ def test_a_decision_needs_the_token(runs):
         wrong = {**host, "X-Console-Token": TOKEN + "x"}
         assert _raw(port, "POST", path, decision, wrong)[0] == 403
         assert not os.path.exists(os.path.join(runs, RUN, "review.json"))
-        status, body = _raw(port, "POST", path, decision, {**host, "X-Console-Token": TOKEN})
+        # another site's page posting with the token (a leaked URL): refused by its origin
+        evil = {**host, "X-Console-Token": TOKEN, "Origin": "http://evil.example"}
+        assert _raw(port, "POST", path, decision, evil)[0] == 403
+        fetch = {**host, "X-Console-Token": TOKEN, "Sec-Fetch-Site": "cross-site"}
+        assert _raw(port, "POST", path, decision, fetch)[0] == 403
+        assert not os.path.exists(os.path.join(runs, RUN, "review.json"))
+        own = {**host, "X-Console-Token": TOKEN, "Origin": f"http://127.0.0.1:{port}"}
+        status, body = _raw(port, "POST", path, decision, own)
         assert status == 200 and json.loads(body)["decision"]["answer"] == "unknown"
         # a form post with the token as a field works too; a settled place may be decided
         # again, naming the decision it replaces (not one made meanwhile it never saw)

@@ -124,6 +124,18 @@ class BodyTooLarge(Exception):
     """A request body grew past :data:`MAX_BODY_BYTES` while it arrived."""
 
 
+def same_origin(headers: Any) -> bool:
+    """False when a browser says the request comes from another site: an ``Origin`` whose
+    host is not the request's ``Host``, or ``Sec-Fetch-Site: cross-site``. A client that
+    sends neither (curl, a script with the token) is not a browser page: allowed."""
+    if headers.get("sec-fetch-site", "").lower() == "cross-site":
+        return False
+    origin = headers.get("origin")
+    if not origin or origin == "null":
+        return origin != "null"
+    return urllib.parse.urlsplit(origin).netloc.lower() == headers.get("host", "").lower()
+
+
 def attachment(filename: str) -> str:
     """A ``Content-Disposition`` for a download named ``filename`` in any script (RFC 6266:
     an ASCII fallback, and the UTF-8 name percent-encoded): headers are Latin-1, and a run
@@ -299,6 +311,8 @@ def make_app(config: ConsoleConfig) -> Starlette:
             return _plain(413, "request body too large")
         except ValueError as exc:
             return JSONResponse({"error": str(exc)}, status_code=400)
+        if not same_origin(request.headers):  # a page of another site posting with a token
+            return JSONResponse({"error": "a review comes from the console's own page"}, 403)
         token = request.headers.get(TOKEN_HEADER) or str(fields.get("token") or "")
         if not hmac.compare_digest(token.encode(), config.token.encode()):
             return JSONResponse({"error": "a review needs the console's token"}, 403)

@@ -167,10 +167,14 @@ def decide(
         )
     reviewer = _text(request.get("reviewer"), "reviewer", 64)
     reason = _text(request.get("reason"), "reason", 500, required=False)
-    rows, _, error = read_rows(run_dir)
+    rows, planned, error = read_rows(run_dir)
     if error:
         raise ReviewError(f"the run's rows cannot be read: {error}", 409)
     row = next((r for r in rows if r["place"] == place), None)
+    if row is None and place in planned:
+        raise ReviewError(
+            f"{place} was not scanned: there is nothing to review (resume the run)", 409
+        )
     if row is None:
         raise ReviewError(f"no row for place {place!r:.70}", 404)
     if not needs_review(row):

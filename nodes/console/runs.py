@@ -428,7 +428,19 @@ def list_runs(root: RunsRoot, skipped: list[str] | None = None) -> list[dict]:
                 skipped.append(f"{e.name!r:.80} (a link out of the runs folder)")
             continue
         if is_run(path):
-            found.append((max(_mtime(path), _mtime(os.path.join(path, "summary.json"))), e.name))
+            stamp = max(_mtime(path), _mtime(os.path.join(path, "summary.json")))
+            found.append((stamp, e.name, path, e.is_symlink()))
+    real = {path: name for _, name, path, link in found if not link}
+    kept = []
+    for stamp, name, path, link in found:  # a link to a run listed by its own name: once
+        if link and path in real:
+            if skipped is not None:
+                skipped.append(f"{name!r:.80} (a link to run {real[path]!r:.80})")
+            continue
+        real.setdefault(path, name)
+        if real[path] == name:
+            kept.append((stamp, name))
+    found = kept
     found.sort(reverse=True)
     if len(found) > MAX_RUNS and skipped is not None:  # said, not silently cut
         skipped.append(
