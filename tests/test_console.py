@@ -102,6 +102,12 @@ def test_the_map_and_table_match_inventory_csv(runs):
         )
         assert detail.locator("table.candidates tbody tr").count() == 5
         screenshot(page, "inventory")
+        # by keyboard alone: a rack cell takes the focus and Enter opens it
+        other = next(r["place"] for r in rows if r["place"] != place)
+        page.focus(f'#racks g.place[data-place="{other}"]')
+        page.keyboard.press("Enter")
+        page.locator(f'#place-detail[data-place="{other}"]').wait_for()
+        assert page.get_attribute("#filter", "aria-label") == "filter places"
         assert not page.errors
 
 

@@ -41,11 +41,23 @@ function svg(tag, attrs, ...children) {
   return node;
 }
 
+// Elements that act on a click without being a link or a button (a rack cell, a table row,
+// a sortable header) are reachable by keyboard too: Tab to them, Enter or Space acts.
+const NATIVE = new Set(["a", "button", "input", "select", "textarea", "summary", "label"]);
+
 function setAttrs(node, attrs) {
   for (const [k, v] of Object.entries(attrs || {})) {
     if (v === null || v === undefined || v === false) continue;
     if (k.startsWith("on") && typeof v === "function") node.addEventListener(k.slice(2), v);
     else node.setAttribute(k, v === true ? "" : String(v));
+  }
+  const click = attrs && attrs.onclick;
+  if (typeof click === "function" && !NATIVE.has(node.localName)) {
+    if (!node.hasAttribute("tabindex")) node.setAttribute("tabindex", "0");
+    if (!node.hasAttribute("role") && !["th", "tr", "td"].includes(node.localName)) node.setAttribute("role", "button");
+    node.addEventListener("keydown", (e) => {
+      if (e.key === "Enter" || e.key === " ") { e.preventDefault(); click(e); }
+    });
   }
 }
 

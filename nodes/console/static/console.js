@@ -264,12 +264,12 @@ function renderRun() {
   const i = state.info;
   const exp = (kind, fmt) => el("a", { href: `/export/${encodeURIComponent(RUN)}/${kind}.${fmt}`, class: "button", "data-export": `${kind}.${fmt}`, download: "" }, `${kind} ${fmt.toUpperCase()}`);
   const pending = i.queue.filter((p) => !reviewOf(p)).length;
-  const colourBy = el("select", { id: "colour-by", onchange: (e) => { state.colourBy = e.target.value; renderRun(); } },
+  const colourBy = el("select", { id: "colour-by", "aria-label": "colour the racks by", onchange: (e) => { state.colourBy = e.target.value; renderRun(); } },
     ["status", "grade", "discrepancy"].map((k) => el("option", { value: k, selected: state.colourBy === k }, `colour by ${k}`)));
-  const filter = el("input", { id: "filter", type: "search", placeholder: "filter places", value: state.filter,
+  const filter = el("input", { id: "filter", type: "search", placeholder: "filter places", "aria-label": "filter places", value: state.filter,
     oninput: (e) => { state.filter = e.target.value; renderTable(); } });
   const statuses = [...new Set(i.rows.map((r) => r.status))].sort();
-  const statusSel = el("select", { id: "status-filter", onchange: (e) => { state.statusFilter = e.target.value; renderTable(); } },
+  const statusSel = el("select", { id: "status-filter", "aria-label": "show only places of status", onchange: (e) => { state.statusFilter = e.target.value; renderTable(); } },
     el("option", { value: "" }, "every status"), statuses.map((s) => el("option", { value: s, selected: state.statusFilter === s }, s)));
   mount(
     el("h1", {}, i.name, " ", el("span", { id: "run-status", class: `status status-${i.status}` }, i.status)),
