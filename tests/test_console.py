@@ -10,6 +10,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import shutil
 import threading
 
@@ -51,6 +52,7 @@ def test_the_runs_page_lists_the_fleet(runs):
         assert cells[1].startswith("fleet (2 drones)")
         assert cells[2] == "inventory.xml" and cells[3] == "SUCCESS"
         assert cells[4] == "8/8" and cells[5] == "100 %"
+        assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC([+-]\d\d(:\d\d)?)?", cells[-1]), cells
         screenshot(page, "runs")
         assert not page.errors
 

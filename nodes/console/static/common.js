@@ -72,10 +72,13 @@ function fmtNumber(v, digits) {
 }
 
 function fmtTime(epochS) {
+  // local time, with its offset from UTC: the exports are in UTC ("...Z")
   if (typeof epochS !== "number" || !epochS) return "";
   const d = new Date(epochS * 1000);
   const p = (n) => String(n).padStart(2, "0");
-  return `${d.getFullYear()}-${p(d.getMonth() + 1)}-${p(d.getDate())} ${p(d.getHours())}:${p(d.getMinutes())}`;
+  const off = -d.getTimezoneOffset();
+  const zone = off === 0 ? "UTC" : `UTC${off > 0 ? "+" : "-"}${p(Math.floor(Math.abs(off) / 60))}${Math.abs(off) % 60 ? ":" + p(Math.abs(off) % 60) : ""}`;
+  return `${d.getFullYear()}-${p(d.getMonth() + 1)}-${p(d.getDate())} ${p(d.getHours())}:${p(d.getMinutes())} ${zone}`;
 }
 
 function pct(share) {
