@@ -98,13 +98,20 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
 
     def run(self) -> list[Problem]:
         spec = self.spec
+        yaml = (spec.file or "").lower().endswith((".yaml", ".yml"))  # said in its own words
         if not spec.trees and not spec.load_problems:
-            self.add(spec.root_loc or _file_loc(spec), "the mission has no <BehaviorTree>")
+            self.add(
+                spec.root_loc or _file_loc(spec),
+                "the mission has no tree (trees: is empty)"
+                if yaml
+                else "the mission has no <BehaviorTree>",
+            )
         main = spec.main_tree_id()
         if spec.trees and main is None:
             self.add(
                 spec.root_loc or _file_loc(spec),
-                "no main tree: set main_tree_to_execute to one of " + ", ".join(sorted(spec.trees)),
+                f"no main tree: set {'main:' if yaml else 'main_tree_to_execute'} to one of "
+                + ", ".join(sorted(spec.trees)),
             )
         elif main is not None and main not in spec.trees and spec.trees:
             hint = suggest_name(main, list(spec.trees))

@@ -479,3 +479,14 @@ def test_a_time_limit_default_no_run_could_take_is_a_validation_error():
     assert one(wrap("<AlwaysSuccess/>", model)) == (
         "m.xml:5:17: max_time: the mission's time limit must be a time in s > 0, got '-5'"
     )
+
+
+def test_a_yaml_mission_is_told_in_yaml_words(tmp_path):
+    """'set main_tree_to_execute' is XML: a YAML mission has a main: key."""
+    from bt_engine.mission import check_file
+
+    path = tmp_path / "m.yaml"
+    path.write_text("btrun: 1\ntrees:\n  A: {AlwaysSuccess: {}}\n  B: {AlwaysSuccess: {}}\n")
+    assert [str(p) for p in check_file(str(path), REGISTRY)[1]] == [
+        f"{path}:1:1: no main tree: set main: to one of A, B"
+    ]
