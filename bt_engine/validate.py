@@ -303,6 +303,8 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
                 err = check_script(str(attr.value))
                 if err:
                     self.add(attr.loc, f"bad script {attr.value!r}: {err}")
+        if node.type in ("Parallel", "ParallelAll"):
+            self.parallel_counts(node, n)
         for port in model.ports.values():
             if port.required and port.name not in node.attrs:
                 self.add(
@@ -310,6 +312,26 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
                     f"{node.type} needs port '{port.name}' ({port.type.expected}"
                     + (f": {port.description}" if port.description else "")
                     + ")",
+                )
+
+    def parallel_counts(self, node: NodeSpec, children: int) -> None:
+        """A literal count a Parallel cannot reach with its children: BehaviorTree.CPP (and
+        btrun, tick for tick like it) raise when it is first ticked, which aborts the run;
+        warned before flight (a count from the blackboard is only known then)."""
+        for key in ("success_count", "failure_count", "max_failures"):
+            attr = node.attrs.get(key)
+            if attr is None or blackboard_ref(attr.value) is not None:
+                continue
+            try:
+                value = int(str(attr.value).strip(), 10)
+            except ValueError:
+                continue  # said by the port's own check
+            need = max(children + value + 1, 0) if value < 0 else value
+            if need > children:
+                self.warn(
+                    attr.loc,
+                    f"{node.type} {key}={value} but only {plural(children, 'child', 'children')}: "
+                    "the run aborts when it is first ticked",
                 )
 
     def subtree(self, node: NodeSpec) -> None:

@@ -490,3 +490,13 @@ def test_a_yaml_mission_is_told_in_yaml_words(tmp_path):
     assert [str(p) for p in check_file(str(path), REGISTRY)[1]] == [
         f"{path}:1:1: no main tree: set main: to one of A, B"
     ]
+
+
+def test_a_parallel_count_its_children_cannot_reach_is_warned_before_flight():
+    """It aborted the run in the air, when first ticked (as BehaviorTree.CPP raises then)."""
+    xml = wrap('<Parallel success_count="3"><AlwaysSuccess/><AlwaysSuccess/></Parallel>')
+    warnings: list = []
+    assert validate(load_xml("m.xml", text=xml), REGISTRY, warnings) == []
+    assert [w.message for w in warnings] == [
+        "Parallel success_count=3 but only 2 children: the run aborts when it is first ticked"
+    ]
