@@ -149,6 +149,7 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
         if main in spec.trees:
             self.subtree_reads()
         self.unbounded_loops()
+        self.reactive_children()
         self.warnings = sorted(set(self.warnings), key=_order)
         return sorted(set(self.problems), key=_order)
 

@@ -157,6 +157,25 @@ class _WarningChecks:
                 return False
         return True
 
+    def reactive_children(self) -> None:
+        """Warn about a reactive control with more than one child that can be RUNNING: it
+        ticks its children from the first every tick, so an earlier one that runs again
+        halts a later one, and the control may never end (a ReactiveSequence of two Hovers
+        hovered until the time limit)."""
+        for node in self.nodes():
+            if node.type not in ("ReactiveSequence", "ReactiveFallback"):
+                continue
+            waiting = [c for c in node.children if not self.instant(c)]
+            if len(waiting) > 1:
+                shown = ", ".join(f"{c.type} ({c.loc})" for c in waiting[:3])
+                self.warn(
+                    node.type_loc or node.loc,
+                    f"{node.type} has {len(waiting)} children that can be RUNNING ({shown}): "
+                    "every tick starts again from its first child, so a later one is halted "
+                    "whenever an earlier one runs again and it may never end; keep all but "
+                    "the last instant (conditions)",
+                )
+
     def unbounded_loops(self) -> None:
         """Warn about ``Repeat``/``RetryUntilSuccessful`` with -1 around instant children."""
         for node in self.nodes():

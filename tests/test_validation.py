@@ -500,3 +500,13 @@ def test_a_parallel_count_its_children_cannot_reach_is_warned_before_flight():
     assert [w.message for w in warnings] == [
         "Parallel success_count=3 but only 2 children: the run aborts when it is first ticked"
     ]
+
+
+def test_a_reactive_control_with_two_waiting_children_is_warned():
+    """ReactiveSequence[Hover, Hover] hovered until the mission's time limit."""
+    two = '<ReactiveSequence><Sleep msec="300"/><Sleep msec="300"/></ReactiveSequence>'
+    one_waits = '<ReactiveSequence><AlwaysSuccess/><Sleep msec="300"/></ReactiveSequence>'
+    for body, n in ((two, 1), (one_waits, 0)):
+        warnings: list = []
+        assert validate(load_xml("m.xml", text=wrap(body)), REGISTRY, warnings) == []
+        assert len([w for w in warnings if "children that can be RUNNING" in w.message]) == n
