@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 
 import cv2
 import numpy as np
@@ -36,8 +37,17 @@ def test_enrol_list_evaluate_export_remove(tmp_path, capsys):
     # enrol the exported crops under a new name: the same pallet, so it matches 2B exactly
     crops = [str(out_dir / f"2B_block_{i}.png") for i in (1, 2, 3)]
     assert main(["gallery", "enrol", g, "2B-copy", "--crops", *crops]) == 0
+    # a run folder's last whole scan (the report writes scan_<n>_block_<i>.png; --run looked
+    # for block_<i>.png, which runs no longer write, and always failed)
+    scans = tmp_path / "run" / "perception"
+    scans.mkdir(parents=True)
+    for i in (1, 2, 3):
+        shutil.copy(out_dir / f"2B_block_{i}.png", scans / f"scan_2_block_{i}.png")
+    shutil.copy(out_dir / "4A_block_1.png", scans / "scan_3_block_1.png")  # cut short
+    assert main(["gallery", "enrol", g, "2B-run", "--run", str(tmp_path / "run")]) == 0
+    assert "(4 pallet sides)" in capsys.readouterr().out
     assert main(["gallery", "remove", g, "4A"]) == 0
-    assert "2 pallet sides left" in capsys.readouterr().out  # 2B and 2B-copy remain
+    assert "3 pallet sides left" in capsys.readouterr().out  # 2B, 2B-copy, 2B-run remain
     assert main(["gallery", "list", g]) == 0
     out = capsys.readouterr().out
     assert "4A" not in out and "2B-copy" in out

@@ -196,3 +196,12 @@ def test_action_spans_from_status_changes():
         ("S/d", 0.12, 0.14, "running"),  # still running when the trace ends
     ]
     assert short_labels(["T/c1/goto", "T/c2/goto", "T/land"]) == ["c1/goto", "c2/goto", "land"]
+
+
+def test_numbers_summary_json_keeps_as_text_are_shown_not_multiplied():
+    """A one-side gallery's margin is infinite, kept in summary.json as "inf": the report
+    multiplied the text and was left empty (0 bytes, TypeError)."""
+    from nodes.report.html import _fmt
+
+    assert _fmt("inf") == _fmt(float("inf")) == "\u2014"
+    assert _fmt("0.25", ".2f", 100) == "25.00" and _fmt("n/a") == "n/a"

@@ -30,6 +30,7 @@ import argparse
 import glob
 import json
 import os
+import re
 import sys
 import time
 from typing import Any
@@ -37,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from bt_engine.arg_types import count
+from bt_engine.spec import plural
 from perception.gallery_pg import is_gallery_url
 
 #: how an operator's review (``btrun console``) names itself in a gallery's history ``run``
@@ -293,10 +295,23 @@ def _read_png(path: str) -> np.ndarray:
 
 
 def _crops_of_run(run_dir: str) -> list[np.ndarray]:
-    paths = sorted(glob.glob(os.path.join(run_dir, "perception", "block_*.png")))
+    """The three block crops of the run's last scan: ``perception/scan_<n>_block_1..3.png``
+    of the report (the highest ``n`` with all three), or ``block_1..3.png`` of a run folder
+    written before scans were numbered."""
+    folder = os.path.join(run_dir, "perception")
+    scans: dict[int, list[str]] = {}
+    for path in glob.glob(os.path.join(folder, "scan_*_block_*.png")):
+        m = re.fullmatch(r"scan_(\d+)_block_([123])\.png", os.path.basename(path))
+        if m:
+            scans.setdefault(int(m.group(1)), []).append(path)
+    whole = [n for n, paths in scans.items() if len(paths) == 3]
+    paths = sorted(scans[max(whole)]) if whole else []
+    if not paths:
+        paths = sorted(glob.glob(os.path.join(folder, "block_[123].png")))
     if len(paths) < 3:
         raise GalleryCommandError(
-            f"{run_dir}: no scan with three blocks (expected perception/block_1..3.png)"
+            f"{run_dir}: no scan with three blocks (expected perception/scan_N_block_1..3.png, "
+            "written with the run's report)"
         )
     return [_read_png(p) for p in paths[-3:]]
 
@@ -329,7 +344,7 @@ def _enrol(args: argparse.Namespace) -> int:
     g.enrol(
         args.name, desc.vectors, [png_bytes(c) for c in crops], source, not args.no_replace, vis
     )
-    print(f"enrolled {args.name} in {g.path} ({len(g)} pallet sides)")
+    print(f"enrolled {args.name} in {g.path} ({plural(len(g), 'pallet side')})")
     return 0
 
 

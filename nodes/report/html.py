@@ -98,7 +98,12 @@ img{max-width:100%;border:1px solid #eee;margin:.4em 0}.note{color:#555;font-siz
 
 def _fmt(v: Any, spec: str = ".3f", scale: float = 1.0) -> str:
     """A number for the tables; an em dash for missing values; never "-0.00"."""
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+    if isinstance(v, str):  # summary.json keeps inf and nan as text ("inf")
+        try:
+            v = float(v)
+        except ValueError:
+            return html.escape(v)
+    if v is None or isinstance(v, bool) or (isinstance(v, float) and not math.isfinite(v)):
         return "\u2014"
     text = format(v * scale, spec)
     return text[1:] if text.startswith("-") and not text.strip("-0.") else text

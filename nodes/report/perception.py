@@ -5,8 +5,8 @@ run folder's ``perception/`` directory:
 
 * ``frame_<index>.png``: the frames each committed crop came from, with every detection
   drawn (score above the box; green: the committed block, yellow: other detections);
-* ``block_1.png`` .. ``block_3.png``: the crops of the last scan (what ``btrun gallery
-  enrol --run`` enrols);
+* ``scan_<n>_block_1.png`` .. ``_3.png``: the crops of each scan (the last one is what
+  ``btrun gallery enrol --run`` enrols);
 * ``query_1.png`` ..: the crops an identification used;
 
 and the HTML section: the scans (blocks found, frames seen, frame-to-decision latency) and,
