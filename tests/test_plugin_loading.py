@@ -236,6 +236,15 @@ def test_the_docs_plugin_example_flies_as_written(plugin_env, tmp_path):
         blocks = re.findall(r"```python\n(.*?)```", f.read(), re.S)
     plugin_env("photography:PLUGIN", blocks[0] + "\n\n" + blocks[1])
     assert _fly(tmp_path, '<Photograph count="4" taken="{taken}"/>')["taken"] == 4
+    # and the page's own my_mission.xml
+    with open(os.path.join(REPO, "docs", "engine.md"), encoding="utf-8") as f:
+        mission = re.findall(r"```xml\n(<root.*?Photograph.*?)```", f.read(), re.S)[0]
+    (tmp_path / "my_mission.xml").write_text(mission)
+    out = tmp_path / "docs-run"
+    args = [str(tmp_path / "my_mission.xml"), "--out", str(out), "-q", "--no-report", "--no-mcap"]
+    assert main(args) == 0
+    with open(out / "summary.json", encoding="utf-8") as f:
+        assert json.load(f)["blackboard"]["taken"] == 4
 
 
 def _fly(tmp_path, leaf: str) -> dict:
