@@ -282,8 +282,8 @@ class TickWatchdog:
             except Exception:  # pragma: no cover - the tree is mid-change
                 where = ""
         where = where or stuck_in(target)
-        if busy > 1.0:
-            where += f" (x{busy:.1f}: a busy host)"
+        if busy >= 1.05:  # said only when it changed the budget noticeably (not "x1.0")
+            where += f" (budget x{busy:.1f}: a busy host)"
         if why:
             self.reason = (
                 f"{why}; watchdog: tick {tick} did not return within {budget:g} s of it"
