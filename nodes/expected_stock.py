@@ -139,7 +139,7 @@ def read_expected(
     data = read_bytes(path, read, where, what="expected stocks", limit=MAX_EXPECTED_BYTES)
     if data is None:
         return None, [Problem(where, f"expected stock: {read[0].message}")]
-    sheet = ""  # an XLSX's sheet: its problems name their cells
+    sheet = ""  # an XLSX's sheet: its problems name their cells, and rows are no lines
     if path.lower().endswith((".xlsx", ".xlsm")) or data.startswith(ZIP_MAGIC):
         entries, problems, sheet = entries_xlsx(path, data)
     else:
@@ -157,6 +157,7 @@ def read_expected(
             entries, problems = entries_json(path, text)
         else:
             entries, problems = entries_csv(path, text)
+    line = "row" if sheet else "line"
     names = list(getattr(world, "places", None) or {})
     known, hints = set(names), PlaceHints(names)
     stock = ExpectedStock(path, sha256=hashlib.sha256(data).hexdigest())
@@ -186,7 +187,8 @@ def read_expected(
             problems.append(
                 Problem(
                     where_place,
-                    f"place '{place}' listed twice (first at line {first.line}); one row per place",
+                    f"place '{place}' listed twice (first at {line} {first.line}); one row per "
+                    "place",
                 )
             )
             continue
@@ -210,7 +212,8 @@ def read_expected(
             problems.append(
                 Problem(
                     where_pallet,
-                    f"{said}: {other} (line {loc.line}) and {place}; a pallet stands in one place",
+                    f"{said}: {other} ({line} {loc.line}) and {place}; a pallet stands in one "
+                    "place",
                 )
             )
         else:

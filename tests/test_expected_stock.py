@@ -661,3 +661,11 @@ def test_a_json_row_that_is_no_object_does_not_shift_the_rows_after_it(
     _, problems = _read(tmp_path, "s.json", text, world)
     assert [(p.loc.line, p.loc.col) for p in problems] == where, problems
     assert "expected {" in problems[0].message and "unknown place 'Z-01-1'" in problems[1].message
+
+
+def test_a_workbooks_rows_are_rows_not_lines(tmp_path, world):
+    rows = [["place", "pallet"], ["A-01-1", 109], ["A-01-1", 110]]
+    _, problems = read_expected(_xlsx(tmp_path / "s.xlsx", rows), world, WHERE)
+    assert [p.message for p in problems] == [
+        "place 'A-01-1' listed twice (first at row 2); one row per place (cell Stock!A3)"
+    ]
