@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from typing import Any
@@ -211,14 +212,14 @@ def _runs(store: InventoryStore, args: argparse.Namespace) -> int:
         return 0
     _table(
         f"{plural(len(runs), 'run')} ({store.shown})",
-        ["run", "started", "status", "rows", "fleet", "seed", "host"],
+        ["run", "started", "status", "rows", "rig or fleet", "seed", "host"],
         [
             [
                 r["run"],
                 _when(r["started"]),
                 r["status"],
                 r["rows"],
-                r["fleet"],
+                r["fleet"] or (r["rig"] and os.path.basename(r["rig"])),
                 r["seed"],
                 r["host"],
             ]
