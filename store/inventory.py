@@ -362,32 +362,28 @@ class InventoryStore:
         that run's history); one whose finder is not (never recorded, or this very run
         under the folder's old name: a renamed or copied folder) is the only record and
         is shown."""
-        keys = ("run", "started", "run_status", *ROW_FIELDS)
-        q = "SELECT i.run, r.started, r.status, "
-        q += ", ".join(f"i.{k}" for k in ROW_FIELDS)
-        q += " FROM inventory_rows i JOIN runs r ON r.run = i.run "
-        q += "WHERE i.place = ? AND (i.origin IS NULL OR i.origin = i.run "
-        q += "OR NOT EXISTS (SELECT 1 FROM runs o WHERE o.run = i.origin)) "
-        q += "ORDER BY r.started DESC, i.run DESC"
-        if limit:
-            q += f" LIMIT {int(limit)}"
-        return list(rows_as_dicts(self.conn.execute(q, (place,)), keys))[::-1]
+        return self._found_rows("i.place = ?", place, limit)
 
     def answers_like(self, text: str, limit: int | None = None) -> list[dict]:
         """Rows whose answer contains ``text`` (the caller picks the pallet's own), run by run
         (oldest first; the newest ``limit``), with the run's start and status; rows a resumed
         run carried over are left out as in :meth:`history`."""
-        keys = ("run", "started", "run_status", *ROW_FIELDS)
         pattern = "%" + text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
+        return self._found_rows("i.answer LIKE ? ESCAPE '\\'", pattern, limit)
+
+    def _found_rows(self, where: str, value: str, limit: int | None) -> list[dict]:
+        """The rows matching ``where`` (one ``?``, given ``value``) that their own run found
+        (see :meth:`history`), with the run's start and status, oldest first."""
+        keys = ("run", "started", "run_status", *ROW_FIELDS)
         q = "SELECT i.run, r.started, r.status, "
         q += ", ".join(f"i.{k}" for k in ROW_FIELDS)
         q += " FROM inventory_rows i JOIN runs r ON r.run = i.run "
-        q += "WHERE i.answer LIKE ? ESCAPE '\\' AND (i.origin IS NULL OR i.origin = i.run "
+        q += f"WHERE {where} AND (i.origin IS NULL OR i.origin = i.run "
         q += "OR NOT EXISTS (SELECT 1 FROM runs o WHERE o.run = i.origin)) "
         q += "ORDER BY r.started DESC, i.run DESC, i.place"
         if limit:
             q += f" LIMIT {int(limit)}"
-        return list(rows_as_dicts(self.conn.execute(q, (pattern,)), keys))[::-1]
+        return list(rows_as_dicts(self.conn.execute(q, (value,)), keys))[::-1]
 
     def counts(self) -> dict[str, tuple[int, int]]:
         """Run -> (rows, answered rows: every status but ``not_scanned``), in one query.

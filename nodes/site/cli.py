@@ -112,24 +112,23 @@ def _pallet_history(store: InventoryStore, args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(found, indent=1))
         return 0
+    title = f"pallet {want}: seen {plural(len(found), 'time')} ({store.shown})"
+    _rows_table(title, found, ("place", "answer", "status", "drone", "distance"))
+    return 0
+
+
+def _rows_table(title: str, found: list[dict], keys: tuple[str, ...]) -> None:
+    """Run, start, the row's ``keys`` (numbers to 3 places), the run's status: a table."""
     _table(
-        f"pallet {want}: seen {plural(len(found), 'time')} ({store.shown})",
-        ["run", "started", "place", "answer", "status", "drone", "distance", "run status"],
+        title,
+        ["run", "started", *keys, "run status"],
         [
-            [
-                h["run"],
-                _when(h["started"]),
-                h["place"],
-                h["answer"],
-                h["status"],
-                h["drone"],
-                _number(h["distance"]),
-                h["run_status"],
-            ]
+            [h["run"], _when(h["started"])]
+            + [_number(h[k]) if k in ("distance", "margin") else h[k] for k in keys]
+            + [h["run_status"]]
             for h in found
         ],
     )
-    return 0
 
 
 def _history(store: InventoryStore, args: argparse.Namespace) -> int:
@@ -157,23 +156,8 @@ def _history(store: InventoryStore, args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(found, indent=1))
         return 0
-    _table(
-        f"{args.place}: {len(found)} runs ({store.shown})",
-        ["run", "started", "answer", "status", "drone", "distance", "margin", "run status"],
-        [
-            [
-                h["run"],
-                _when(h["started"]),
-                h["answer"],
-                h["status"],
-                h["drone"],
-                _number(h["distance"]),
-                _number(h["margin"]),
-                h["run_status"],
-            ]
-            for h in found
-        ],
-    )
+    title = f"{args.place}: {len(found)} runs ({store.shown})"
+    _rows_table(title, found, ("answer", "status", "drone", "distance", "margin"))
     return 0
 
 
