@@ -71,7 +71,14 @@ from bt_engine.script_values import (
 from bt_engine.script_values import MAX_STRING_LENGTH as MAX_STRING_LENGTH
 from bt_engine.script_values import _str_num as _str_num
 
-__all__ = ["DictEnv", "Script", "ScriptEnv", "ScriptError", "parse_script"]
+__all__ = [
+    "DictEnv",
+    "Script",
+    "ScriptEnv",
+    "ScriptError",
+    "constant_failure",
+    "parse_script",
+]
 
 MAX_SOURCE_LENGTH = 10_000
 MAX_DEPTH = 100  # nesting depth of expressions (parentheses, operands, unary chains)
@@ -127,12 +134,21 @@ _NO_ENUMS: Mapping[str, int] = {}
 class Script:
     """A parsed script: immutable, shareable, and cheap to execute repeatedly."""
 
-    __slots__ = ("source", "reads", "writes", "_run")
+    __slots__ = ("source", "reads", "writes", "creates", "_run")
 
-    def __init__(self, source: str, reads: frozenset[str], writes: frozenset[str], run: Evaluator):
+    def __init__(
+        self,
+        source: str,
+        reads: frozenset[str],
+        writes: frozenset[str],
+        run: Evaluator,
+        creates: frozenset[str] | None = None,
+    ):
         self.source = source
         self.reads = reads  # entry names read (may include enum names: enums are runtime data)
         self.writes = writes  # entry names assigned by any assignment operator
+        # entry names assigned with ':=', the one operator that creates a missing entry
+        self.creates = writes if creates is None else creates
         self._run = run
 
     def execute(self, env: ScriptEnv, enums: Mapping[str, int] | None = None) -> Any:
@@ -215,6 +231,7 @@ class _Parser:
         self.nesting = 0
         self.reads: dict[int, str] = {}  # column -> name, for every name read
         self.writes: set[str] = set()
+        self.creates: set[str] = set()  # targets of ':=' (the others need the entry to exist)
 
     def peek(self) -> tuple[str, Any, int]:
         return self.tokens[self.pos]
@@ -267,6 +284,8 @@ class _Parser:
                 if op in (":=", "="):  # a plain assignment does not read its target
                     del self.reads[left[1]]
                 self.writes.add(left[3])
+                if op == ":=":
+                    self.creates.add(left[3])
                 left = self.node("assign", col, self.expr(1), payload=(op, left[3]))
             elif bp == 2:  # ternary: c ? a : b
                 then = self.expr(1)
@@ -441,7 +460,8 @@ def _parse_cached(code: str) -> Script:
                 stmt(env, enums)
             return last(env, enums)
 
-    return Script(code, frozenset(parser.reads.values()), frozenset(parser.writes), run)
+    reads, writes = frozenset(parser.reads.values()), frozenset(parser.writes)
+    return Script(code, reads, writes, run, frozenset(parser.creates))
 
 
 def parse_script(code: str) -> Script:
@@ -455,3 +475,47 @@ def parse_script(code: str) -> Script:
     if len(code) > MAX_SOURCE_LENGTH:
         raise ScriptError(f"script longer than {MAX_SOURCE_LENGTH} characters", MAX_SOURCE_LENGTH)
     return _parse_cached(code)
+
+
+def _constant(node: tuple) -> bool:
+    """True when ``node`` reads and writes no entry: its value is the same at every run."""
+    if node[0] == "const":
+        return True
+    if node[0] in ("name", "assign"):
+        return False
+    return all(_constant(k) for k in node[3:] if isinstance(k, tuple))
+
+
+def _first_constant_failure(node: tuple) -> ScriptError | None:
+    if node[0] == "const":
+        return None
+    if node[0] != "name" and _constant(node):
+        try:
+            Script("", frozenset(), frozenset(), _compile(node)).execute(DictEnv())
+        except ScriptError as exc:
+            return exc
+        return None
+    for kid in node[3:]:
+        if isinstance(kid, tuple):
+            found = _first_constant_failure(kid)
+            if found is not None:
+                return found
+    return None
+
+
+def constant_failure(code: str) -> ScriptError | None:
+    """The error a part of ``code`` made of literals alone raises whenever it is evaluated
+    (``1 / 0``, ``'a' - 1``, ``x ? 5 % 0 : 1``), or None; None too when ``code`` does not
+    parse (:func:`parse_script` says why). The largest such parts are tried, as they run:
+    ``false && 1 / 0`` never fails. Validation refuses these before flight; at run time they
+    fail as BehaviorTree.CPP's scripts do."""
+    try:
+        parse_script(code)
+        statements = _Parser(code).statements()
+    except ScriptError:
+        return None
+    for statement in statements:
+        found = _first_constant_failure(statement)
+        if found is not None:
+            return found
+    return None

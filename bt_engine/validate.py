@@ -56,11 +56,15 @@ SPECIAL_ATTRS = ("name", "_description", "_uid", "_fullpath")
 
 
 def check_script(code: str) -> str | None:
-    """Return an error message if ``code`` is not a valid script, else None."""
-    from bt_engine.script import ScriptError, parse_script
+    """Return an error message if ``code`` is not a valid script, or if a part of it made
+    of literals alone always fails when it runs (``1 / 0``), else None."""
+    from bt_engine.script import ScriptError, constant_failure, parse_script
 
     try:
         parse_script(code)
+        failure = constant_failure(code)
+        if failure is not None:
+            raise failure
     except ScriptError as exc:
         where = f" at column {exc.column + 1}" if exc.column >= 0 else ""
         return f"{exc.message if hasattr(exc, 'message') else exc}{where}"

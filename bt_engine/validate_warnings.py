@@ -51,15 +51,17 @@ class _WarningChecks:
     spec: MissionSpec
     registry: Registry
 
-    def written(self) -> set[str] | None:
+    def written(self, creating: bool = False) -> set[str] | None:
         """Every entry something in the mission may write (scripts, output and inout ports,
         SubTree ports either way and their literals, unknown nodes' ports, SetBlackboard),
-        whatever the scope; None when a SetBlackboard's key is chosen at run time."""
+        whatever the scope; None when a SetBlackboard's key is chosen at run time. With
+        ``creating``, a script's assignments count only with ``:=`` (the others need the
+        entry to exist)."""
         names: set[str] = set()
         for node in self.nodes():
             model = self.registry.get(node.type)
             for _, script in self.scripts(node):
-                names.update(script.writes)
+                names.update(script.creates if creating else script.writes)
             for key, attr in node.attrs.items():
                 ref = blackboard_ref(attr.value)
                 if model is not None and model.id == "SetBlackboard" and key == "output_key":
@@ -85,7 +87,7 @@ class _WarningChecks:
         ignored (an entry written anywhere counts), so a warning means the entry can only
         come from outside the tree: ``--set``, ``Mission(blackboard=...)`` or a plug-in.
         """
-        written = self.written()
+        written = self.written(creating=True)
         if written is None:
             return  # the entry a SetBlackboard writes is chosen at run time: anything may be
         known = set(KNOWN_ENTRIES) | written
@@ -95,11 +97,14 @@ class _WarningChecks:
             for port in model.ports.values():
                 known.update(getattr(port.type, "members", None) or ())
         reads: list[tuple[Any, str]] = []
+        updates: list[tuple[Any, str]] = []  # (attribute, entry a script assigns with '=')
         port_reads: list[tuple[Any, str, str]] = []  # (attribute, entry, port)
         for node in self.nodes():
             model = self.registry.get(node.type)
             for attr, script in self.scripts(node):
                 reads.extend((attr, name) for name in sorted(script.reads))
+                needs = script.writes - script.creates - script.reads  # '+=' reads: said
+                updates.extend((attr, name) for name in sorted(needs))
             if model is None or model.kind == SUBTREE:
                 continue
             for key, attr in node.attrs.items():
@@ -115,6 +120,16 @@ class _WarningChecks:
                     "writes (no script assignment, output port or SetBlackboard) or declares "
                     "(<TreeNodesModel> port); unless it is set from outside (--set), the "
                     "script fails when it runs",
+                )
+        for attr, name in updates:
+            if name.lstrip("@") not in known:
+                self.warn(
+                    attr.loc,
+                    f"script assigns blackboard entry '{name}' with '=', which needs the "
+                    "entry to exist, and nothing in this mission creates it (no ':=', output "
+                    "port or SetBlackboard) or declares it (<TreeNodesModel> port); use ':=' "
+                    "to create it: unless it is set from outside (--set), the script fails "
+                    "when it runs",
                 )
         for attr, name, key in port_reads:
             if name.lstrip("@") not in known:

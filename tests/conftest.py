@@ -27,6 +27,16 @@ def _btrun_cache(tmp_path_factory):
         os.environ["BTRUN_CACHE_DIR"] = old
 
 
+@pytest.fixture(autouse=True)
+def _idle_host_for_watchdogs(monkeypatch):
+    """In-process watchdogs see an idle host: in lock-step a loaded host stretches the tick
+    budget (bt_engine.watchdog.busy_factor), and the tests that time a budget must not
+    depend on what else the machine runs. tests/test_watchdog_busy.py sets its own load."""
+    from bt_engine import watchdog
+
+    monkeypatch.setattr(watchdog.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+
+
 @dataclass(frozen=True)
 class FlightTick:
     """What a shared flight looked like after one tick."""

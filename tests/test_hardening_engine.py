@@ -431,11 +431,45 @@ def test_nested_lists_and_dedents_are_not_misindented():
 
 
 def test_script_reading_an_entry_nothing_writes_is_a_located_warning():
-    spec = load_xml("m.xml", text=wrap('<GoTo pose="5;0;1" _onHalted="x = missing_entry + 1"/>'))
+    spec = load_xml("m.xml", text=wrap('<GoTo pose="5;0;1" _onHalted="x := missing_entry + 1"/>'))
     errs, warns = warnings_of(spec)
     assert errs == []  # still valid: --set may supply it
     assert len(warns) == 1, warns
     assert warns[0].startswith("m.xml:3:20: warning: script reads blackboard entry 'missing_entry'")
+
+
+def test_script_assigning_with_equals_an_entry_nothing_creates_is_a_located_warning():
+    body = '<Sequence><Script code="y = 3"/><Script code="z := 1; z = 2; w += 1"/></Sequence>'
+    errs, warns = warnings_of(load_xml("m.xml", text=wrap(body)))
+    assert errs == []  # still valid: --set may create it
+    assert len(warns) == 2, warns  # y; w's '+=' reads it, said once; z was created
+    assert warns[0].startswith(
+        "m.xml:3:19: warning: script assigns blackboard entry 'y' with '=', which needs"
+    )
+    assert "use ':=' to create it" in warns[0]
+    assert "reads blackboard entry 'w'" in warns[1]
+    created = '<Sequence><Script code="y := 0"/><Script code="y = 3"/></Sequence>'
+    assert warnings_of(load_xml("m.xml", text=wrap(created))) == ([], [])
+
+
+@pytest.mark.parametrize(
+    ("code", "fragment"),
+    [
+        ("a := 5 % 0", "operator '%': modulo by zero at column 8"),
+        ("c := n > 1 ? 'a' - 1 : 2", "operator '-': expected a number, got string 'a'"),
+        ("a := (1 + 2) / (3 - 3)", "division by zero"),
+    ],
+)
+def test_script_part_made_of_literals_that_always_fails_is_refused(code, fragment):
+    errs, _ = warnings_of(load_xml("m.xml", text=wrap(f'<Script code="{code}"/>')))
+    assert len(errs) == 1 and errs[0].startswith("m.xml:3:"), errs
+    assert fragment in errs[0]
+
+
+def test_literal_parts_that_never_run_or_never_fail_are_valid():
+    for code in ("b := false ? 1 / 0 : 2", "b := false &amp;&amp; 1 / 0", "b := 'a' .. 1 + 2"):
+        errs, _ = warnings_of(load_xml("m.xml", text=wrap(f'<Script code="{code}"/>')))
+        assert errs == [], (code, errs)
 
 
 def test_entries_written_or_declared_anywhere_are_not_warned_about():
