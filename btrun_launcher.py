@@ -4,8 +4,8 @@
 A SIGINT during those imports raised KeyboardInterrupt wherever the interpreter happened to
 be, and CPython swallows an exception raised inside a weakref callback (importlib runs one
 for its module locks): the Ctrl-C was then lost and the mission flew. This module imports
-only :mod:`signal` and :mod:`sys`, installs a handler that records SIGINT/SIGTERM, and only
-then imports :mod:`bt_engine.cli`, which takes the recorded signals over: a ``btrun run``
+only :mod:`signal` and :mod:`sys`, installs a handler that records SIGINT/SIGTERM/SIGHUP, and
+only then imports :mod:`bt_engine.cli`, which takes the recorded signals over: a ``btrun run``
 interrupted while it loads ends ABORTED (``operator interrupt``) before the first tick,
 with summary.json, exit code 1; any other command prints ``interrupted`` and exits 1.
 """
@@ -15,18 +15,24 @@ from __future__ import annotations
 import signal
 import sys
 
-#: "Ctrl-C" / "SIGTERM", in order, caught before bt_engine.cli took the signals over
+#: "Ctrl-C" / "SIGTERM" / "SIGHUP", in order, caught before bt_engine.cli
+#: took the signals over (the names of bt_engine.interrupts.signal_source)
 PENDING: list[str] = []
+_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
 
 
 def _remember(signum: int, frame: object) -> None:  # noqa: ARG001
-    PENDING.append("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
+    if signum == signal.SIGINT:
+        PENDING.append("Ctrl-C")
+    else:
+        PENDING.append("SIGTERM" if signum == signal.SIGTERM else "SIGHUP")
 
 
 class _Console:
-    """``sys.stdout`` that stops printing, and only that, once its reader is gone
-    (``btrun ... | head -1``, a closed terminal): the print of a leaf's progress raised
-    BrokenPipeError inside a tick and ended the flight as an internal error."""
+    """``sys.stdout`` / ``sys.stderr`` that stops printing, and only that, once its reader
+    is gone (``btrun ... | head -1``: BrokenPipeError; a closed terminal: EIO): the print of
+    a leaf's progress had raised inside a tick and ended the flight as an internal error, and
+    a flight that ended well lost its summary."""
 
     def __init__(self, stream: object) -> None:
         self._stream, self._gone = stream, False
@@ -35,7 +41,7 @@ class _Console:
         if not self._gone:
             try:
                 return self._stream.write(text)  # type: ignore[attr-defined]
-            except (BrokenPipeError, ValueError):
+            except (OSError, ValueError):
                 self._gone = True
         return len(text)
 
@@ -43,7 +49,7 @@ class _Console:
         if not self._gone:
             try:
                 self._stream.flush()  # type: ignore[attr-defined]
-            except (BrokenPipeError, ValueError):
+            except (OSError, ValueError):
                 self._gone = True
 
     def __getattr__(self, name: str) -> object:
@@ -51,12 +57,13 @@ class _Console:
 
 
 def main() -> int:
-    """The ``btrun`` command: route SIGINT/SIGTERM to a recorder, then run
+    """The ``btrun`` command: route SIGINT/SIGTERM/SIGHUP to a recorder, then run
     :func:`bt_engine.cli.main` with what it recorded; returns the exit code."""
     sys.stdout = _Console(sys.stdout)  # type: ignore[assignment]
+    sys.stderr = _Console(sys.stderr)  # type: ignore[assignment]
     old = {}
     try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in _SIGNALS:
             old[sig] = signal.signal(sig, _remember)
     except ValueError:  # pragma: no cover - not the main thread: nothing to route
         pass

@@ -170,25 +170,37 @@ class LiveView:
         self.live = Live(console=self.console, auto_refresh=False, transient=False)
         self.min_dt = 1.0 / fps
         self._last = 0.0
+        self._gone = False  # the terminal went away: draw nothing more, fly on
 
     def __enter__(self) -> LiveView:
-        self.live.__enter__()
+        try:
+            self.live.__enter__()
+        except OSError:
+            self._gone = True
         return self
 
     def __exit__(self, *exc) -> None:
-        self.live.__exit__(*exc)
+        if not self._gone:
+            try:
+                self.live.__exit__(*exc)
+            except OSError:
+                self._gone = True
 
     def update(self, statuses: list[str], progress: str, force: bool = False) -> None:
-        """Redraw if enough wall time has passed (or ``force``)."""
+        """Redraw if enough wall time has passed (or ``force``). A terminal that went away
+        (EIO, a closed pipe) ends the drawing, never the flight."""
         now = time.monotonic()
-        if not force and now - self._last < self.min_dt:
+        if self._gone or (not force and now - self._last < self.min_dt):
             return
         self._last = now
         from rich.console import Group
         from rich.panel import Panel
         from rich.text import Text
 
-        self.live.update(
-            Group(Panel(tree_rich(self.rows, statuses), title=self.title), Text(progress)),
-            refresh=True,
-        )
+        try:
+            self.live.update(
+                Group(Panel(tree_rich(self.rows, statuses), title=self.title), Text(progress)),
+                refresh=True,
+            )
+        except OSError:
+            self._gone = True

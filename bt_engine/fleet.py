@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from bt_engine.interrupts import _restore_sigint, _route_signals
+from bt_engine.interrupts import _restore_sigint, _route_signals, signal_source
 from bt_engine.runner import Runner, RunResult
 
 
@@ -61,9 +61,7 @@ class FleetRunner:
         """Run every mission to its end; return each one's result by name."""
 
         def handler(signum, frame):  # noqa: ARG001
-            import signal
-
-            source = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
+            source = signal_source(signum)
             for r in self.runners.values():
                 r.interrupt_source = source
             self.interrupt()

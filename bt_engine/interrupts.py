@@ -1,8 +1,11 @@
-"""Ctrl-C and SIGTERM before and between runs: remembered, never lost, never half-handled.
+"""Ctrl-C, SIGTERM and SIGHUP before and between runs: remembered, never lost, never
+half-handled.
 
-``btrun`` routes both signals to a recorder first thing (:func:`catch_early_interrupts`);
+``btrun`` routes these signals to a recorder first thing (:func:`catch_early_interrupts`);
 a run that starts then begins interrupted. :mod:`bt_engine.runner` routes them to the
 running :class:`~bt_engine.runner.Runner` while it flies, and gives them back afterwards.
+SIGHUP (the terminal closed: an ssh session dropped, a window shut) stops a run as SIGTERM
+does: the drone lands and the summary is written; its default would kill btrun mid-flight.
 """
 
 from __future__ import annotations
@@ -11,8 +14,23 @@ import signal
 from collections.abc import Callable
 from typing import Any
 
-#: SIGINT/SIGTERM received before a run took the signals over (see :func:`catch_early_interrupts`)
+#: SIGINT/SIGTERM/SIGHUP received before a run took the signals over
+#: (see :func:`catch_early_interrupts`)
 PENDING_INTERRUPTS: list[str] = []
+
+#: the signals that stop a run (SIGHUP where the platform has it)
+INTERRUPT_SIGNALS: tuple[int, ...] = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
+)
+
+
+def signal_source(signum: int) -> str:
+    """What a run's reason calls ``signum``: ``Ctrl-C``, ``SIGTERM`` or ``SIGHUP``."""
+    if signum == signal.SIGINT:
+        return "Ctrl-C"
+    if signum == getattr(signal, "SIGHUP", None):
+        return "SIGHUP"
+    return "SIGTERM"
 
 
 def catch_early_interrupts(earlier: list[str] | None = None) -> dict | None:
@@ -27,7 +45,7 @@ def catch_early_interrupts(earlier: list[str] | None = None) -> dict | None:
     """
 
     def handler(signum, frame):  # noqa: ARG001
-        PENDING_INTERRUPTS.append("Ctrl-C" if signum == signal.SIGINT else "SIGTERM")
+        PENDING_INTERRUPTS.append(signal_source(signum))
 
     PENDING_INTERRUPTS.clear()
     old = _route_signals(handler)
@@ -36,7 +54,7 @@ def catch_early_interrupts(earlier: list[str] | None = None) -> dict | None:
 
 
 def interrupt_pending() -> bool:
-    """Whether a SIGINT/SIGTERM is waiting for the run (see :func:`catch_early_interrupts`):
+    """Whether a SIGINT/SIGTERM/SIGHUP is waiting for the run (:func:`catch_early_interrupts`):
     long work before the first tick (a gallery build) asks, and stops, rather than make a
     Ctrl-C wait until it is done."""
     return bool(PENDING_INTERRUPTS)
@@ -52,11 +70,11 @@ def release_early_interrupts(old: dict | None) -> None:
 
 
 def _route_signals(handler: Callable[[int, Any], None]) -> dict | None:
-    """Install ``handler`` for SIGINT and SIGTERM; return the old handlers (None, and
-    nothing changed, outside the main thread)."""
+    """Install ``handler`` for :data:`INTERRUPT_SIGNALS`; return the old handlers (None,
+    and nothing changed, outside the main thread)."""
     old: dict = {}
     try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in INTERRUPT_SIGNALS:
             old[sig] = signal.signal(sig, handler)
     except ValueError:  # not in the main thread
         _restore_sigint(old)
@@ -73,16 +91,18 @@ def _restore_sigint(old: dict | None) -> None:
 
 
 def sigterm_interrupts() -> None:
-    """Make SIGTERM raise KeyboardInterrupt, as Ctrl-C does, where it would kill the process
-    outright (its default): a command stopped by ``kill`` then cleans up as one stopped by
-    Ctrl-C (a gallery build's temporary file removed, its worker processes ended, an
-    emulator closed). Main thread only; a handler already installed is kept."""
+    """Make SIGTERM and SIGHUP raise KeyboardInterrupt, as Ctrl-C does, where they would
+    kill the process outright (their default): a command stopped by ``kill`` or a closed
+    terminal then cleans up as one stopped by Ctrl-C (a gallery build's temporary file
+    removed, its worker processes ended, an emulator closed). Main thread only; a handler
+    already installed is kept."""
 
     def handler(signum, frame):  # noqa: ARG001
         raise KeyboardInterrupt
 
-    try:
-        if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
-            signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not in the main thread
-        pass
+    for sig in INTERRUPT_SIGNALS[1:]:
+        try:
+            if signal.getsignal(sig) == signal.SIG_DFL:
+                signal.signal(sig, handler)
+        except ValueError:  # not in the main thread
+            return

@@ -10,7 +10,6 @@ a tick that does not return is ended by the watchdog (at once after Ctrl-C), and
 
 from __future__ import annotations
 
-import signal
 import threading
 import time
 import traceback
@@ -25,6 +24,7 @@ from bt_engine.interrupts import (  # noqa: F401  (re-exported: btrun's CLI, fle
     _route_signals,
     catch_early_interrupts,
     release_early_interrupts,
+    signal_source,
 )
 from bt_engine.mission import Mission
 from bt_engine.node import FAILURE, RUNNING, SUCCESS, NodeRuntimeError, NodeStatus
@@ -483,14 +483,15 @@ _LIVE: weakref.WeakSet[Runner] = weakref.WeakSet()
 
 
 def _install_sigint(runner: Runner) -> dict | None:
-    """Route SIGINT (Ctrl-C) and SIGTERM to :meth:`Runner.interrupt`; return the old handlers.
+    """Route SIGINT (Ctrl-C), SIGTERM and SIGHUP to :meth:`Runner.interrupt`; return the old
+    handlers.
 
     The first signal asks the run to stop at the next tick (halt, land, write the summary);
     a second one raises KeyboardInterrupt (emergency stop).
     """
 
     def handler(signum, frame):  # noqa: ARG001
-        runner.interrupt_source = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
+        runner.interrupt_source = signal_source(signum)
         runner.interrupt()
         if runner._interrupted >= 2:
             raise KeyboardInterrupt

@@ -102,6 +102,7 @@ def _signalled(tmp_path, sig: int) -> tuple[subprocess.CompletedProcess, dict, l
     [
         (signal.SIGINT, "operator interrupt (Ctrl-C)"),
         (signal.SIGTERM, "operator interrupt (SIGTERM)"),
+        (signal.SIGHUP, "operator interrupt (SIGHUP)"),  # the terminal closed
     ],
 )
 def test_signal_halts_lands_and_writes_the_summary(tmp_path, sig, reason) -> None:
@@ -113,3 +114,65 @@ def test_signal_halts_lands_and_writes_the_summary(tmp_path, sig, reason) -> Non
     assert s["final_state"] == "landed" and s["disarmed"]
     assert records[-1]["tick"] == summary["ticks"]
     assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.slow  # a real btrun process in a pseudo-terminal, paced at 20x real time
+def test_a_closed_terminal_lands_the_drone_and_btrun_writes_its_summary(tmp_path) -> None:
+    """btrun in its own terminal (the session leader, as a login shell's job is) whose
+    terminal goes away in flight: SIGHUP stops the run as SIGTERM does, the writes to the
+    dead terminal (EIO) stop the display, not the run, and btrun itself writes the record."""
+    import fcntl
+    import termios
+
+    out = str(tmp_path / "run")
+    exe = os.path.join(os.path.dirname(sys.executable), "btrun")
+    cmd = [exe] if os.path.exists(exe) else [sys.executable, "-m", "bt_engine.cli"]
+    master, slave = os.openpty()
+
+    def own_terminal() -> None:  # in the child: a new session whose terminal is the pty
+        os.setsid()
+        fcntl.ioctl(slave, termios.TIOCSCTTY, 0)
+
+    proc = subprocess.Popen(
+        cmd + ["run", MISSION, "--no-report", "--realtime", "20", "--out", out],
+        cwd=REPO,
+        stdin=slave,
+        stdout=slave,
+        stderr=slave,
+        preexec_fn=own_terminal,  # noqa: PLW1509 - nothing threaded runs in this process yet
+    )
+    os.close(slave)
+    log = os.path.join(out, "ticks.jsonl")
+
+    def drain() -> None:  # the live view fills the pty's buffer: read it as a terminal would
+        import select
+
+        while select.select([master], [], [], 0)[0]:
+            try:
+                os.read(master, 65536)
+            except OSError:
+                return
+
+    def flying() -> bool:
+        drain()
+        if not os.path.exists(log):
+            return False
+        _, recs = read_log(log)
+        return bool(recs) and recs[-1]["t"] > 8.0
+
+    try:
+        wait_until(flying, 60.0, "btrun to log 8 s of mission time", 0.05)
+    finally:
+        os.close(master)  # the terminal goes away: the kernel hangs up its session
+    try:
+        proc.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+    summary, records = _logged(out)
+    assert proc.returncode == 1
+    assert summary["status"] == "ABORTED", summary["reason"]
+    assert summary["reason"] == "operator interrupt (SIGHUP)"
+    assert summary.get("written_by") != "guard"  # btrun's own record, blackboard and all
+    assert summary["safety"]["final_state"] == "landed" and summary["safety"]["disarmed"]
+    assert records[-1]["tick"] == summary["ticks"]

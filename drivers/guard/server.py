@@ -356,7 +356,7 @@ class Guard:
         at = time.monotonic()
         self.took_over = {"reason": reason, "at_s": round(at - self.started, 3)}
         self._send(["took_over", reason])
-        print(f"btrun guard: taking over: {reason}", file=sys.stderr, flush=True)
+        _say(f"btrun guard: taking over: {reason}")
         landing = self.land()
         ended = self._end_mission_process()
         self._close_link()
@@ -497,12 +497,32 @@ class Guard:
         try:
             _atomic_write(path, json.dumps(summary, indent=2, default=str) + "\n")
         except OSError as exc:  # no room even so: said in one line, and the state on stderr
-            print(
+            _say(
                 f"btrun guard: {path}: cannot be written ({exc.strerror or exc}); "
-                f"{summary.get('status')}: {summary.get('reason')}",
-                file=sys.stderr,
-                flush=True,
+                f"{summary.get('status')}: {summary.get('reason')}"
             )
+
+
+def _say(line: str) -> None:
+    """``line`` on the guard's stderr (btrun's terminal), if it is still there: a closed
+    terminal (EIO) or pipe must never stop the guard before it has landed the drone."""
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+def _first_line(exc: BaseException) -> str:
+    """An exception's message on one line, without a traceback: cflib's link errors carry
+    the traceback of its reader thread in their text (``Error communicating with the
+    Crazyflie`` / ``Exception:[Errno 111] Connection refused`` / ``Traceback ...``)."""
+    kept: list[str] = []
+    for line in str(exc).splitlines():
+        if line.startswith("Traceback"):
+            break
+        if line.strip():
+            kept.append(line.strip())
+    return "; ".join(kept) or type(exc).__name__
 
 
 def _r(v: float | None) -> float | None:
@@ -593,7 +613,7 @@ def main(argv: list[str] | None = None) -> int:
     ready = select.select([sock], [], [], 30.0)[0]
     msg = decode(sock.recv(MAX_MESSAGE_BYTES)) if ready else None
     if msg is None or msg[0] != "hello" or len(msg) < 2 or not isinstance(msg[1], dict):
-        print("btrun guard: no hello from the mission process", file=sys.stderr)
+        _say("btrun guard: no hello from the mission process")
         return 2
     settings = GuardSettings.from_hello(msg[1])
     link = None
@@ -602,7 +622,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             link = _open_link(settings.link)
         except Exception as exc:  # cflib's own errors: tell the mission process, stop
-            sock.send(encode(["error", str(exc) or type(exc).__name__]))
+            sock.send(encode(["error", _first_line(exc)]))
             return 1
         info.update(connect_time_s=link.connect_time_s, protocol_version=link.protocol_version)
     try:
