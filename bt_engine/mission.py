@@ -357,9 +357,23 @@ class Mission:
         return out
 
     def halt(self) -> None:
-        """Halt every running node (actions stop; the tree goes back to IDLE)."""
-        if self.root.bt_status is RUNNING:
-            self.root.halt_node()
+        """Halt every running node (actions stop; the tree goes back to IDLE).
+
+        A halt that raises (a node's halt stopped by the watchdog) leaves every node IDLE
+        all the same, so that nothing halts the node again; while a halt is under way (one
+        that never returned, on another thread) a second one does nothing."""
+        if getattr(self, "_halting", False):
+            return
+        self._halting = True
+        try:
+            if self.root.bt_status is RUNNING:
+                self.root.halt_node()
+        except BaseException:
+            for node in self.nodes:
+                node.reset_status()
+            self._halting = False
+            raise
+        self._halting = False
         self.root.reset_status()
 
     def close(self) -> None:

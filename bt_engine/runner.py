@@ -10,6 +10,7 @@ a tick that does not return is ended by the watchdog (at once after Ctrl-C), and
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 import traceback
@@ -126,6 +127,8 @@ class Runner:
         self.watchdog: TickWatchdog | None = None
         #: set once the watchdog gave up on the main thread; done once that ending is over
         self._given_up = threading.Event()
+        self._halting: tuple[str, str] = ("ABORTED", "the run was stopped")  # while halting
+        self._halt_given_up = threading.Event()  # the halt never returned: ended without it
         self._give_up_done = threading.Event()
         self._end_lock = threading.Lock()
         #: the per-tick records (the report, the plug-ins' sections), bounded: :class:`Trace`
@@ -348,17 +351,35 @@ class Runner:
             # Nothing that happens while halting may skip the landing: a failing halt is
             # recorded, and every shutdown hook still runs.
             if result != "SUCCESS" or self.mission.root.bt_status is RUNNING:
+                self._halting = (result, reason)
                 try:
-                    self.mission.halt()
+                    self._halt_watched()
+                except TickOverrun as exc:  # a halt that did not return: stopped
+                    why = str(exc.args[0]) if exc.args else "watchdog"
+                    reason += f"; while halting: {_halting_words(why)}"
+                    result = "ABORTED"
                 except Exception as exc:
                     self.error_traceback += traceback.format_exc()
                     reason += f"; halting the tree failed: {type(exc).__name__}: {exc}"
                     result = "ABORTED" if result == "SUCCESS" else result
+                if self._halt_given_up.is_set():  # that thread ended the run
+                    self._give_up_done.wait()
+                    assert self.result is not None
+                    return self.result
                 errors = self.mission.ctx.halt_errors
                 if errors and result != "ABORTED":
                     result, reason = "ABORTED", errors[0]
                 elif errors and errors[0] not in reason:
                     reason += f"; while halting: {errors[0]}"
+            return self._land_and_close(result, reason)
+        finally:
+            self._close_watchdog()
+            if self.log is not None:
+                self.log.flush()
+
+    def _land_and_close(self, result: str, reason: str) -> RunResult:
+        """The end of :meth:`_conclude` once the tree is halted: land, keep the result."""
+        try:
             # Signals stay routed while the shutdown hooks land the drone: a second
             # SIGINT/SIGTERM raises KeyboardInterrupt there (the supervisor cuts the motors).
             self._shutdown_hooks(reason if result != "SUCCESS" else "mission complete")
@@ -366,7 +387,6 @@ class Runner:
             if self._interrupted >= 2 and again not in reason:  # it came during the landing
                 reason += again
         finally:
-            self._close_watchdog()
             if self.log is not None:
                 self.log.flush()
         self.outcome = (result, reason)
@@ -381,6 +401,53 @@ class Runner:
             float(getattr(self.clock, "_factor", 1.0) or 1.0),
         )
         return self.result
+
+    def _halt_watched(self) -> None:
+        """Halt the tree within :data:`HALT_BUDGET_S` of wall time when the run has a tick
+        budget. A halt that does not return (a plug-in's ``on_halted`` that spins or waits)
+        is stopped as an overrunning tick is (:class:`TickOverrun` in this thread); in real
+        time the drone is landed from the watchdog's thread meanwhile; and if the halt still
+        has not returned :data:`HALT_BUDGET_S` later, the run ends without this thread
+        (:meth:`_give_up_halt`: landed, summary written, as a tick given up)."""
+        if self.tick_budget_s is None:
+            self.mission.halt()
+            return
+        hw = TickWatchdog(
+            HALT_BUDGET_S,
+            real_time=not getattr(self.clock, "is_simulated", False),
+            on_stuck=self._shutdown_hooks,
+            running=self._running_leaf,
+            on_give_up=self._give_up_halt,
+        )
+        hw.start_tick(self.mission.ticks)
+        try:
+            self.mission.halt()
+        except TickOverrun:
+            raise TickOverrun(hw.reason or "watchdog") from None
+        finally:
+            hw.end_tick()
+            hw.close()
+
+    def _give_up_halt(self, why: str) -> None:
+        """The halt watchdog's step 3, on its thread: the main thread never came back from
+        halting the tree. Land, keep the result, end the other runs of this process, hand
+        over to :attr:`on_give_up` (``btrun`` writes summary.json and exits)."""
+        reason, why = self._halting[1], _halting_words(why)
+        self._halt_given_up.set()
+        self._given_up.set()
+        try:
+            self._land_and_close("ABORTED", f"{reason}; while halting: {why}")
+            for other in list(_LIVE):
+                if other is not self and other.result is None:
+                    try:
+                        other.outcome = ("ABORTED", f"another run of this process: {why}")
+                        other.conclude()
+                    except Exception:  # noqa: BLE001 - the next one still lands
+                        self.error_traceback += traceback.format_exc()
+        finally:
+            self._give_up_done.set()
+        if self.on_give_up is not None:
+            self.on_give_up(self)
 
     def _close_watchdog(self) -> None:
         """Stop the watchdog before halting and landing (a stop it raised late lands here)."""
@@ -452,6 +519,12 @@ class Runner:
             wd.hurry(self._interrupt_outcome()[1])
 
 
+def _halting_words(why: str) -> str:
+    """The tick watchdog's reason, said of a halt (its wording speaks of a tick)."""
+    why = re.sub(r"tick \d+ did not return", "halting did not return", why, count=1)
+    return why.replace("the tick still had not returned", "the halt still had not returned")
+
+
 def _failure_reason(mission: Mission) -> str:
     return mission.last_failure or "the mission tree returned FAILURE"
 
@@ -472,6 +545,11 @@ def _raising_node(exc: BaseException) -> str:
 
 #: Wall-clock budget of one tick while the run is at rest (the drone on the ground).
 REST_TICK_BUDGET_S = 600.0
+
+#: Wall-clock seconds halting the tree may take at the end of a run (a halt only stops
+#: things: a node's ``on_halted`` that takes longer is stuck), and again from stopping the
+#: halt to giving it up.
+HALT_BUDGET_S = 3.0
 
 #: Seconds from the watchdog stopping a tick to giving it up (the run ends without the main
 #: thread), at most: the give-up comes at most one more budget later, so a tick is never

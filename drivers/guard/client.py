@@ -33,6 +33,9 @@ from drivers.vehicle.interfaces import LinkTelemetry
 
 #: Seconds between heartbeats.
 HEARTBEAT_PERIOD_S = 0.05
+#: seconds the goodbye may wait for a guard that is not reading (every other message is
+#: dropped rather than waited for)
+BYE_WAIT_S = 2.0
 
 
 class GuardError(RuntimeError):
@@ -276,7 +279,13 @@ class GuardClient:
         if self._said_bye:
             return
         self._said_bye = True
-        self.send(["bye", bool(summary_written)])
+        if not self.send(["bye", bool(summary_written)]) and not self.gone and self.sock:
+            # the guard is not reading (stopped, starved): its buffer is full. The goodbye
+            # is the one message worth a wait, bounded: without it the guard, once it runs
+            # again, takes the end of this process for a crash
+            with contextlib.suppress(OSError):
+                self.sock.settimeout(BYE_WAIT_S)
+                self.sock.sendall(encode(["bye", bool(summary_written)]))
         proc = self.proc
         if proc is not None:
             with contextlib.suppress(subprocess.TimeoutExpired):

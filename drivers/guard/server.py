@@ -73,6 +73,9 @@ STALE_SETPOINT_S = 0.3
 #: long to be heard from before its silence (or a tick's running time) is held against it.
 RESUME_GRACE_S = 0.5
 
+#: telemetry older than this (s) is not the drone's state now: the guard's record says so
+STALE_TELEMETRY_S = 1.0
+
 
 @dataclass
 class GuardSettings:
@@ -111,6 +114,8 @@ class Guard:
         self.started = time.monotonic()
         self.last_rx = self.started
         self.last_tel: Any = None
+        self.last_tel_at: float | None = None  # time.monotonic() when it arrived
+        self.last_stall: tuple[float, float] | None = None  # (when it ended, how long)
         self.last_hb: list[Any] | None = None
         self.last_hb_rx = self.started
         self.took_over: dict[str, Any] | None = None
@@ -207,7 +212,7 @@ class Guard:
             return
         samples = link.poll(0.0)
         if samples:
-            self.last_tel = samples[-1]
+            self._got_telemetry(samples[-1])
             self.counts["telemetry"] += len(samples)
             if self.took_over is None:
                 rows = [[getattr(t, f) for f in TELEMETRY_FIELDS] for t in samples]
@@ -246,12 +251,24 @@ class Guard:
             return
         self.stalls += 1
         self.longest_stall_s = max(self.longest_stall_s, gap)
+        self.last_stall = (now, gap)
         limit = self._silence_limit()
         self.last_rx = max(self.last_rx, now - limit + min(limit, RESUME_GRACE_S))
         clock = self._tick_clock()
         if clock is not None:
             left = max(clock[2] - clock[1], 0.0)  # the tick's time left at that beat
             self.last_hb_rx = max(self.last_hb_rx, now - left + min(left, RESUME_GRACE_S))
+
+    def _own_stall(self, now: float) -> str:
+        """What to add to a reason when the guard itself had just been stopped or starved
+        (what it then saw happened while it was not looking)."""
+        if self.last_stall is None or now - self.last_stall[0] > 5.0:
+            return ""
+        return f" (the guard itself had been stopped for {self.last_stall[1]:.1f} s just before)"
+
+    def _got_telemetry(self, sample: Any) -> None:
+        self.last_tel = sample
+        self.last_tel_at = time.monotonic()
 
     def _silence_limit(self) -> float:
         """How long the mission process may be silent: airborne, or on the ground."""
@@ -267,16 +284,22 @@ class Guard:
 
     def why_take_over(self, now: float) -> str | None:
         """The reason to take over now, or None while the mission process is in charge."""
+        if not self.mission_gone and not _alive(self.s.mission_pid):
+            self.mission_gone = True  # ended; its goodbye may still be unread or was lost
+            self._read(now)
+        own = self._own_stall(now)
         if self.mission_gone and not self.said_bye and self.airborne():
-            return "the mission process ended without a goodbye (killed or crashed)"
+            return f"the mission process ended without a goodbye (killed or crashed){own}"
         if self.mission_gone or self.said_bye:
-            return "the mission process ended with the drone flying" if self.airborne() else None
+            if self.airborne():
+                return f"the mission process ended with the drone flying{own}"
+            return None
         silent = now - self.last_rx
         limit = self._silence_limit()
         if silent > limit:
             return (
                 f"the mission process was silent for {silent:.2f} s (limit {limit:g} s): "
-                "blocked or stopped"
+                f"blocked or stopped{own}"
             )
         clock = self._tick_clock()
         if clock is not None:
@@ -388,7 +411,7 @@ class Guard:
             z = max(0.0, z0 - self.s.land_speed_mps * (now - t0))
             link.send_position_setpoint(x, y, z, yaw)
             for t in link.poll(0.0):
-                self.last_tel = t
+                self._got_telemetry(t)
             cur = self.last_tel
             if z == 0.0 and cur.z_m < GROUND_Z_M:
                 touched = touched or now
@@ -399,8 +422,12 @@ class Guard:
         link.send_stop_setpoint()
         link.arm(False)
         self._settle_telemetry(time.monotonic() + 0.5, until_disarmed=True)
+        heard = self.last_tel_at is not None and self.last_tel_at > t0
+        outcome = "landed" if touched is not None else "timed out"
+        if not heard:  # set-points went out, but nothing says where the drone is
+            outcome = "no telemetry during the landing: the drone's state is unknown"
         return {
-            "landing": "landed" if touched is not None else "timed out",
+            "landing": outcome,
             "landing_s": round(time.monotonic() - t0, 2),
             "from_z_m": round(z0, 3),
             **self._final(),
@@ -409,15 +436,18 @@ class Guard:
     def _settle_telemetry(self, until: float, until_disarmed: bool = False) -> None:
         while time.monotonic() < until and self.link is not None:
             for t in self.link.poll(0.0):
-                self.last_tel = t
+                self._got_telemetry(t)
             if until_disarmed and self.last_tel is not None and not self.last_tel.armed:
                 return
             time.sleep(0.01)
 
     def _final(self) -> dict[str, Any]:
+        """The drone's last telemetry, with its age: older than
+        :data:`STALE_TELEMETRY_S`, it is not the drone's state now (``confirmed`` false)."""
         t = self.last_tel
         if t is None:
             return {}
+        age = time.monotonic() - (self.last_tel_at or self.started)
         return {
             "final": {
                 "x_m": round(t.x_m, 3),
@@ -426,6 +456,8 @@ class Guard:
                 "armed": bool(t.armed),
                 "motors_running": bool(t.motors_running),
                 "battery_v": round(t.battery_v, 3),
+                "telemetry_age_s": round(age, 2),
+                "confirmed": age <= STALE_TELEMETRY_S,
             }
         }
 
