@@ -40,6 +40,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from drivers.crazyflie.link_lock import LinkLock
 from drivers.vehicle.angles import yaw_from_quaternion
 from drivers.vehicle.interfaces import LinkTelemetry
 
@@ -151,6 +152,7 @@ class CrazyflieLink:
         self.missing: list[str] = []
         self.lost_reason: str | None = None
         self.closed = False
+        self._address_lock: LinkLock | None = None  # held while the link is open
         self._queue: queue.Queue[LinkTelemetry] = queue.Queue()
         self._lock = threading.Lock()
         self._status = {n: 0.0 for n in STATUS_VARS}
@@ -168,11 +170,22 @@ class CrazyflieLink:
 
     # ------------------------------------------------------------------ connection
     def open(self) -> CrazyflieLink:
-        """Connect, read parameters, write the rig's, start logging. Raises ConnectionError."""
+        """Connect, read parameters, write the rig's, start logging. Raises ConnectionError
+        (:class:`~drivers.crazyflie.link_lock.LinkInUse` while another process of this host
+        has a link to the same address open)."""
+        init_drivers()
+        c = self.config
+        self._address_lock = LinkLock(c.uri).acquire()  # LinkInUse: another btrun flies it
+        try:
+            return self._open()
+        except BaseException:
+            self._address_lock.release()
+            raise
+
+    def _open(self) -> CrazyflieLink:
         from cflib.crazyflie import Crazyflie
         from cflib.crazyflie.syncCrazyflie import SyncCrazyflie
 
-        init_drivers()
         c = self.config
         t0 = self._now()
         cache = c.toc_cache_dir or os.path.join(tempfile.gettempdir(), "btrun-cflib-toc")
@@ -406,10 +419,14 @@ class CrazyflieLink:
                 self.cf.commander.send_stop_setpoint()
                 self.cf.commander.send_notify_setpoint_stop()
         finally:
-            if self.scf is not None and self.scf.is_link_open():
-                self.scf.close_link()
-            else:
-                self.cf.close_link()
+            try:
+                if self.scf is not None and self.scf.is_link_open():
+                    self.scf.close_link()
+                else:
+                    self.cf.close_link()
+            finally:
+                if self._address_lock is not None:
+                    self._address_lock.release()
 
     # ------------------------------------------------------------------ reporting
     def health(self) -> dict[str, Any]:
