@@ -45,6 +45,12 @@ GEOFENCE_CLEARANCE_M = 0.05  # a target must be this far inside the geofence wal
 #: it saw no block there (lock-step always has them: 15 frames/s over its look_time)
 MIN_LOOK_FRAMES = 3
 STANDOFF_SLACK_M = 0.15  # stand off up to this much further to keep inside the geofence
+#: A scan keeps at least this far in front of the place's *mapped* face line, however deep
+#: its pallet stands: a neighbour may stand out of that line by its depth error plus the
+#: swing of its corner (0.15 m + 0.6 m x sin 16.2 deg = 0.32 m at the site's limits), and
+#: the drone is 0.06 m round. Scanning a deep pallet at the stand-off from its face had
+#: taken the drone 0.2 m from the line, into a turned neighbour's corner.
+MIN_MAP_CLEARANCE_M = 0.4
 
 _DETECTOR = input_port("detector", STRING, "", "detector weights file (empty: the shipped model)")
 _MIN_SCORE = input_port("min_score", FLOAT, None, MIN_SCORE_DOC)
@@ -55,6 +61,22 @@ STANDOFF_PORT = input_port(
 _SPEED = input_port(
     "speed", FLOAT, 0.3, "speed of the positioning flights, m/s", low=0.01, high=3.0
 )
+
+
+def behind_the_map(face: Any, s: float, standoff: float) -> float:
+    """How much further back than ``standoff`` the point of ``face`` at along-face ``s``
+    must be to keep :data:`MIN_MAP_CLEARANCE_M` in front of the place's mapped face line
+    (the line through ``face.prior`` square to ``face.map_facing_rad``); 0 when it does, or
+    when the face has no mapped line."""
+    facing = getattr(face, "map_facing_rad", None)
+    if facing is None:
+        return 0.0
+    nx, ny = math.cos(facing), math.sin(facing)
+    x, y, _ = face.point(s, standoff)
+    clear = (face.prior[0] - x) * nx + (face.prior[1] - y) * ny
+    if clear >= MIN_MAP_CLEARANCE_M - 1e-9:
+        return 0.0
+    return (MIN_MAP_CLEARANCE_M - clear) / max(math.cos(face.facing_rad - facing), 0.5)
 
 
 class ReactiveLeaf(StatefulActionNode):
@@ -125,6 +147,7 @@ class ReactiveLeaf(StatefulActionNode):
         does not allow it, the nearest point further back (up to ``STANDOFF_SLACK_M`` more)
         that it allows (the caller's go-to then says why if none)."""
         standoff = self.get_input("standoff")
+        standoff += self._behind_the_map(face, s, standoff)
         p = face.point(s, standoff)
         extra = 0.0
         while self.outside_geofence(p) and extra < STANDOFF_SLACK_M - 1e-9:
@@ -139,6 +162,20 @@ class ReactiveLeaf(StatefulActionNode):
                     )
                 return q
         return p
+
+    def _behind_the_map(self, face: Any, s: float, standoff: float) -> float:
+        """How much further back than ``standoff`` the point at along-face ``s`` must be to
+        keep :data:`MIN_MAP_CLEARANCE_M` in front of the place's mapped face line (0 when it
+        does, or when the face has no map line: a face found without a place)."""
+        extra = behind_the_map(face, s, standoff)
+        if extra > 0.0 and not getattr(self, "_deep_logged", False):
+            self._deep_logged = True
+            self.ctx.log(
+                f"{self.describe()}: standing {extra:.2f} m further back than the stand-off: "
+                f"the pallet stands deep, and the drone keeps {MIN_MAP_CLEARANCE_M:g} m in front "
+                "of the place's mapped face (its neighbours may stand out of it)"
+            )
+        return extra
 
     def motion_problem(self) -> str:
         """Why the current motion stopped ("" while it runs or once it reached its goal)."""
@@ -273,12 +310,15 @@ class LocatePallet(ReactiveLeaf):
         return self._next_point() or self.on_running()
 
     def _fit(self) -> Any:
-        return self.tracker.fit(
+        face = self.tracker.fit(
             self.facing,
             self.prior,
             self.get_input("window"),
             depth_window_m=self.get_input("depth_window"),
         )
+        if face is not None:
+            face.map_facing_rad = self.facing  # the place's mapped face line: prior, facing
+        return face
 
     def _look_points(self) -> list[tuple[float, float, float]]:
         return look_points(

@@ -66,9 +66,7 @@ class ScanFace(ReactiveLeaf):
         end_s = max(self.end_s, face.last_s + self.get_input("trail"))
         old, self.face = self.goal, face
         self.set_output("face_out", face)
-        new = face.point(end_s, self.get_input("standoff"))
-        if self.outside_geofence(new):
-            new = self.face_target(face, end_s)
+        new = self.face_target(face, end_s)
         if math.dist(old, new) > self.get_input("replan_tolerance"):
             self.end_s = end_s
             self.replans += 1

@@ -164,8 +164,26 @@ def pass_end_problems(node: Any, world: Any) -> list[tuple[str, str]]:
         return []
     start = tuple(float(v) for v in data["sim"]["start_m"])
     plan = plan_passes([n for n in names if n in world.places], world, start)  # type: ignore[arg-type]
+    racks = footprints(world)
     for name in plan.order:
-        for p in pass_line(plan.passes[name], standoff, lead):
+        line = pass_line(plan.passes[name], standoff, lead)
+        for a, b, what in (
+            (start, line[0], "to the start"),
+            (line[-1], start, "back from the end"),
+        ):
+            if route(a, b, racks, lambda q: fence.inside(q, 0.1)) is None:
+                return [
+                    (
+                        "standoff",
+                        f"no way around the racks {what} of pass {name} (between the take-off "
+                        f"point ({start[0]:.2f}, {start[1]:.2f}) and ({line[0][0]:.2f}, "
+                        f"{line[0][1]:.2f})...({line[-1][0]:.2f}, {line[-1][1]:.2f})): a route "
+                        f"keeps {CLEARANCE_M:g} m from every rack inside the geofence, so an "
+                        f"aisle narrower than {2 * CLEARANCE_M:g} m plus the corners cannot be "
+                        "flown through",
+                    )
+                ]
+        for p in line:
             if not fence.inside(p, 0.05):
                 return [
                     (
@@ -282,7 +300,11 @@ class FlyRoute(StatefulActionNode):
         racks = footprints(world) if world is not None else []
         path = route(self.vehicle.position, goal, racks, geofence_inside(self.ctx))
         if path is None:
-            self.failure_reason = f"no way around the racks to {goal}"
+            x, y, z = goal
+            self.failure_reason = (
+                f"no way around the racks to ({x:.2f}, {y:.2f}, {z:.2f}): a route keeps "
+                f"{CLEARANCE_M:g} m from every rack and stays inside the geofence"
+            )
             return FAILURE
         if len(path) > 1:
             self.ctx.log(

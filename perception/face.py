@@ -110,6 +110,7 @@ class FaceEstimate:
     window_m: float = 0.45  # how far along the face from ``prior`` the row may be
     base_facing_rad: float = 0.0  # the first estimate's facing: refits stay near it
     seen_s: tuple[float, ...] = ()  # along-face positions of the blocks seen (this row)
+    map_facing_rad: float | None = None  # the mapped face line's facing (through ``prior``)
 
     def saw_block_at(self, s: float, tol_m: float = 0.1) -> bool:
         """True if a block of the row was seen within ``tol_m`` of along-face ``s``."""
@@ -129,6 +130,7 @@ class FaceEstimate:
         )
         if face is not None:
             face.base_facing_rad = self.base_facing_rad
+            face.map_facing_rad = self.map_facing_rad
         return face
 
     @property

@@ -48,6 +48,12 @@ class SweepParams:
     match_along_m: float = 0.12
     #: ... and this close in height, m
     match_height_m: float = 0.09
+    #: a block on a place's face (along its slots) but further off its row than
+    #: ``match_height_m``, up to this far (half the levels' spacing: not the level above or
+    #: below), is a pallet standing off its beam: the place is not answered empty, m ...
+    off_row_max_m: float = 0.4
+    #: ... once this many central sightings of such blocks were made
+    off_row_min: int = 2
     #: sightings at two or more slots whose offsets from the map agree this closely ...
     agree_m: float = 0.04
     #: ... and are at least this far off it are a pallet off its place, not flickers
@@ -131,6 +137,9 @@ class PlaceWatch:
     stray: int = 0  # plausible blocks on the place's face that matched no slot
     #: their sightings (camera along, face-plane along), for the parallax test
     stray_hits: list[tuple[float, float]] = field(default_factory=list)
+    #: central sightings of blocks on the place's face but off its row: their height above
+    #: (+) or below (-) the row the map gives, m (``SweepParams.off_row_max_m``)
+    off_row: list[float] = field(default_factory=list)
     outcome: str = ""
     reason: str = ""
     states: list[str] = field(default_factory=list)
@@ -375,6 +384,7 @@ class SweepCollector:
             ray = R.T @ np.array([(det.cx - cam.cx) / cam.fx, (cy - cam.cy) / cam.fx, 1.0])
             best: tuple[float, PlaceWatch, int, float] | None = None
             stray: tuple[float, PlaceWatch, float] | None = None
+            off_row: tuple[float, PlaceWatch, float] | None = None  # (|dz|, place, dz)
             for w in near:
                 denom = float(w.normal @ ray)
                 if denom >= -1e-6:  # the ray does not meet the face from the front
@@ -388,7 +398,14 @@ class SweepCollector:
                 lo, hi = self.params.size_ratio
                 if not lo <= ratio <= hi:
                     continue
-                if abs(hit[2] - w.slots[1][2]) > self.params.match_height_m:
+                dz = float(hit[2] - w.slots[1][2])
+                if abs(dz) > self.params.match_height_m:
+                    if abs(dz) <= self.params.off_row_max_m and (
+                        off_row is None or abs(dz) < off_row[0]
+                    ):
+                        a = self.along(hit)
+                        if min(abs(a - self.along(sl)) for sl in w.slots) <= 0.45:
+                            off_row = (abs(dz), w, dz)
                     continue
                 along = self.along(hit)
                 errs = [abs(along - self.along(s)) for s in w.slots]
@@ -399,6 +416,8 @@ class SweepCollector:
                 elif min(errs) <= 0.45 and (stray is None or min(errs) < stray[0]):
                     stray = (min(errs), w, along)  # on this place's face, but on no slot
             if best is None:
+                if off_row is not None and central and not off_row[1].outcome:
+                    off_row[1].off_row.append(off_row[2])  # a pallet off its beam?
                 if (
                     stray is not None
                     and not stray[1].outcome
@@ -469,6 +488,7 @@ class SweepCollector:
             and w.stray_blocks(p.parallax_max_slope, p.parallax_baseline_m) == 0
             and all(k > 0 for k in w.looked)
             and not off_slots
+            and len(w.off_row) < p.off_row_min
         ):
             w.outcome = EMPTY
             deep = states.count("deep")
@@ -486,6 +506,12 @@ class SweepCollector:
                     f"blocks at {off_slots} slots, each seen too briefly, all "
                     f"{offset * 100:+.0f} cm along the face from the map: a pallet off its "
                     f"place? ({', '.join(states)})"
+                )
+            elif n == 0 and len(w.off_row) >= p.off_row_min:
+                dz = float(np.median(w.off_row))
+                w.reason = (
+                    f"{len(w.off_row)} block sightings {dz * 100:+.0f} cm off the row the map "
+                    "gives: a pallet off its beam?"
                 )
             elif n == 0:
                 w.reason = f"{w.stray} block sightings off the expected slots"

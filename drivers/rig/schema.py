@@ -283,7 +283,12 @@ RIG_SCHEMA = _m(
                 "initial_soc": _f(
                     "float", 1.0, "state of charge at start (0..1)", min=0.0, max=1.0
                 ),
-                "capacity_mah": _f("float", 250.0, "capacity", min=1.0),
+                # A Crazyflie draws about 2 A hovering: below 50 mAh that is beyond 40C, more
+                # than a LiPo of that size gives (its voltage sags to the cut-off while it still
+                # reads half full, and the energy checks' measured rate is far too low)
+                "capacity_mah": _f(
+                    "float", 250.0, "capacity (a Crazyflie hovers on 50 mAh or more)", min=50.0
+                ),
                 "charge_current_a": _f(
                     "float",
                     0.5,
