@@ -31,7 +31,7 @@ from typing import Any
 
 from bt_engine.files import atomic_write_text
 from nodes.expected_stock import ExpectedStock
-from perception.expected import pallet_of
+from perception.expected import pallet_key, pallet_of
 
 CONFIRMED, MISMATCH, MISSING = "confirmed", "mismatch", "missing"
 UNEXPECTED, UNVERIFIED = "unexpected", "unverified"
@@ -47,7 +47,8 @@ def categorise(expected: str | None, answer: str, status: str = "") -> tuple[str
     """(category, found) of one place: ``expected`` is the pallet expected (``""``:
     expected empty, None: not listed); ``answer`` the inventory row's answer (a side such
     as ``103B``, ``unknown``, ``empty``, or ``""`` when not scanned). ``found`` is the
-    pallet found (``103``), ``empty``, ``unknown``, or ``""``."""
+    pallet found (``103``, as the gallery writes it), ``empty``, ``unknown``, or ``""``.
+    Pallets are compared without case (:func:`perception.expected.pallet_key`)."""
     if not answer:
         return NOT_SCANNED, ""
     found = answer if answer in (_EMPTY, _UNKNOWN) else pallet_of(answer)
@@ -59,7 +60,7 @@ def categorise(expected: str | None, answer: str, status: str = "") -> tuple[str
         return MISSING, found
     if found == _UNKNOWN:
         return UNVERIFIED, found
-    return (CONFIRMED if found == pallet_of(expected) else MISMATCH), found
+    return (CONFIRMED if pallet_key(found) == pallet_key(expected) else MISMATCH), found
 
 
 def discrepancy_rows(rows: list[dict], stock: ExpectedStock) -> list[dict]:
@@ -116,7 +117,7 @@ def true_category(
         return UNEXPECTED, stock.place_of(truth) or ""
     if truth in not_enrolled:
         return UNVERIFIED, ""
-    if pallet_of(truth) == pallet_of(expected):
+    if pallet_key(truth) == pallet_key(expected):
         return CONFIRMED, ""
     return MISMATCH, stock.place_of(truth) or ""
 
@@ -141,7 +142,8 @@ def grade_rows(
         should[r["place"]] = cat
         ok = r["category"] == cat
         if ok and cat == MISMATCH:
-            ok = r["found"] == pallet_of(places.get(r["place"]) or "") and r["moved_from"] == moved
+            truth_found = pallet_key(places.get(r["place"]) or "")
+            ok = pallet_key(r["found"]) == truth_found and r["moved_from"] == moved
         grades[r["place"]] = "right" if ok else "wrong"
     alarms = [p for p, c in should.items() if c == CONFIRMED and grades[p] == "wrong"]
     missed = [

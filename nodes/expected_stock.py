@@ -14,7 +14,10 @@ or the same as JSON: a list of ``{"place": ..., "pallet": ...}`` objects (``null
 an XLSX workbook whose first shown sheet has a header row with ``place`` and ``pallet`` (read
 with openpyxl; problems located as ``stock.xlsx:ROW:COLUMN``).
 Pallets are named as the WMS names them (``103``); a side name (``103B``) stands for its
-pallet. :func:`read_expected` reads it before flight (bounded, :mod:`bt_engine.files`) and
+pallet, and case does not tell pallets apart (``PAL-7`` is ``pal-7``). A ``status`` column
+(btrun's own inventory export read back) is honoured: a row whose pallet is empty because
+the place was ``unknown`` or ``not_scanned`` lists no expectation, only ``empty`` (or no
+status) means "should be empty". :func:`read_expected` reads it before flight (bounded, :mod:`bt_engine.files`) and
 reports every problem where it is (``stock.csv:4:8: ...``): a bad header or bad JSON, an
 unknown place (with a "did you mean"), a place listed twice, one pallet expected at two
 places.
@@ -37,18 +40,22 @@ from nodes.stock_files import (
     NotText,
     byte_loc,
     entries_csv,
-    entries_json,
     entries_xlsx,
     export_text,
     not_text,
     with_cells,
 )
-from perception.expected import pallet_of
+from nodes.stock_json import entries_json
+from perception.expected import pallet_key, pallet_of
+from perception.gallery import MAX_IDENTITY_CHARS
 
 #: the largest expected-stock file read, bytes (100,000 places take ~2 MB as CSV)
 MAX_EXPECTED_BYTES = 16_000_000
 #: spellings of "no pallet here" in the pallet column (as WMS and database exports write it)
 EMPTY_SPELLINGS = ("", "empty", "none", "-", "n/a", "null", "nil")
+#: a ``status`` (btrun's inventory export) for which an empty pallet is no expectation: the
+#: place was not known to be empty, only not identified or not looked at
+NOT_KNOWN_STATUSES = ("unknown", "not_identified", "not_scanned", "not scanned")
 #: unknown places that get a spelling hint (difflib over every place is slow on big files)
 _HINTED = 50
 
@@ -83,7 +90,9 @@ class PlaceHints:
         return close or f" (places: {self.names[0]} .. {self.names[-1]})"
 
 
-_LONGEST = 200  # a place or pallet name longer than this is not one
+_LONGEST = 200  # a place name longer than this is not one
+#: a pallet name longer than a gallery identity could never be verified nor identified
+_LONGEST_PALLET = MAX_IDENTITY_CHARS
 #: the most problems of one expected-stock file said (a wrong file would print thousands)
 MAX_PROBLEMS_SAID = 50
 
@@ -117,9 +126,9 @@ class ExpectedStock:
             index: dict[str, str] = {}
             for place, p in self.places.items():
                 if p is not None:
-                    index.setdefault(pallet_of(p), place)
+                    index.setdefault(pallet_key(p), place)
             self._where = (len(self.places), index)  # one pass, not one per question
-        return self._where[1].get(pallet_of(pallet))
+        return self._where[1].get(pallet_key(pallet))
 
 
 def read_expected(
@@ -162,6 +171,7 @@ def read_expected(
     known, hints = set(names), PlaceHints(names)
     stock = ExpectedStock(path, sha256=hashlib.sha256(data).hexdigest())
     pallet_at: dict[str, tuple[str, Loc, str]] = {}
+    seen: dict[str, Loc] = {}  # every place listed, an expectation or not
     if len(entries) > MAX_EXPECTED_PLACES:  # said first: the rest is not read
         problems.insert(
             0,
@@ -169,46 +179,35 @@ def read_expected(
                 entries[MAX_EXPECTED_PLACES][2], f"more than {MAX_EXPECTED_PLACES} places listed"
             ),
         )
-    for place, pallet, where_place, where_pallet in entries[:MAX_EXPECTED_PLACES]:
-        if len(place) > _LONGEST or len(pallet) > _LONGEST:
-            problems.append(Problem(where_place, f"a name longer than {_LONGEST} characters"))
-            continue
-        if any(ord(c) < 32 or ord(c) == 127 for c in place + pallet):
-            shown = (place if any(ord(c) < 32 for c in place) else pallet).encode("unicode_escape")
-            problems.append(
-                Problem(where_place, f"a control character in '{shown.decode()[:60]}': not a name")
-            )
+    for place, pallet, where_place, where_pallet, status in entries[:MAX_EXPECTED_PLACES]:
+        bad = _name_problem(place, pallet, where_place, where_pallet)
+        if bad is not None:
+            problems.append(bad)
             continue
         if names and place not in known:
             problems.append(Problem(where_place, f"unknown place '{place}'{hints.hint(place)}"))
             continue
-        if place in stock.places:
-            first = stock.locs[place]
+        if place in seen:
             problems.append(
                 Problem(
                     where_place,
-                    f"place '{place}' listed twice (first at {line} {first.line}); one row per "
-                    "place",
+                    f"place '{place}' listed twice (first at {line} {seen[place].line}); one "
+                    "row per place",
                 )
             )
             continue
+        seen[place] = where_place
         empty = pallet.lower() in EMPTY_SPELLINGS
+        if empty and status.lower() in NOT_KNOWN_STATUSES:
+            continue  # btrun's export of a place it could not tell: no expectation
         stock.places[place] = None if empty else pallet
         stock.locs[place] = where_place
         if empty:
             continue
-        key = pallet_of(pallet)
+        key = pallet_key(pallet)
         if key in pallet_at:
             other, loc, written = pallet_at[key]
-            if written.upper() == pallet.upper():
-                said = f"pallet '{pallet}' expected at two places"
-            elif key in (written, pallet):  # 109 and 109B: the pallet and one of its sides
-                said = f"pallet '{key}' (written '{written}' and '{pallet}') expected at two places"
-            else:  # 7A and 7B: read as the two sides of pallet 7
-                said = (
-                    f"'{written}' and '{pallet}' are read as two sides of one pallet '{key}' "
-                    "(a name ending in a digit and a letter names a side), expected at two places"
-                )
+            said = _twice(written, pallet)
             problems.append(
                 Problem(
                     where_pallet,
@@ -229,8 +228,44 @@ def read_expected(
     return stock, problems
 
 
+def _name_problem(place: str, pallet: str, where_place: Loc, where_pallet: Loc) -> Problem | None:
+    """A name that is none (too long, a control character), located at its own cell."""
+    if len(place) > _LONGEST:
+        return Problem(where_place, f"a place name longer than {_LONGEST} characters")
+    if len(pallet) > _LONGEST_PALLET:
+        return Problem(
+            where_pallet,
+            f"a pallet name longer than {_LONGEST_PALLET} characters (a gallery holds "
+            f"identities of at most {MAX_IDENTITY_CHARS}: it could never be verified)",
+        )
+    for name, where in ((place, where_place), (pallet, where_pallet)):
+        if any(ord(c) < 32 or ord(c) == 127 for c in name):
+            shown = name.encode("unicode_escape").decode()[:60]
+            return Problem(where, f"a control character in '{shown}': not a name")
+    return None
+
+
+def _twice(written: str, pallet: str) -> str:
+    """How one pallet written ``written`` at one place and ``pallet`` at another is said."""
+    key = pallet_key(pallet)
+    if written == pallet:
+        return f"pallet '{pallet}' expected at two places"
+    if written.casefold() == pallet.casefold() or key in (written.casefold(), pallet.casefold()):
+        # 109 and 109B (the pallet and one of its sides), PAL-7 and pal-7, 0111 and 111
+        return (
+            f"pallet '{pallet_of(written)}' (written '{written}' and '{pallet}') expected at "
+            "two places"
+        )
+    # 7A and 7B: read as the two sides of pallet 7
+    return (
+        f"'{written}' and '{pallet}' are read as two sides of one pallet '{pallet_of(written)}' "
+        "(a name ending in a digit and a letter names a side), expected at two places"
+    )
+
+
 __all__ = [
     "EMPTY_SPELLINGS",
+    "NOT_KNOWN_STATUSES",
     "MAX_EXPECTED_PLACES",
     "PlaceHints",
     "ExpectedStock",

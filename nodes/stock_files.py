@@ -1,7 +1,8 @@
 """The file formats of an expected stock (and of a place list): CSV as WMSs and
 spreadsheets export it (comma, semicolon or tab; UTF-8, UTF-16 or Windows-1252), an XLSX
-workbook's first shown sheet, JSON. Each reader returns ``(place, pallet, where the place
-is, where the pallet is)`` per row and the problems, located in the file;
+workbook's first shown sheet, JSON (:mod:`nodes.stock_json`). Each reader returns
+``(place, pallet, where the place is, where the pallet is, status)`` per row (``status``:
+the row's ``status`` column, ``""`` without one) and the problems, located in the file;
 :func:`nodes.expected_stock.read_expected` checks the rows against the world.
 """
 
@@ -9,12 +10,12 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import re
 from dataclasses import dataclass
 from typing import Any
 
 from bt_engine.spec import Loc, Problem
+from nodes.stock_json import Entry
 
 #: the most places an expected stock may list
 MAX_EXPECTED_PLACES = 100_000
@@ -130,8 +131,8 @@ def byte_loc(path: str, data: bytes, offset: int) -> Loc:
     return Loc(path, data.count(b"\n", 0, offset) + 1, offset - line_start + 1)
 
 
-def entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
-    """(place, pallet, where the place is, where the pallet is) per CSV row."""
+def entries_csv(path: str, text: str) -> tuple[list[Entry], list[Problem]]:
+    """(place, pallet, where the place is, where the pallet is, status) per CSV row."""
     try:
         rows, delimiter = csv_rows(text)
     except csv.Error as exc:
@@ -157,7 +158,8 @@ def entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], 
             )
         ]
     pc, qc = header.index("place"), header.index("pallet")
-    out = []
+    sc = header.index("status") if "status" in header else None
+    out: list[Entry] = []
     problems = []
     for row in rows[1:]:
         cells = row.cells
@@ -190,7 +192,8 @@ def entries_csv(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], 
                 )
             )
             continue
-        out.append((place, pallet, where_place, where_pallet))
+        status = cells[sc].strip() if sc is not None and sc < len(cells) else ""
+        out.append((place, pallet, where_place, where_pallet, status))
     return out, problems
 
 
@@ -211,6 +214,11 @@ def _cell_text(value: Any) -> str:
     return str(value).strip()
 
 
+#: a spreadsheet keeps this many significant digits of a number: a number cell of more
+#: digits (an 18-digit SSCC typed or imported as a number) is no longer the id it was
+_EXACT_DIGITS = 15
+_EXACT_DIGITS_BELOW = 10**_EXACT_DIGITS
+
 #: what a spreadsheet shows for a formula that failed
 _EXCEL_ERRORS = ("#N/A", "#REF!", "#DIV/0!", "#VALUE!", "#NAME?", "#NUM!", "#NULL!", "#SPILL!")
 
@@ -226,6 +234,13 @@ def _odd_cell(value: Any) -> str | None:
         return f"a date or time cell ({value}), not a name"
     if isinstance(value, float) and not value.is_integer():
         return f"a number with a fraction ({value}), not a name"
+    if isinstance(value, (int, float)) and abs(value) >= _EXACT_DIGITS_BELOW:
+        digits = len(str(abs(int(value))))
+        return (
+            f"a number of {digits} digits ({_cell_text(value)}): a spreadsheet keeps "
+            f"{_EXACT_DIGITS} significant digits, so a longer id (an SSCC) has lost its last "
+            "ones; format the column as text and enter the ids again (or export them as text)"
+        )
     if isinstance(value, str) and value.strip().upper() in _EXCEL_ERRORS:
         return f"a formula's error ({value.strip()}), not a name"
     return None
@@ -310,11 +325,9 @@ def cell_name(sheet: str, row: int, col: int) -> str:
     return f"{quoted}!{letters}{row}"
 
 
-def entries_xlsx(
-    path: str, data: bytes
-) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem], str]:
-    """(place, pallet, where, where) per row of the first sheet of an XLSX workbook (as a
-    WMS exports it: a header row with ``place`` and ``pallet``), located as
+def entries_xlsx(path: str, data: bytes) -> tuple[list[Entry], list[Problem], str]:
+    """(place, pallet, where, where, status) per row of the first sheet of an XLSX
+    workbook (as a WMS exports it: a header row with ``place`` and ``pallet``), located as
     ``file:row:column``, the problems, and the sheet's title (for :func:`with_cells`)."""
     odd: dict[tuple[int, int], str] = {}
     title, header, rows, problems = xlsx_table(
@@ -326,7 +339,7 @@ def entries_xlsx(
 
 def _xlsx_entries(
     path: str, data: bytes, title: str, header: list, rows: list, problems: list, odd: dict
-) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
+) -> tuple[list[Entry], list[Problem]]:
     if problems and not rows:
         return [], problems
     names = [h.lower() for h in header]
@@ -349,10 +362,11 @@ def _xlsx_entries(
             )
         ]
     pc, qc = names.index("place"), names.index("pallet")
+    sc = names.index("status") if "status" in names else None
     unsaved = _unsaved_formulas(
         data, {i for i, cells in rows if not cells[qc : qc + 1] or not cells[qc]}, qc
     )
-    out = []
+    out: list[Entry] = []
     for i, cells in rows:
         place = cells[pc] if pc < len(cells) else ""
         pallet = cells[qc] if qc < len(cells) else ""
@@ -369,7 +383,8 @@ def _xlsx_entries(
             col = pc if (i, pc) in odd else qc
             problems.append(Problem(Loc(path, i, col + 1), why))
             continue
-        out.append((place, pallet, Loc(path, i, pc + 1), Loc(path, i, qc + 1)))
+        status = cells[sc] if sc is not None and sc < len(cells) else ""
+        out.append((place, pallet, Loc(path, i, pc + 1), Loc(path, i, qc + 1), status))
     return out, problems
 
 
@@ -410,139 +425,3 @@ def _unsaved_formulas(data: bytes, rows: set[int], col: int) -> dict[int, str]:
     except Exception:  # noqa: BLE001 - read once already; this pass only adds a reason
         return found
     return found
-
-
-def _offset_loc(path: str, text: str, offset: int) -> Loc:
-    line_start = text.rfind("\n", 0, offset) + 1
-    return Loc(path, text.count("\n", 0, offset) + 1, offset - line_start + 1)
-
-
-def _row_starts(text: str) -> list[int] | None:
-    """The offset of every element of the JSON list of rows in ``text`` (the top-level list,
-    or the one under ``"rows"``), found by decoding the elements one after another; None
-    when the text is laid out otherwise."""
-    dec = json.JSONDecoder()
-    n = len(text)
-
-    def skip(i: int) -> int:
-        while i < n and text[i] in " \t\r\n":
-            i += 1
-        return i
-
-    try:
-        i = skip(0)
-        if text[i] == "{":  # {"rows": [...], ...}: walk the keys to "rows"
-            i += 1
-            while True:
-                key, i = dec.raw_decode(text, skip(i))
-                i = skip(skip(i) + 1)  # the ':'
-                if key == "rows":
-                    break
-                _, i = dec.raw_decode(text, i)
-                i = skip(i)
-                if text[i] != ",":
-                    return None
-                i += 1
-        if text[i] != "[":
-            return None
-        i, starts = i + 1, []
-        while True:
-            i = skip(i)
-            if text[i] == "]":
-                return starts
-            starts.append(i)
-            _, i = dec.raw_decode(text, i)
-            i = skip(i)
-            if text[i] == ",":
-                i += 1
-    except (IndexError, ValueError, RecursionError):
-        return None
-
-
-def entries_json(path: str, text: str) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
-    """(place, pallet, where, where) per JSON entry: a list of {place, pallet} objects (or
-    that list under "rows"), or a {place: pallet} object; each located by a search of the
-    text from the previous entry on."""
-    try:
-        data = json.loads(text, object_pairs_hook=list)
-    except json.JSONDecodeError as exc:
-        return [], [Problem(Loc(path, exc.lineno, exc.colno), f"not JSON: {exc.msg}")]
-    except (ValueError, RecursionError) as exc:
-        return [], [Problem(Loc(path, 1, 1), f"not JSON: {exc}")]
-    if isinstance(data, list) and all(isinstance(p, tuple) for p in data):  # an object
-        pairs = data
-        keys = [k for k, _ in pairs]
-        if keys == ["rows"] or ("rows" in keys and isinstance(dict(pairs)["rows"], list)):
-            data = dict(pairs)["rows"]
-        else:
-            return _mapping(path, text, pairs)
-    if not isinstance(data, list):
-        return [], [Problem(Loc(path, 1, 1), "expected a list of {place, pallet} rows")]
-    out, problems, pos = [], [], 0
-    starts = _row_starts(text)
-    if starts is not None and len(starts) != len(data):
-        starts = None
-    for i, item in enumerate(data):
-        if starts is not None:  # where each row begins, whatever it is
-            start = starts[i]
-        else:
-            start = text.find("{", pos)
-            pos = start + 1 if start >= 0 else pos
-        where = _offset_loc(path, text, max(start, 0))
-        obj = (
-            dict(item)
-            if isinstance(item, list) and all(isinstance(p, tuple) for p in item)
-            else None
-        )
-        if obj is None or not isinstance(obj.get("place"), str):
-            problems.append(
-                Problem(
-                    where,
-                    f'rows[{i}]: expected {{"place": ..., "pallet": ...}} with the place as '
-                    f"text, got {_shown(item)}",
-                )
-            )
-            continue
-        pallet = obj.get("pallet")
-        if pallet is not None and (isinstance(pallet, bool) or not isinstance(pallet, (str, int))):
-            problems.append(
-                Problem(where, f"rows[{i}]: pallet must be text or null, got {_shown(pallet)}")
-            )
-            continue
-        out.append(
-            (obj["place"].strip(), "" if pallet is None else str(pallet).strip(), where, where)
-        )
-    return out, problems
-
-
-def _shown(value: object, most: int = 60) -> str:
-    """A JSON value as the file wrote it, shortened (the reader keeps objects as lists of
-    pairs, which Python would print as ``[('x', 1)]``)."""
-
-    def plain(v: object) -> object:
-        if isinstance(v, list):
-            if v and all(isinstance(p, tuple) and len(p) == 2 for p in v):
-                return {str(k): plain(x) for k, x in v}
-            return [plain(x) for x in v]
-        return v
-
-    text = json.dumps(plain(value), ensure_ascii=False)
-    return text if len(text) <= most else text[: most - 3] + "..."
-
-
-def _mapping(
-    path: str, text: str, pairs: list
-) -> tuple[list[tuple[str, str, Loc, Loc]], list[Problem]]:
-    out, problems, pos = [], [], 0
-    for place, pallet in pairs:
-        m = re.compile(r'"' + re.escape(json.dumps(place)[1:-1]) + r'"\s*:').search(text, pos)
-        start = m.start() if m else pos
-        pos = m.end() if m else pos
-        where = _offset_loc(path, text, start)
-        if pallet is not None and (isinstance(pallet, bool) or not isinstance(pallet, (str, int))):
-            problems.append(
-                Problem(where, f"{place}: pallet must be text or null, got {_shown(pallet)}")
-            )
-            continue
-        out.append((place.strip(), "" if pallet is None else str(pallet).strip(), where, where))
-    return out, problems

@@ -79,11 +79,18 @@ def pallet_of(identity: str) -> str:
     return s
 
 
+def pallet_key(identity: str) -> str:
+    """What pallets are compared by: :func:`pallet_of` without case (``PAL-7``, ``pal-7``
+    and ``Pal-7B`` are one pallet: a WMS may lower-case the licence plates a gallery holds
+    as printed). Display keeps the written form; only comparisons use the key."""
+    return pallet_of(identity).casefold()
+
+
 def sides_of(identities: list[str], pallet: str) -> list[str]:
     """The enrolled sides of ``pallet`` (``103`` -> ``103A``, ``103B``; a side name is its
-    own and its pallet's other sides)."""
-    want = pallet_of(pallet)
-    return [i for i in identities if i == pallet or pallet_of(i) == want]
+    own and its pallet's other sides), whatever the case of either."""
+    want = pallet_key(pallet)
+    return [i for i in identities if i == pallet or pallet_key(i) == want]
 
 
 @dataclass(frozen=True)
@@ -111,9 +118,10 @@ def pallet_rank(ranking: list[tuple[str, float, Any]], pallet: str) -> tuple[int
     """(1-based rank of ``pallet`` among the distinct pallets of an embedding ranking, its
     best entry) or (None, None) when it is not in the ranking."""
     seen: list[str] = []
+    want = pallet_key(pallet)
     for entry in ranking:
-        p = pallet_of(entry[0])
-        if p == pallet_of(pallet):
+        p = pallet_key(entry[0])
+        if p == want:
             return len(seen) + 1, entry
         if p not in seen:
             seen.append(p)
@@ -175,6 +183,7 @@ __all__ = [
     "ExpectedThresholds",
     "check_expected",
     "load_thresholds",
+    "pallet_key",
     "pallet_of",
     "pallet_rank",
     "sides_of",

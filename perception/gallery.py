@@ -33,6 +33,7 @@ import contextlib
 import os
 import sqlite3
 import time
+import unicodedata
 from collections.abc import Iterator
 from typing import Any
 
@@ -53,6 +54,33 @@ from perception.gallery_schema import (
 from perception.gallery_update import UpdateDecision, UpdateRule
 from perception.gallery_views import ViewsMixin, checked_time
 from store.db import db_errors
+
+#: the longest identity a gallery holds (an expected stock's pallet names are held to it)
+MAX_IDENTITY_CHARS = 64
+#: characters no identity may hold: path separators (``btrun gallery export`` names files
+#: after identities) besides the control characters refused by category
+_NOT_IN_IDENTITY = "/\\"
+
+
+def identity_problem(identity: str) -> str | None:
+    """Why ``identity`` cannot name a pallet side (empty or longer than
+    :data:`MAX_IDENTITY_CHARS`, a control character or line break, a path separator
+    ``/`` or ``\\``), else None."""
+    if not isinstance(identity, str) or not identity or len(identity) > MAX_IDENTITY_CHARS:
+        return f"identity must be 1-{MAX_IDENTITY_CHARS} characters, got {identity!r:.80}"
+    bad = next(
+        (c for c in identity if unicodedata.category(c) in ("Cc", "Zl", "Zp")),
+        None,
+    )
+    if bad is not None:
+        return f"identity {identity!r:.80} holds a control character or line break ({bad!r})"
+    sep = next((c for c in identity if c in _NOT_IN_IDENTITY), None)
+    if sep is not None:
+        return (
+            f"identity {identity!r:.80} holds a path separator ({sep!r}): name it without "
+            "'/' or '\\' (PAL-2026-0001, not PAL/2026/0001)"
+        )
+    return None
 
 
 class Gallery(MatchingMixin, ViewsMixin):
@@ -223,8 +251,9 @@ class Gallery(MatchingMixin, ViewsMixin):
         side's added views (a fresh start, recorded in the history)."""
         emb = self._check_vectors(f"enrol {identity}", embeddings)
         vis = self._check_visibility(f"enrol {identity}", visibility)
-        if not identity or len(identity) > 64:
-            raise GalleryError(f"enrol: identity must be 1-64 characters, got {identity!r}")
+        why = identity_problem(identity)
+        if why is not None:
+            raise GalleryError(f"enrol: {why}")
         with self._writing(f"enrol {identity}"), self.conn:  # one transaction: all or none
             exists = self.conn.execute(
                 "SELECT 1 FROM entries WHERE identity = ?", (identity,)
@@ -415,6 +444,7 @@ def _parse_thresholds(meta: dict[str, str], path: str) -> Thresholds:
 
 
 __all__ = [
+    "MAX_IDENTITY_CHARS",
     "SCHEMA_VERSION",
     "Gallery",
     "GalleryError",
@@ -423,4 +453,5 @@ __all__ = [
     "UpdateDecision",
     "UpdateRule",
     "block_distances",
+    "identity_problem",
 ]

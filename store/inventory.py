@@ -36,6 +36,7 @@ from store.db import (
     rows_as_dicts,
     split_script,
 )
+from store.diff import diff_rows, flown_by
 
 SCHEMA_VERSION = 1
 
@@ -329,17 +330,24 @@ class InventoryStore:
         out = list(rows_as_dicts(self.conn.execute(q), (*RUN_FIELDS, "rows")))
         return out[::-1]
 
-    def run(self, run: str) -> dict:
-        """The run ``run``; :class:`StoreError` with a "did you mean" if it is unknown."""
+    def find_run(self, run: str) -> dict | None:
+        """The run ``run`` as :meth:`run` gives it, None if the store has no such run."""
         cur = self.conn.execute(
             f"SELECT {', '.join(RUN_FIELDS)} FROM runs WHERE run = ?",  # noqa: S608
             (run,),
         )
         found = list(rows_as_dicts(cur, RUN_FIELDS))
-        if found:
-            return found[0]
+        return found[0] if found else None
+
+    def run(self, run: str) -> dict:
+        """The run ``run``; :class:`StoreError` with a "did you mean" if it is unknown (a
+        name that differs only in case first)."""
+        found = self.find_run(run)
+        if found is not None:
+            return found
         names = [r[0] for r in self.conn.execute("SELECT run FROM runs")]
-        close = difflib.get_close_matches(run, names, n=1, cutoff=0.6)
+        same = [n for n in names if n.casefold() == run.casefold()]
+        close = same[:1] or difflib.get_close_matches(run, names, n=1, cutoff=0.6)
         hint = f" (did you mean {close[0]}?)" if close else ""
         if not names:
             hint = " (the store has no run yet: fly one, or btrun inventory import RUN_DIR)"
@@ -357,29 +365,34 @@ class InventoryStore:
 
     def history(self, place: str, limit: int | None = None) -> list[dict]:
         """What was found at ``place``, run by run (oldest first; the newest ``limit``):
-        rows found by the run itself, with the run's start and status. A row a resumed run
-        carried over is left out when the run that found it is in the store (it is in
-        that run's history); one whose finder is not (never recorded, or this very run
-        under the folder's old name: a renamed or copied folder) is the only record and
-        is shown."""
+        rows found by the run itself, with the run's start, status, ``rig`` and ``fleet``
+        (what flew it: one store may hold several sites). A row a resumed run carried over
+        is left out when the run that found it is in the store with that very finding (it
+        is in that run's history); one whose finder is not (never recorded, or this very
+        run under the folder's old name: a renamed or copied folder), or holds another
+        answer there (a run of that name from another station), is the only record and is
+        shown."""
         return self._found_rows("i.place = ?", place, limit)
 
     def answers_like(self, text: str, limit: int | None = None) -> list[dict]:
-        """Rows whose answer contains ``text`` (the caller picks the pallet's own), run by run
-        (oldest first; the newest ``limit``), with the run's start and status; rows a resumed
-        run carried over are left out as in :meth:`history`."""
+        """Rows whose answer contains ``text`` in any case (the caller picks the pallet's
+        own), run by run (oldest first; the newest ``limit``), with the run's start and
+        status; rows a resumed run carried over are left out as in :meth:`history`."""
+        text = text.lower()
         pattern = "%" + text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
-        return self._found_rows("i.answer LIKE ? ESCAPE '\\'", pattern, limit)
+        return self._found_rows("LOWER(i.answer) LIKE ? ESCAPE '\\'", pattern, limit)
 
     def _found_rows(self, where: str, value: str, limit: int | None) -> list[dict]:
         """The rows matching ``where`` (one ``?``, given ``value``) that their own run found
         (see :meth:`history`), with the run's start and status, oldest first."""
-        keys = ("run", "started", "run_status", *ROW_FIELDS)
-        q = "SELECT i.run, r.started, r.status, "
+        keys = ("run", "started", "run_status", "rig", "fleet", *ROW_FIELDS)
+        q = "SELECT i.run, r.started, r.status, r.rig, r.fleet, "
         q += ", ".join(f"i.{k}" for k in ROW_FIELDS)
         q += " FROM inventory_rows i JOIN runs r ON r.run = i.run "
         q += f"WHERE {where} AND (i.origin IS NULL OR i.origin = i.run "
-        q += "OR NOT EXISTS (SELECT 1 FROM runs o WHERE o.run = i.origin)) "
+        q += "OR NOT EXISTS (SELECT 1 FROM inventory_rows o WHERE o.run = i.origin "
+        q += "AND o.place = i.place AND (o.answer = i.answer "
+        q += "OR (o.answer IS NULL AND i.answer IS NULL)))) "
         q += "ORDER BY r.started DESC, i.run DESC, i.place"
         if limit:
             q += f" LIMIT {int(limit)}"
@@ -407,43 +420,25 @@ class InventoryStore:
         cur = self.conn.execute("SELECT DISTINCT place FROM inventory_rows ORDER BY place")
         return [r[0] for r in cur]
 
+    def diff_warning(self, run_a: str, run_b: str) -> str | None:
+        """Why a diff of runs ``run_a`` and ``run_b`` may compare two sites (they were flown
+        by different rigs or fleets: a place of one name may be another rack), else None."""
+        a, b = self.run(run_a), self.run(run_b)
+        fa, fb = flown_by(a), flown_by(b)
+        if fa is None or fb is None or fa == fb:
+            return None
+        return (
+            f"{run_a} was flown by {fa}, {run_b} by {fb}: if they are different sites, "
+            "places of one name are different racks and every change below is meaningless"
+        )
+
     def diff(self, run_a: str, run_b: str) -> list[dict]:
         """What changed from run ``run_a``'s inventory to ``run_b``'s, place by place:
         ``change`` is ``appeared`` (empty in A, a pallet in B), ``disappeared`` (a pallet
         in A, empty in B), ``turned`` (the same pallet showing its other side: ``109A`` ->
         ``109B``), ``changed`` (another answer), ``only in A`` / ``only in B`` (the place
         has an answer in one run only). Unchanged places are left out."""
-        a = {r["place"]: r for r in self.rows(run_a)}
-        b = {r["place"]: r for r in self.rows(run_b)}
-        out = []
-        for place in sorted(set(a) | set(b)):
-            ra, rb = a.get(place), b.get(place)
-            x, y = (ra or {}).get("answer") or "", (rb or {}).get("answer") or ""
-            if x == y:
-                continue
-            if not x:
-                change = "only in B"
-            elif not y:
-                change = "only in A"
-            elif x == "empty":
-                change = "appeared"
-            elif y == "empty":
-                change = "disappeared"
-            elif _side_of(x) is not None and _side_of(x) == _side_of(y):
-                change = "turned"
-            else:
-                change = "changed"
-            out.append(
-                {
-                    "place": place,
-                    "change": change,
-                    "a": x or None,
-                    "b": y or None,
-                    "a_status": (ra or {}).get("status"),
-                    "b_status": (rb or {}).get("status"),
-                }
-            )
-        return out
+        return diff_rows(self.rows(run_a), self.rows(run_b))
 
 
 class _SqliteImmediate:
@@ -466,14 +461,6 @@ class _SqliteImmediate:
             self.conn.rollback()
 
 
-def _side_of(answer: str) -> str | None:
-    """The pallet an answer names a side of (``109B`` -> ``109``: a digit and one letter, as
-    :func:`perception.expected.pallet_of` reads it; the store imports nothing of the
-    project), else None."""
-    s = answer.strip()
-    return s[:-1] if len(s) >= 2 and s[-1].isalpha() and s[-2].isdigit() else None
-
-
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip()
     return text.splitlines()[0] if text else type(exc).__name__
@@ -492,5 +479,6 @@ __all__ = [
     "StoreError",
     "default_url",
     "disabled",
+    "flown_by",
     "open_store",
 ]

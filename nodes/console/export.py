@@ -1,13 +1,18 @@
 """The inventory and its discrepancies as a WMS import takes them: CSV and XLSX.
 
 One line per place with the columns a warehouse management system's stock-count import
-expects: ``place``, ``pallet`` (the identity; empty for an empty or unknown place),
-``status`` (``identified``, ``reviewed`` when an operator decided it, ``unknown``,
+expects: ``place``, ``pallet`` (the identity; empty for an empty, unknown or not scanned
+place), ``status`` (``identified``, ``reviewed`` when an operator decided it, ``unknown``,
 ``empty``, ``not_scanned``, or the run's own status), ``time`` (when the place was
 answered, UTC ISO 8601: the start of the run that answered it, plus the row's mission time;
-empty when that run's start is not known) and ``drone``.
-The discrepancies add ``expected``, ``category`` and ``review``. A review decision
-replaces the run's answer in the export; the run's own files stay as they were.
+empty when that run's start is not known) and ``drone``. An empty ``pallet`` means an empty
+place only with ``status`` ``empty``: an import must read both columns (btrun's own
+expected-stock reader does, so the export read back as expected stock lists no
+expectation for an unknown or not scanned place).
+The discrepancies add ``expected``, ``category``, ``review`` and ``moved_from`` (where the
+expected stock has the pallet found here: what a WMS needs to correct the booking). A
+review decision replaces the run's answer in the export; the run's own files stay as they
+were.
 """
 
 from __future__ import annotations
@@ -20,7 +25,8 @@ from nodes.console.files import latest_by_place, safe_cell
 from nodes.console.runs import discrepancy, needs_review
 
 COLUMNS = ("place", "pallet", "status", "time", "drone")
-DISCREPANCY_COLUMNS = (*COLUMNS, "expected", "category", "review")
+#: ``moved_from`` last: the columns before it stand where they stood before it was added
+DISCREPANCY_COLUMNS = (*COLUMNS, "expected", "category", "review", "moved_from")
 KINDS = ("inventory", "discrepancies")
 
 
@@ -96,6 +102,7 @@ def discrepancy_rows(info: dict) -> list[dict]:
                 "expected": "" if expected is None else str(expected),
                 "category": category,
                 "review": f"{d['decision']} by {d.get('reviewer')}" if d else "",
+                "moved_from": str(row.get("moved_from") or ""),
             }
         )
     return out

@@ -318,10 +318,14 @@ def _crops_of_run(run_dir: str) -> list[np.ndarray]:
 
 def _enrol(args: argparse.Namespace) -> int:
     from nodes.gallery.enrol_scan import scan_blocks, scan_frames
+    from perception.gallery import identity_problem
     from perception.gallery_views import png_bytes
 
     if args.gallery == "demo":
         raise GalleryCommandError("the demo gallery is generated: enrol into your own file")
+    why = identity_problem(args.name)
+    if why is not None:  # before the model loads or a file is made
+        raise GalleryCommandError(f"enrol: {why}")
     s, g = _open(args, create=True)
     emb = s.embedder(args.embedder)
     if args.crops:
@@ -362,11 +366,15 @@ def _export(args: argparse.Namespace) -> int:
     ids, matrix = g.matrix()
     np.save(os.path.join(args.out_dir, "embeddings.npy"), matrix)
     entries = g.entries()
+    stems: set[str] = set()
     for e in entries:
+        stem = crop_file_stem(e["identity"], stems)
+        e["crop_files"] = []
         for i, png in enumerate(g.crops(e["identity"])):
-            name = f"{e['identity']}_block_{i + 1}.png"
+            name = f"{stem}_block_{i + 1}.png"
             with open(os.path.join(args.out_dir, name), "wb") as f:
                 f.write(png)
+            e["crop_files"].append(name)
     meta = {
         "gallery": os.path.abspath(g.path),
         "model_version": g.model_version,
@@ -381,6 +389,29 @@ def _export(args: argparse.Namespace) -> int:
         json.dump(meta, f, indent=1, default=str)
     print(f"exported {len(ids)} pallet sides of {g.path} to {args.out_dir}")
     return 0
+
+
+#: what an exported crop's file name keeps of an identity as it is
+_SAFE_STEM = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+
+
+def crop_file_stem(identity: str, taken: set[str]) -> str:
+    """The file name ``btrun gallery export`` gives ``identity``'s crops (before
+    ``_block_N.png``): the identity itself when it is plain (letters, digits, ``.``, ``_``,
+    ``-``), else its characters with every other one made ``_`` and a short hash of the
+    identity after them, so a name from before identities were checked (``../../etc``,
+    ``PAL/2026/1``, a line break) never leaves the export folder and two identities never
+    share a file, even where file names ignore case. ``taken`` (the stems given so far,
+    lower-cased) is updated."""
+    import hashlib
+
+    stem = identity
+    if not _SAFE_STEM.fullmatch(identity) or identity.lower() in taken:
+        plain = re.sub(r"[^A-Za-z0-9._-]", "_", identity)[:40].lstrip(".") or "_"
+        digest = hashlib.sha256(identity.encode("utf-8", "surrogatepass")).hexdigest()[:8]
+        stem = f"{plain}-{digest}"
+    taken.add(stem.lower())
+    return stem
 
 
 def _evaluate(args: argparse.Namespace) -> int:

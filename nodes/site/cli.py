@@ -25,6 +25,7 @@ from typing import Any
 from bt_engine.arg_types import count
 from bt_engine.spec import plural
 from store import InventoryStore, StoreError, default_url, disabled
+from store.inventory import flown_by
 
 
 def _limit(parser: argparse.ArgumentParser) -> None:
@@ -102,10 +103,11 @@ def _number(v: Any) -> str | None:
 
 
 def _pallet_history(store: InventoryStore, args: argparse.Namespace) -> int:
-    from perception.expected import pallet_of
+    from perception.expected import pallet_key, pallet_of
 
     want = pallet_of(args.pallet)
-    found = [h for h in store.answers_like(want) if pallet_of(h["answer"] or "") == want]
+    key = pallet_key(want)  # any case: a WMS may write the licence plate lower-case
+    found = [h for h in store.answers_like(want) if pallet_key(h["answer"] or "") == key]
     found = found[-args.limit :] if args.limit else found
     if not found:
         raise StoreError(f"{store.shown}: pallet {args.pallet!r} was not seen in any run")
@@ -118,17 +120,24 @@ def _pallet_history(store: InventoryStore, args: argparse.Namespace) -> int:
 
 
 def _rows_table(title: str, found: list[dict], keys: tuple[str, ...]) -> None:
-    """Run, start, the row's ``keys`` (numbers to 3 places), the run's status: a table."""
+    """Run, start, what flew it (rig or fleet: one store may hold several sites), the
+    row's ``keys`` (numbers to 3 places), the run's status: a table."""
     _table(
         title,
-        ["run", "started", *keys, "run status"],
+        ["run", "started", "rig or fleet", *keys, "run status"],
         [
-            [h["run"], _when(h["started"])]
+            [h["run"], _when(h["started"]), (flown_by(h) or "").partition(" ")[2]]
             + [_number(h[k]) if k in ("distance", "margin") else h[k] for k in keys]
             + [h["run_status"]]
             for h in found
         ],
     )
+    sites = sorted({flown_by(h) for h in found} - {None})
+    if len(sites) > 1:
+        print(
+            f"note: runs of {len(sites)} rigs or fleets ({', '.join(sites)}): where they are "
+            "different sites, a place of one name is a different rack in each"
+        )
 
 
 def _history(store: InventoryStore, args: argparse.Namespace) -> int:
@@ -138,15 +147,13 @@ def _history(store: InventoryStore, args: argparse.Namespace) -> int:
         return _pallet_history(store, args)
     found = store.history(args.place, args.limit)
     if not found:
-        import difflib
-
         places = store.places()
         if args.place in places:  # rows there, each carried over from a run kept beside it
             raise StoreError(
                 f"{store.shown}: place {args.place!r} has only rows that resumed runs "
                 "carried over; each is in the history of the run that found it"
             )
-        close = difflib.get_close_matches(args.place, places, n=1)
+        close = close_place(args.place, places)
         hint = (
             f" (did you mean {close[0]}?)"
             if close
@@ -161,6 +168,25 @@ def _history(store: InventoryStore, args: argparse.Namespace) -> int:
     return 0
 
 
+def close_place(name: str, places: list[str]) -> list[str]:
+    """The place ``name`` was meant to be, as a list of none or one: one that differs only
+    in case or leading zeros first (``a-05-2`` -> ``A-05-2``), else the closest spelling
+    (difflib, case ignored)."""
+    import difflib
+    import re
+
+    def canonical(text: str) -> str:
+        return re.sub(r"\d+", lambda m: str(int(m.group())), text.strip().upper())
+
+    want = canonical(name)
+    same = [p for p in places if canonical(p) == want]
+    if same:
+        return same[:1]
+    upper = {p.upper(): p for p in places}
+    close = difflib.get_close_matches(name.upper(), list(upper), n=1)
+    return [upper[c] for c in close]
+
+
 def _run_name(text: str) -> str:
     """A run named by its id or by its folder (``runs/inventory-...``)."""
     import os
@@ -171,9 +197,15 @@ def _run_name(text: str) -> str:
 def _diff(store: InventoryStore, args: argparse.Namespace) -> int:
     args.run_a, args.run_b = _run_name(args.run_a), _run_name(args.run_b)
     changes = store.diff(args.run_a, args.run_b)
+    warning = store.diff_warning(args.run_a, args.run_b)
     if args.json:
-        print(json.dumps({"a": args.run_a, "b": args.run_b, "changes": changes}, indent=1))
+        doc: dict[str, Any] = {"a": args.run_a, "b": args.run_b, "changes": changes}
+        if warning:
+            doc["warning"] = warning
+        print(json.dumps(doc, indent=1))
         return 0
+    if warning:
+        print(f"btrun inventory: warning: {warning}", file=sys.stderr)
     if not changes:
         print(f"{args.run_a} -> {args.run_b}: no place changed")
         return 0

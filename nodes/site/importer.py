@@ -10,8 +10,11 @@ from __future__ import annotations
 import os
 
 from nodes.inventory_log import InventoryError, read_inventory
-from nodes.site.recording import read_json, run_id, run_info
+from nodes.site.recording import flown_as, read_json, run_id, run_info
 from store import InventoryStore, StoreError
+
+#: two recorded starts this close (s) are one flight (as the store's own check has it)
+_SAME_FLIGHT_S = 1.0
 
 
 def check_run(run_dir: str) -> list[dict]:
@@ -42,7 +45,9 @@ def import_run(store: InventoryStore, run_dir: str) -> int:
     replaces. :class:`StoreError` for a folder without an inventory."""
     rows = check_run(run_dir)
     run = run_id(run_dir)
-    store.begin_run(run, **run_info(run_dir, imported=True))
+    info = run_info(run_dir, imported=True)
+    rows = own_rows(store, run, flown_as(run_dir), info.get("started"), rows)
+    store.begin_run(run, **info)
     n = store.record_rows(run, rows)
     status = read_json(os.path.join(run_dir, "summary.json")).get("status")
     ended_by = os.path.join(run_dir, "summary.json")
@@ -55,6 +60,33 @@ def import_run(store: InventoryStore, run_dir: str) -> int:
             ended = None
         store.end_run(run, status, ended)
     return n
+
+
+def own_rows(
+    store: InventoryStore,
+    run: str,
+    flown: str | None,
+    started: float | None,
+    rows: list[dict],
+) -> list[dict]:
+    """The rows of run ``run`` (flown as ``flown``, from ``started``) with the rows it
+    found itself under its old name given its new one. A renamed folder's rows still say
+    the name it flew under (their ``run``, the store's ``origin``), and the store leaves a
+    row out of the history when its origin run holds it; when the store's run of that name
+    is another flight (another station's ``inv-001``, another start) the rows were this
+    run's, and would have vanished from the history behind it. The same flight recorded
+    under the old name (an archived copy imported again) keeps them as its own; rows a
+    resumed run carried over from another run keep that run as their origin."""
+    if not flown or flown == run:
+        return rows
+    recorded = store.find_run(flown)
+    then = recorded.get("started") if recorded else None
+    if then is not None and started is not None and abs(float(then) - started) < _SAME_FLIGHT_S:
+        return rows  # a copy of the flight the store holds under its old name
+    return [
+        {**r, "run": run, "origin": run} if (r.get("origin") or r.get("run")) == flown else r
+        for r in rows
+    ]
 
 
 def _fleet_status(run_dir: str) -> tuple[str | None, str]:
@@ -80,4 +112,4 @@ def _fleet_status(run_dir: str) -> tuple[str | None, str]:
     return status, newest
 
 
-__all__ = ["import_run"]
+__all__ = ["check_run", "import_run", "own_rows"]

@@ -93,6 +93,18 @@ def run_info(run_dir: str, imported: bool = False) -> dict[str, Any]:
     return info
 
 
+def flown_as(run_dir: str) -> str | None:
+    """The run id the folder ``run_dir`` had when it flew (the name of the folder its
+    ``fleet.json`` or tick log header records: its rows' ``run`` says that name after the
+    folder is renamed), None if neither records it."""
+    fleet = read_json(os.path.join(run_dir, "fleet.json"))
+    for record in (fleet, _header(run_dir)):
+        flown = record.get("run_dir") if record else None
+        if isinstance(flown, str) and flown.strip() and "\0" not in flown:
+            return run_id(flown.replace("\\", "/")) or None
+    return None
+
+
 def _say(resources: dict) -> Callable[[str], None] | None:
     echo = resources.get("store_echo")
     return echo if callable(echo) else None
@@ -138,6 +150,7 @@ def finish_recording(resources: dict, run_dir: str | None) -> None:
 
 __all__ = [
     "finish_recording",
+    "flown_as",
     "open_recorder",
     "recorder_for",
     "run_id",
