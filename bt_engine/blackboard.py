@@ -10,6 +10,11 @@ other's entries. Each SubTree instance gets a child :class:`Scope`:
 * ``_autoremap="true"``: any other entry is shared with the parent under the same name,
   except private ones whose name starts with ``_``.
 * ``@key`` always means the mission's root scope.
+
+Every entry also has a *sequence id*, as in BehaviorTree.CPP (``Blackboard::Entry::
+sequence_id``): the number of writes since it was created (0 for an entry that does not
+exist). ``SkipUnlessUpdated``, ``WaitValueUpdate`` and ``WasEntryUpdated`` compare it with
+the id they saw last. It costs one dictionary update per write, nothing per read or tick.
 """
 
 from __future__ import annotations
@@ -27,7 +32,17 @@ _counter = itertools.count(1)
 class Scope:
     """One blackboard scope (the main tree, or one SubTree instance)."""
 
-    __slots__ = ("prefix", "parent", "remap", "autoremap", "root", "path", "writes", "_store")
+    __slots__ = (
+        "prefix",
+        "parent",
+        "remap",
+        "autoremap",
+        "root",
+        "path",
+        "writes",
+        "seq",
+        "_store",
+    )
 
     def __init__(
         self,
@@ -47,9 +62,12 @@ class Scope:
             self.prefix = ns + "/"
             #: entries written since the last :meth:`drain_writes` (root scope only)
             self.writes: dict[str, Any] | None = {}
+            #: writes per storage key since the entry was created (the whole mission's)
+            self.seq: dict[str, int] = {}
         else:
             self.prefix = f"{parent.prefix}{path}/"
             self.writes = None
+            self.seq = parent.seq
         self._store: dict[str, Any] = py_trees.blackboard.Blackboard.storage
 
     # -- resolution -------------------------------------------------------------
@@ -97,6 +115,11 @@ class Scope:
     def set(self, key: str, value: Any) -> None:
         """Write ``key`` (creating it in the scope the remapping rules choose)."""
         full = self.full_key(key)
+        seq = self.seq
+        n = seq.get(full)
+        if n is None:  # its first counted write; an entry stored directly (a SubTree's
+            n = 1 if full in self._store else 0  # literal port) was written once
+        seq[full] = n + 1
         self._store[full] = value
         w = self.root.writes
         if w is not None:
@@ -104,7 +127,26 @@ class Scope:
 
     def unset(self, key: str) -> None:
         """Remove ``key`` if present."""
-        self._store.pop(self.full_key(key), None)
+        full = self.full_key(key)
+        self._store.pop(full, None)
+        self.seq.pop(full, None)
+
+    def unset_local(self, key: str) -> None:
+        """Remove ``key`` only if it is stored in this scope itself, as BehaviorTree.CPP's
+        ``Blackboard::unset``: an entry reached through remapping, ``_autoremap`` or
+        ``@`` is left alone."""
+        full = self.prefix + key
+        if full in self._store:
+            del self._store[full]
+            self.seq.pop(full, None)
+
+    def sequence_id(self, key: str) -> int:
+        """Writes to ``key`` since its entry was created; 0 if it does not exist
+        (BehaviorTree.CPP's ``sequence_id``)."""
+        full = self.full_key(key)
+        if full not in self._store:
+            return 0
+        return self.seq.get(full, 1)
 
     def local_items(self) -> Iterator[tuple[str, Any]]:
         """Entries stored directly in this scope (not in child scopes)."""
@@ -130,3 +172,5 @@ class Scope:
         """Delete every entry of this scope and its child scopes from py_trees' storage."""
         for k in [k for k in self._store if k.startswith(self.prefix)]:
             del self._store[k]
+        for k in [k for k in self.seq if k.startswith(self.prefix)]:
+            del self.seq[k]

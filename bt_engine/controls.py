@@ -11,6 +11,7 @@ child that went from IDLE to SUCCESS within one tick, when more children remain.
 
 from __future__ import annotations
 
+from bt_engine import async_controls, switch  # noqa: F401  (register their built-ins too)
 from bt_engine.node import (
     FAILURE,
     IDLE,

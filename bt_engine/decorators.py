@@ -6,6 +6,7 @@ mission context, never ``time.*``: on the simulated clock they are exact and det
 
 from __future__ import annotations
 
+from bt_engine import entry_updated, precondition  # noqa: F401  (register their built-ins)
 from bt_engine.node import (
     FAILURE,
     IDLE,
