@@ -12,7 +12,8 @@ from typing import Any
 
 from bt_engine.blackboard import Scope
 from bt_engine.node import POST_CONDITIONS, PRE_CONDITIONS, BTNode, MissionContext
-from bt_engine.ports import blackboard_ref
+from bt_engine.plugin_code import conversion_said, creation_said
+from bt_engine.ports import PortValueError, blackboard_ref
 from bt_engine.registry import SUBTREE, Registry
 from bt_engine.script import parse_script
 from bt_engine.spec import MAX_NESTING_DEPTH, MissionError, MissionSpec, NodeSpec, Problem
@@ -47,7 +48,11 @@ class _Builder:
         assert model is not None, spec.type
         name = spec.name or model.id
         path = f"{parent_path}/{label or name}"
-        node = model.cls(name, self.ctx)
+        try:
+            node = model.cls(name, self.ctx)
+        except Exception as exc:  # a plug-in's __init__: located, never a traceback
+            problem = Problem(spec.type_loc or spec.loc, creation_said(model, exc))
+            raise MissionError([problem]) from exc
         node.bt_id = model.id
         node.loc = spec.loc
         node.path = path
@@ -67,7 +72,17 @@ class _Builder:
             if ref is not None:
                 node.bind_entry(key, key if ref == "=" else ref)
             else:
-                node.bind_literal(key, port.type.convert(attr.value))
+                try:
+                    value = port.type.convert(attr.value)
+                except Exception as exc:  # a plug-in's port type: located, not a traceback
+                    said = str(exc) if isinstance(exc, PortValueError) else None
+                    message = (
+                        f"port '{key}' of {spec.type}: {said}"
+                        if said is not None
+                        else conversion_said(port, spec.type, attr.value, exc)
+                    )
+                    raise MissionError([Problem(attr.loc, message)]) from None
+                node.bind_literal(key, value)
         labels = _child_labels(spec.children, self.registry)
         for child_spec, child_label in zip(spec.children, labels, strict=True):
             node.add_child(self.node(child_spec, scope, path, child_label, depth + 1))

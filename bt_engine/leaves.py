@@ -1,4 +1,5 @@
-"""Built-in leaves: AlwaysSuccess, AlwaysFailure, Sleep, SetBlackboard, Script, ScriptCondition.
+"""Built-in leaves: AlwaysSuccess, AlwaysFailure, Sleep, SetBlackboard, UnsetBlackboard,
+Script, ScriptCondition.
 
 Scripts use the safe interpreter in :mod:`bt_engine.script` (no Python ``eval``).
 """
@@ -91,6 +92,24 @@ class SetBlackboard(SyncActionNode):
         return SUCCESS
 
 
+class UnsetBlackboard(SyncActionNode):
+    """Remove the entry ``key`` from this tree's blackboard; SUCCESS (also if it was not set).
+
+    As BehaviorTree.CPP's ``Blackboard::unset``, only an entry of the node's own scope is
+    removed: inside a SubTree, an entry reached through remapping or ``_autoremap``, and an
+    ``@`` entry, are left as they are. ``key="{name}"`` removes the entry whose name the
+    entry ``name`` holds.
+    """
+
+    bt_id = "UnsetBlackboard"
+    category = CATEGORY
+    ports = (input_port("key", STRING, description="Key of the entry to remove"),)
+
+    def tick_impl(self) -> NodeStatus:
+        self.scope.unset_local(self.get_input("key"))
+        return SUCCESS
+
+
 class _ScriptLeaf:
     """Shared by Script and ScriptCondition: the code is parsed once, at build time."""
 
@@ -135,5 +154,13 @@ class ScriptCondition(_ScriptLeaf, ConditionNode):
         return SUCCESS if _truthy(self._run()) else FAILURE
 
 
-for _cls in (AlwaysSuccess, AlwaysFailure, Sleep, SetBlackboard, Script, ScriptCondition):
+for _cls in (
+    AlwaysSuccess,
+    AlwaysFailure,
+    Sleep,
+    SetBlackboard,
+    UnsetBlackboard,
+    Script,
+    ScriptCondition,
+):
     REGISTRY.register(_cls)

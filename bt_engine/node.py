@@ -31,6 +31,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import py_trees
 from py_trees.common import Status as PTStatus
 
+from bt_engine import node_checks as checks
+from bt_engine.node_checks import CHANGE_LIMIT, compact_changes
 from bt_engine.ports import ANY, NO_DEFAULT, STRING, Port, PortValueError
 from bt_engine.watchdog import TickOverrun
 
@@ -130,25 +132,6 @@ class MissionContext:
 
 _LITERAL, _REF = 0, 1
 
-#: Status changes recorded between two reads of the tick log before they are compacted
-#: (a loop that never leaves one tick must not grow memory without bound).
-CHANGE_LIMIT = 50_000
-
-
-def compact_changes(changes: list) -> None:
-    """Shrink a list of ``(node, old, new)`` status changes in place to what the tick log
-    and the failure report read: each node's first change (its status before the tick) and
-    each node's last SUCCESS/FAILURE, in the order they happened."""
-    first: dict[Any, tuple[int, tuple]] = {}
-    done: dict[Any, tuple[int, tuple]] = {}
-    for i, (n, old, st) in enumerate(changes):
-        if n not in first:
-            first[n] = (i, (n, old, st))
-        if st is SUCCESS or st is FAILURE:
-            done[n] = (i, (n, st, st))
-    keep = sorted([*first.values(), *done.values()], key=lambda item: item[0])
-    changes[:] = [t for _, t in keep]
-
 
 class BTNode(py_trees.behaviour.Behaviour):
     """Base of all btrun nodes. Subclasses implement :meth:`tick_impl` (and :meth:`halt`)."""
@@ -158,6 +141,8 @@ class BTNode(py_trees.behaviour.Behaviour):
     ports: ClassVar[tuple[Port, ...]] = ()
     aliases: ClassVar[tuple[str, ...]] = ()
     category: ClassVar[str] = ""
+    #: a tick that returns RUNNING is an error (BehaviorTree.CPP's SyncActionNode)
+    never_running: ClassVar[bool] = False
 
     def __init__(self, name: str, ctx: MissionContext | None = None) -> None:
         super().__init__(name)
@@ -202,12 +187,21 @@ class BTNode(py_trees.behaviour.Behaviour):
         """Tick this node once, with pre/post-conditions, and return its new status."""
         self.tick_count += 1
         pre = self._pre
-        if pre is not None:
-            new = self._check_pre_conditions(pre)
-            if new is None:
+        try:
+            if pre is not None:
+                new = self._check_pre_conditions(pre)
+                if new is None:
+                    new = self.tick_impl()
+            else:
                 new = self.tick_impl()
-        else:
-            new = self.tick_impl()
+        except Exception as exc:  # a plug-in's code: where in it (the reason names it)
+            if not isinstance(exc, NodeRuntimeError):
+                checks.note_raised_at(exc, type(self))
+            raise
+        if new is IDLE or (new is RUNNING and self.never_running):  # as BehaviorTree.CPP
+            raise NodeRuntimeError(
+                self, checks.IDLE_RETURNED if new is IDLE else checks.SYNC_RUNNING
+            )
         if self._post is not None and (new is SUCCESS or new is FAILURE):
             self._run_post(new)
         # BT.CPP keeps the previous status (usually IDLE) of a skipped node; only the parent sees SKIPPED.
@@ -461,9 +455,11 @@ class LeafNode(BTNode):
 
 
 class SyncActionNode(LeafNode):
-    """An action that finishes within one tick: :meth:`tick_impl` returns SUCCESS or FAILURE."""
+    """An action that finishes within one tick: :meth:`tick_impl` returns SUCCESS or FAILURE
+    (RUNNING is an error of that tick, as in BehaviorTree.CPP)."""
 
     kind = "Action"
+    never_running = True
 
 
 class ConditionNode(LeafNode):
@@ -472,11 +468,15 @@ class ConditionNode(LeafNode):
     kind = "Condition"
 
     def check(self) -> bool:
-        """Return True if the condition holds."""
+        """Return True if the condition holds (anything but True or False is an error)."""
         raise NotImplementedError
 
     def tick_impl(self) -> NodeStatus:
-        return SUCCESS if self.check() else FAILURE
+        value = self.check()
+        held = value if value is True or value is False else checks.check_result(value)
+        if held is None:  # "no", 1, None...: an error, not whatever Python finds true
+            raise NodeRuntimeError(self, checks.check_said(value))
+        return SUCCESS if held else FAILURE
 
 
 class StatefulActionNode(LeafNode):
@@ -508,6 +508,8 @@ class StatefulActionNode(LeafNode):
         return prev
 
     def halt(self) -> None:
-        if self.bt_status is RUNNING:
-            self.on_halted()
-        self.reset_status()
+        try:
+            if self.bt_status is RUNNING:
+                self.on_halted()
+        finally:  # an on_halted that raised (stopped by the watchdog) is not called again
+            self.reset_status()

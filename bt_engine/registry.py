@@ -143,9 +143,25 @@ class Registry:
             raise ValueError(f"{cls.__name__}: kind must be one of {KINDS}, not {kind!r}")
         if node_id in self._models and not replace and self._models[node_id].cls is not cls:
             raise ValueError(
-                f"a node called {node_id!r} is already registered: give yours another bt_id"
+                f"a node called {node_id!r} is already registered: give yours another bt_id "
+                f"(that one: {_defined_at(self._models[node_id].cls)})"
             )
+        aliases = tuple(getattr(cls, "aliases", ()))
+        for name in (node_id, *aliases):
+            taken = self._aliases.get(name)
+            if taken is not None and taken != node_id and not replace:
+                raise ValueError(
+                    f"{name!r} is already an alias of node {taken!r}: give yours another "
+                    + ("bt_id" if name == node_id else "alias")
+                    + f" (that one: {_defined_at(self._models[taken].cls)})"
+                )
+            if name != node_id and name in self._models and not replace:
+                raise ValueError(
+                    f"alias {name!r} of {node_id!r} is already a node: give yours another "
+                    f"alias (that one: {_defined_at(self._models[name].cls)})"
+                )
         ports = _checked_ports(node_id, getattr(cls, "ports", ()))
+        self._check_enums(node_id, ports)
         lo, hi = _children_range(kind, cls)
         model = NodeModel(
             id=node_id,
@@ -158,9 +174,35 @@ class Registry:
             category=getattr(cls, "category", "") or "",
         )
         self._models[node_id] = model
-        for alias in getattr(cls, "aliases", ()):
+        for alias in aliases:
             self._aliases[alias] = node_id
         return cls
+
+    def _check_enums(self, node_id: str, ports: dict[str, Port]) -> None:
+        """Refuse (``ValueError``) an enum member name of ``ports`` that a registered node
+        already gives another value: scripts read every member by its bare name
+        (``ym := FIXED_YAW``), so the first one registered would silently win in every
+        mission, whichever node the mission uses."""
+        mine = [
+            (name, value, p.name)
+            for p in ports.values()
+            for name, value in (getattr(p.type, "members", None) or {}).items()
+        ]
+        if not mine:
+            return
+        for other in self._models.values():
+            if other.id == node_id:
+                continue
+            for q in other.ports.values():
+                theirs = getattr(q.type, "members", None) or {}
+                for name, value, port in mine:
+                    if name in theirs and theirs[name] != value:
+                        raise ValueError(
+                            f"node {node_id!r}, port {port!r}: enum name {name} = {value} is "
+                            f"already {name} = {theirs[name]} (port {q.name!r} of node "
+                            f"{other.id!r}: {_defined_at(other.cls)}); scripts read enum "
+                            "names bare in every mission: name yours otherwise"
+                        )
 
     def get(self, node_id: str) -> NodeModel | None:
         """Return the model of ``node_id`` (or of the node it is an alias of), else None."""
@@ -218,6 +260,16 @@ def register(cls: type[BTNode]) -> type[BTNode]:
     (``btrun nodes --markdown docs/nodes.md``). ``register(cls)`` works as a plain call too.
     """
     return REGISTRY.register(cls)
+
+
+def _defined_at(cls: Any) -> str:
+    """``module, file:line`` where ``cls`` is defined, for a collision's message."""
+    module = getattr(cls, "__module__", "?")
+    try:
+        _, line = inspect.getsourcelines(cls)
+        return f"{module}, {inspect.getsourcefile(cls)}:{line}"
+    except (OSError, TypeError):
+        return str(module)
 
 
 def suggest_name(name: str, candidates: list[str]) -> str | None:

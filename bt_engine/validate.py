@@ -24,6 +24,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from bt_engine.node_checks import said
+from bt_engine.plugin_code import conversion_said, creation_problems
 from bt_engine.ports import NO_DEFAULT, PortValueError, blackboard_ref, declared_type
 from bt_engine.registry import CONTROL, DECORATOR, SUBTREE, Registry, suggest_name
 from bt_engine.root_entries import root_entries
@@ -144,6 +146,7 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
                         too_deep = True  # one problem per tree
                         self.add(node.loc, nesting_message(depth))
                     self.node(node)
+        self.problems += creation_problems(spec, self.registry)  # a plug-in's __init__
         self.model_defaults()
         self.orphan_models()
         if main in spec.trees:
@@ -225,8 +228,10 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
     def scripts(self, node: NodeSpec):
         """``(attribute, parsed script)`` of every valid script of ``node``."""
         for key, attr in node.attrs.items():
-            code = key in CONDITION_ATTRS or (
-                key == "code" and node.type in ("Script", "ScriptCondition")
+            code = (
+                key in CONDITION_ATTRS
+                or (key == "code" and node.type in ("Script", "ScriptCondition"))
+                or (key == "if" and node.type == "Precondition")
             )
             script = _parsed(attr.value) if code else None
             if script is not None:
@@ -299,6 +304,9 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
                 value = port.type.convert(attr.value)
             except PortValueError as exc:
                 self.add(attr.loc, f"port '{key}' of {node.type}: {exc}")
+                continue
+            except Exception as exc:  # noqa: BLE001 - a plug-in's port type: said, located
+                self.add(attr.loc, conversion_said(port, node.type, attr.value, exc))
                 continue
             outside = port.out_of_range(value) if port.reads else None
             if outside is not None:  # a literal: the file alone says it, no rig needed
@@ -433,12 +441,13 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
                         continue
                     try:
                         port.type.convert(attr.value)
-                    except PortValueError as exc:
+                    except Exception as exc:  # noqa: BLE001 - a plug-in's type too: said
                         via = " -> ".join(chain)
+                        why = exc if isinstance(exc, PortValueError) else said(exc, None)
                         self.add(
                             attr.loc,
                             f"SubTree port '{key}' = {_brief(attr.value)} is read as port "
-                            f"'{pname}' of {node.type} ({a.loc}, in {via}): {exc}",
+                            f"'{pname}' of {node.type} ({a.loc}, in {via}): {why}",
                         )
                         return
 

@@ -103,6 +103,11 @@ def stuck_in(thread_id: int) -> str:
         return ""
 
 
+def _seconds(s: float) -> str:
+    """A wait in seconds for a message: ``10``, ``22.1``, ``0.15``."""
+    return f"{s:g}" if s == round(s, 1) else f"{s:.2g}" if s < 1 else f"{s:.1f}"
+
+
 #: seconds one tick may still take once an operator interrupt arrived (:meth:`TickWatchdog.hurry`)
 HURRY_BUDGET_S = 1.0
 #: lock-step: a host this many times over-committed stretches the budget at most so much
@@ -282,16 +287,18 @@ class TickWatchdog:
             except Exception:  # pragma: no cover - the tree is mid-change
                 where = ""
         where = where or stuck_in(target)
+        waited = budget
         if busy >= 1.05:  # said only when it changed the budget noticeably (not "x1.0")
-            where += f" (budget x{busy:.1f}: a busy host)"
+            waited = budget * busy  # what was waited for: the stretched budget
+            where += f" (the {budget:g} s budget x{busy:.1f}: a busy host)"
         if why:
             self.reason = (
-                f"{why}; watchdog: tick {tick} did not return within {budget:g} s of it"
+                f"{why}; watchdog: tick {tick} did not return within {_seconds(waited)} s of it"
                 f"{where}; the tree was stopped and the drone landed"
             )
         else:
             self.reason = (
-                f"watchdog: tick {tick} did not return within {budget:g} s{where}; "
+                f"watchdog: tick {tick} did not return within {_seconds(waited)} s{where}; "
                 "the tree was stopped and the drone landed"
             )
         self._fired_at = now

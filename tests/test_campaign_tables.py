@@ -72,6 +72,9 @@ class FakePool:
     def describe(self) -> str:
         return "a fake cluster"
 
+    def check_workers(self, node_ids: Any) -> None:
+        pass
+
     def results(self, payloads: Any):
         for n, p in enumerate(payloads):
             if n == FakePool.interrupt_after:  # Ctrl-C, handled as the command handles it

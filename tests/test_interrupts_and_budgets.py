@@ -439,7 +439,8 @@ def test_a_lock_step_spin_ends_within_the_default_budget(tmp_path) -> None:
     assert code == 1, (code, stdout, stderr)
     s = _summary(out)
     assert s is not None and s["reason"].startswith("watchdog: tick"), s
-    assert "within 10 s" in s["reason"], s["reason"]
+    # a busy host stretches the budget, and the reason then says how long it waited
+    assert "within 10 s" in s["reason"] or "(the 10 s budget x" in s["reason"], s["reason"]
 
 
 @pytest.mark.slow  # builds the demo gallery from scratch (about 20 s) and flies the scan

@@ -23,7 +23,7 @@ from bt_engine.inputs import (
     parse_set_value,
     undeclared_input,
 )
-from bt_engine.loading import check_mission
+from bt_engine.loading import check_mission, load_spec
 from bt_engine.mission import Mission
 from bt_engine.plugins import load_plugins, load_target
 from bt_engine.registry import REGISTRY
@@ -63,6 +63,19 @@ def check_campaign(c: Campaign, rows: Iterable[Row], include_paths: list[str] | 
     return len(checked)
 
 
+def mission_node_ids(c: Campaign, include_paths: list[str] | None = None) -> set[str]:
+    """The node IDs the campaign's missions use (as the files write them; SubTrees
+    expanded from their files): what every worker must know (its plug-ins loaded)."""
+    ids: set[str] = set()
+    for path in dict.fromkeys(c.mission_paths):
+        spec = load_spec(path, include_paths)
+        for tree in spec.trees.values():
+            for node in tree.root.walk() if tree.root is not None else ():
+                if node.type != "SubTree" and REGISTRY.get(node.type) is not None:
+                    ids.add(node.type)
+    return ids
+
+
 def _is_rig_key(key: str) -> bool:
     """A dotted key is a rig/world setting, except ``bb.NAME`` (a blackboard entry)."""
     return "." in key and not key.startswith(UNCHECKED_PREFIX)
@@ -84,7 +97,8 @@ def _check_inputs(c: Campaign, mission: str, declared: set[str]) -> list[Problem
 
 def _check_values(c: Campaign, mission: Mission) -> list[Problem]:
     """Every value the campaign gives a plain (blackboard) key that a port reading it cannot
-    take (``grid: {sweep_speed: [0.5, fast]}``), located where the campaign file wrote the
+    take, by type (``grid: {sweep_speed: [0.5, fast]}``) or by the port's range
+    (``shots: [0, 60]`` for a count of 1 to 50), located where the campaign file wrote the
     key: each value of a grid or a cycle, the fixed ones, the bounds of a draw."""
     values: dict[str, list[Any]] = {}
 
@@ -107,12 +121,21 @@ def _check_values(c: Campaign, mission: Mission) -> list[Problem]:
     for key, vals in values.items():
         for text in dict.fromkeys(value_text(x) for x in vals):  # as a run's --set reads it
             mission.scope.set(key, parse_set_value(text))
-            found = mission.set_value_problems({key})
+            found = mission.set_value_problems({key}) or _range_problems(mission, key)
             if found:  # the first bad value of a key says it
                 where = c.key_locs.get(key) or Loc(c.path, 1, 1)
                 out.append(Problem(where, found[0].message))
                 break
     return out
+
+
+def _range_problems(mission: Mission, key: str) -> list[Problem]:
+    """The problems of the ranges (``low``/``high``) of the ports that read ``key`` (through
+    SubTree remapping too), as a run's ``--set key=...`` gets them before flight: the
+    range part of :meth:`~bt_engine.mission.Mission.preflight`, without the nodes' own
+    checks (those need the rig)."""
+    found = mission._preflight(lambda node: True, {key}, False)
+    return [p for p in found if p.loc.file == "--set"]
 
 
 def _drawn_keys(c: Campaign, case: FaultCase | None) -> dict[str, list[Any]]:

@@ -1,8 +1,10 @@
 """``btrun campaign CAMPAIGN.yaml --out DIR``: the command line of :func:`run_campaign`.
 
 Exit codes: 0 every selected row has a result (whatever the runs' outcomes: the table says
-them), 1 interrupted (Ctrl-C; the finished rows are kept, the same command resumes),
-2 invalid input (located problems, or a Dask scheduler that does not answer; nothing ran).
+them) and none is CRASHED, 1 interrupted (Ctrl-C; the finished rows are kept, the same
+command resumes), 2 invalid input (located problems, a Dask scheduler that does not answer
+or Dask workers that lack the missions' nodes; nothing ran), 3 every row has a result but
+some are CRASHED (``--retry-crashed`` runs them again).
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ from bt_engine.arg_types import positive
 from bt_engine.campaign.pool import CONNECT_TIMEOUT_S
 
 KEEP_CHOICES = ("failed", "all", "none")
+#: exit code of a campaign whose every row has a result, some of them CRASHED
+EXIT_CRASHED = 3
 
 
 def setup(p: argparse.ArgumentParser) -> None:
@@ -49,6 +53,11 @@ def setup(p: argparse.ArgumentParser) -> None:
         "--dry-run", action="store_true", help="check the campaign and list its rows; fly nothing"
     )
     p.add_argument(
+        "--retry-crashed",
+        action="store_true",
+        help="run again the rows saved as CRASHED in --out (once their cause is fixed)",
+    )
+    p.add_argument(
         "--keep-runs",
         choices=KEEP_CHOICES,
         default=None,
@@ -59,8 +68,8 @@ def setup(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the command; :class:`~bt_engine.spec.MissionError` propagates (exit code 2)."""
     from bt_engine.campaign.check import check_campaign
-    from bt_engine.campaign.execution import run_campaign
-    from bt_engine.campaign.pool import SchedulerUnreachable, WorkerError
+    from bt_engine.campaign.execution import finished_keys, run_campaign
+    from bt_engine.campaign.pool import SchedulerUnreachable, WorkerError, WorkersCannotRun
     from bt_engine.campaign.report import print_summary
     from bt_engine.campaign.results import ResultStore
     from bt_engine.campaign.rows import dry_run_lines, expand
@@ -77,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
         rows = expand(c)
         checked = check_campaign(c, rows, args.include_path)
         selected = rows[: args.limit] if args.limit is not None else rows
-        done = set(ResultStore(args.out).finished()) if args.out else set()
+        saved = ResultStore(args.out).finished() if args.out else {}
+        done = set(finished_keys(saved, getattr(args, "retry_crashed", False)))
         for line in dry_run_lines(c, selected, done):  # generated line by line
             print(line)
         n_done = sum(r.key in done for r in selected) if done else 0
@@ -100,8 +110,9 @@ def run(args: argparse.Namespace) -> int:
             limit=args.limit,
             keep_runs=args.keep_runs,
             include_paths=args.include_path,
+            retry_crashed=getattr(args, "retry_crashed", False),
         )
-    except SchedulerUnreachable as exc:  # a wrong address is a bad input: nothing ran
+    except (SchedulerUnreachable, WorkersCannotRun) as exc:  # bad input: nothing ran
         print(f"btrun campaign: {exc}", file=sys.stderr)
         return 2
     except (WorkerError, OSError) as exc:  # the finished rows are saved: the command resumes
@@ -126,6 +137,16 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
+    crashed = counts.get("CRASHED", 0)
+    if crashed:
+        print(
+            f"btrun campaign: {crashed} of {len(result.table)} rows CRASHED (a run raised or "
+            "its worker process died: their reason column and campaign_error.log say why); "
+            "once the cause is fixed, run them again with: "
+            f"{resume_command(args, retry_crashed=True)}",
+            file=sys.stderr,
+        )
+        return EXIT_CRASHED
     return 0
 
 
@@ -141,10 +162,11 @@ def _take_ctrl_c() -> Any:
         return None
 
 
-def resume_command(args: argparse.Namespace) -> str:
+def resume_command(args: argparse.Namespace, retry_crashed: bool = False) -> str:
     """The command line that resumes this campaign: the same campaign file and folder, and
     every option that says where and how its rows run (``--scheduler`` and its time-out,
-    ``--workers``, ``--limit``, ``--keep-runs``, ``--include-path``), quoted for a shell."""
+    ``--workers``, ``--limit``, ``--keep-runs``, ``--include-path``, ``--retry-crashed``,
+    given or ``retry_crashed``), quoted for a shell."""
     cmd = ["btrun", "campaign", args.campaign, "--out", args.out]
     if args.scheduler:
         cmd += ["--scheduler", args.scheduler]
@@ -158,4 +180,6 @@ def resume_command(args: argparse.Namespace) -> str:
         cmd += ["--keep-runs", args.keep_runs]
     for path in getattr(args, "include_path", None) or ():
         cmd += ["--include-path", path]
+    if retry_crashed or getattr(args, "retry_crashed", False):
+        cmd.append("--retry-crashed")
     return shlex.join(cmd)

@@ -25,7 +25,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
-from bt_engine.campaign.check import check_campaign
+from bt_engine.campaign.check import check_campaign, mission_node_ids
 from bt_engine.campaign.pool import CONNECT_TIMEOUT_S, DaskPool, LocalPool
 from bt_engine.campaign.results import ResultStore, table_rows, write_tables
 from bt_engine.campaign.rows import Row, expand
@@ -59,6 +59,13 @@ class CampaignRun:
         """Every selected row has a result."""
         names = {t["row"] for t in self.table}
         return all(r.name in names for r in self.selected)
+
+
+def finished_keys(records: dict[str, dict[str, Any]], retry_crashed: bool) -> frozenset[str]:
+    """The keys of the saved rows a run skips: all, or all but the CRASHED ones."""
+    if not retry_crashed:
+        return frozenset(records)
+    return frozenset(k for k, rec in records.items() if rec.get("status") != "CRASHED")
 
 
 def payload(c: Campaign, row: Row, out_dir: str, keep: str, include_paths: list[str]) -> dict:
@@ -202,6 +209,7 @@ def run_campaign(
     include_paths: list[str] | None = None,
     progress: TextIO | None = None,
     report: bool = True,
+    retry_crashed: bool = False,
 ) -> CampaignRun:
     """Check the campaign (raises :class:`~bt_engine.spec.MissionError`: nothing runs), run
     its unfinished rows (the first ``limit`` only, if given) on ``workers`` local processes
@@ -209,7 +217,13 @@ def run_campaign(
     :class:`~bt_engine.campaign.pool.SchedulerUnreachable` if it does not answer within
     ``connect_timeout_s``: nothing runs), write the tables and the report into ``out_dir``.
     The progress, and the cluster's dashboard link, go to ``progress`` (default stderr).
-    Ctrl-C returns with ``interrupted`` set."""
+    Ctrl-C returns with ``interrupted`` set.
+
+    A row saved as CRASHED counts as finished unless ``retry_crashed``: then it runs again
+    (after the cause, a worker without the plug-in, say, was fixed). On a Dask cluster,
+    every worker connected is first asked whether its worker processes know the
+    missions' nodes (:meth:`~bt_engine.campaign.pool.DaskPool.check_workers`; raises
+    :class:`~bt_engine.campaign.pool.WorkersCannotRun`: nothing runs)."""
     c = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
     rows = expand(c)  # lazy; raises first if there are more than c.max_rows
     include_paths = list(include_paths or ())
@@ -218,13 +232,18 @@ def run_campaign(
     selected = rows[:limit] if limit is not None else rows
     store = ResultStore(out_dir)
     records = store.finished()
-    finished = frozenset(records)  # what was there before: the rows to skip
+    finished = finished_keys(records, retry_crashed)  # what was there before: to skip
     n_todo = sum(r.key not in finished for r in selected)
     stream = progress or sys.stderr
     pool: LocalPool | DaskPool | None = None
     if n_todo and scheduler:  # before anything is written: a wrong address fails at once
         pool = DaskPool(scheduler, connect_timeout_s)
         print(f"campaign: {pool.describe()}", file=stream, flush=True)
+        try:  # workers without the plug-in: every row CRASHED, unknown node
+            pool.check_workers(mission_node_ids(c, include_paths))
+        except BaseException:
+            pool.close()
+            raise
     try:
         os.makedirs(out_dir, exist_ok=True)
         copy = os.path.join(out_dir, "campaign.yaml")  # what these results were made from

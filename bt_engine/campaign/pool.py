@@ -26,6 +26,7 @@ import queue
 import selectors
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -61,6 +62,29 @@ class SchedulerUnreachable(Exception):
             "start one with `dask scheduler`\n  (it listens on tcp://HOST:8786) and workers "
             "with `dask worker tcp://HOST:8786 --nthreads 1`;\n  --connect-timeout SECONDS "
             "waits longer for a slow network."
+        )
+
+
+class WorkersCannotRun(Exception):
+    """Dask workers whose worker processes lack nodes the campaign's missions use (their
+    plug-in is not loaded there) or fail to load a plug-in: nothing ran."""
+
+    def __init__(self, bad: list[tuple[str, dict[str, Any]]], total: int) -> None:
+        self.bad = bad
+        lines = []
+        for address, answer in bad[:5]:
+            what = answer.get("error") or "unknown node(s) " + ", ".join(answer["missing"])
+            lines.append(f"  {address} (host {answer.get('host', '?')}): {what}")
+        if len(bad) > 5:
+            lines.append(f"  ... and {len(bad) - 5} more")
+        here = os.environ.get("BTRUN_PLUGINS", "")
+        named = f" (here BTRUN_PLUGINS={here}" if here else " (BTRUN_PLUGINS"
+        super().__init__(
+            f"{len(bad)} of the {total} Dask workers cannot run this campaign's missions; "
+            "nothing ran:\n" + "\n".join(lines) + "\n  Every worker needs the plug-ins "
+            f"this command loaded{named}, with PYTHONPATH for one that is not installed) or "
+            "their package installed with its btrun.plugins entry point: start `dask "
+            "worker` in that environment (docs/campaigns.md, On a Dask cluster)."
         )
 
 
@@ -309,6 +333,42 @@ class DaskPool:
             return f"{text}; dashboard: {link}"
         return f"{text}; no dashboard (the scheduler serves one where bokeh is installed)"
 
+    def check_workers(self, node_ids: Iterable[str], timeout_s: float = STARTUP_TIMEOUT_S) -> None:
+        """Raise :class:`WorkersCannotRun` unless a worker process of every Dask worker
+        connected now loads the plug-ins and knows every node of ``node_ids`` (one short
+        task per worker, :func:`check_nodes_on_dask_worker`): workers started without the
+        plug-in's environment made every row CRASHED. Workers that join later are not
+        checked (their rows say it, CRASHED)."""
+        ids = sorted(set(node_ids))
+        workers = list(self.client.nthreads())  # every worker connected now
+        if not workers:
+            return
+        session = uuid.uuid4().hex[:8]
+        futures = [
+            (
+                w,
+                self.client.submit(
+                    check_nodes_on_dask_worker,
+                    ids,
+                    key=f"btrun-check-{i}-{session}",
+                    workers=[w],
+                    allow_other_workers=False,
+                    pure=False,
+                ),
+            )
+            for i, w in enumerate(workers)
+        ]
+        bad = []
+        for address, future in futures:
+            try:
+                answer = future.result(timeout=timeout_s)
+            except Exception as exc:  # noqa: BLE001 - the worker's failure is the answer
+                answer = {"error": f"the check failed: {type(exc).__name__}: {exc}"}
+            if answer.get("error") or answer.get("missing"):
+                bad.append((address, answer))
+        if bad:
+            raise WorkersCannotRun(bad, len(workers))
+
     def results(self, payloads: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
         """Run every payload; yield the results as they finish (any order). ``payloads`` may
         be a generator: it is advanced only as runs are submitted.
@@ -370,6 +430,30 @@ def run_on_dask_worker(payload: dict[str, Any]) -> dict[str, Any]:
                 atexit.register(_close_dask_workers)
             wp = _DASK_WORKERS[threading.get_ident()] = WorkerProcess()
     return wp.run(payload)
+
+
+def check_nodes_on_dask_worker(node_ids: list[str]) -> dict[str, Any]:
+    """A Dask task: what a worker process started here (same interpreter, environment and
+    folder as :class:`WorkerProcess`) lacks to run ``node_ids``
+    (:func:`bt_engine.campaign.worker.check_nodes`), with this host's name."""
+    cmd = [sys.executable, "-m", "bt_engine.campaign.worker", "--check-nodes"]
+    answer: dict[str, Any]
+    try:
+        proc = subprocess.run(
+            [*cmd, json.dumps(node_ids)],
+            capture_output=True,
+            env={**os.environ, **ONE_THREAD_ENV},
+            timeout=STARTUP_TIMEOUT_S,
+        )
+        lines = proc.stdout.decode(errors="replace").strip().splitlines()
+        answer = json.loads(lines[-1]) if lines else {}
+        if not isinstance(answer, dict) or not answer:
+            tail = proc.stderr.decode(errors="replace").strip().splitlines()[-1:]
+            answer = {"error": f"a worker process failed ({_exit_text(proc.returncode)}) {tail}"}
+    except (OSError, ValueError, subprocess.TimeoutExpired) as exc:
+        answer = {"error": f"a worker process failed: {type(exc).__name__}: {exc}"}
+    answer["host"] = socket.gethostname()
+    return answer
 
 
 def _close_dask_workers() -> None:

@@ -144,12 +144,30 @@ def run_row(payload: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def check_nodes(ids: list[str]) -> dict[str, Any]:
+    """What a worker process here lacks to run missions made of the node IDs ``ids``:
+    ``{"missing": [...]}`` (empty: nothing), or ``{"error": ...}`` if a plug-in named
+    here does not load."""
+    from bt_engine.plugins import PluginError, load_plugins
+    from bt_engine.registry import REGISTRY
+
+    try:
+        load_plugins()
+    except PluginError as exc:
+        return {"error": str(exc)}
+    return {"missing": [i for i in ids if i not in REGISTRY]}
+
+
 def main() -> int:
-    """The worker process: ``ready``, then one answer line per request line until EOF."""
+    """The worker process: ``ready``, then one answer line per request line until EOF.
+    ``--check-nodes JSON_IDS``: answer :func:`check_nodes` in one line and end."""
     answers = os.fdopen(os.dup(1), "w", buffering=1, encoding="utf-8")
     os.dup2(2, 1)  # stray prints (C libraries included) go to the log, not the channel
     sys.stdout = sys.stderr
     os.environ.update(ONE_THREAD_ENV)
+    if sys.argv[1:2] == ["--check-nodes"]:
+        answers.write(json.dumps(check_nodes(json.loads(sys.argv[2]))) + "\n")
+        return 0
     from bt_engine.plugins import load_plugins
 
     load_plugins()  # imports the leaves (and whatever the plug-ins load) once
