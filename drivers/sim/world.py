@@ -24,6 +24,7 @@ from drivers.settings import (
     written_by,
 )
 from drivers.settings_yaml import load_yaml_file
+from drivers.sim.rack_layout import layout_problems
 from drivers.sim.racks import (
     Place,
     draw_pose_error,
@@ -399,6 +400,7 @@ def _world_problems(data: dict) -> list[tuple[str, str]]:
                 f"slots but only {len(data['row_slots'])} are given",
             )
         )
+    problems += layout_problems(data)
     places = [p for rack in data["racks"] for p in rack_places(rack, data["pallet_geometry"])]
     problems += stock_problems(data, places)
     return problems
