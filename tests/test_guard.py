@@ -408,3 +408,41 @@ def test_a_run_whose_machine_pauses_longer_than_the_silence_limit_goes_on(tmp_pa
     assert summary["status"] == "SUCCESS"
     assert summary["guard"]["took_over"] is False
     assert summary["guard"]["stalls"] >= 1 and summary["guard"]["longest_stall_s"] > 1.9
+
+
+@pytest.mark.slow
+@pytest.mark.sitl
+def test_kill_9_of_the_guard_in_flight_btrun_reaches_the_drone_itself_and_lands_it(
+    tmp_path, plugin_env, emulator
+) -> None:
+    """The guard holds the radio: killed in flight, it took the link with it and the drone
+    fell 2 s later (the firmware's watchdog). btrun now opens its own link to the drone
+    (the guard's end released the address) within that time, and its safety supervisor
+    lands the drone."""
+    run_dir = str(tmp_path / "run")
+    mission = _mission(tmp_path, '<Sleep msec="60000"/>')
+    proc = subprocess.Popen(
+        _fly_args(emulator, mission, run_dir),
+        cwd=REPO,
+        env=plugin_env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        wait_until(lambda: _airborne_in(run_dir), 60, "the take-off")
+        guard = wait_until(lambda: _guard_pid(proc.pid), 10, "the guard process")
+        os.kill(guard, signal.SIGKILL)
+        _out, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=10)
+    assert proc.returncode == 1, err
+    summary = _summary(run_dir)
+    assert summary is not None and summary["status"] == "ABORTED", err
+    assert summary["guard"]["guard_gone"] is True
+    safety = summary["safety"]
+    assert safety["final_state"] == "landed" and safety["disarmed"], safety
+    state = read_drone(emulator)
+    assert state["z_m"] < 0.1 and not state["armed"] and not state["flying"], state

@@ -33,6 +33,9 @@ from drivers.vehicle.interfaces import LinkTelemetry
 
 #: Seconds between heartbeats.
 HEARTBEAT_PERIOD_S = 0.05
+#: seconds btrun's own link may take to reach a drone whose guard died in flight: the
+#: firmware stops the motors 2 s after the last set-point
+FALLBACK_CONNECT_S = 1.5
 #: seconds the goodbye may wait for a guard that is not reading (every other message is
 #: dropped rather than waited for)
 BYE_WAIT_S = 2.0
@@ -310,6 +313,51 @@ class GuardLink:
         self._connected = True
         self._last_rx = time.monotonic()
         self.closed = False
+        #: btrun's own cflib link, opened when the guard died with the drone in the air:
+        #: "" (not needed), "opening", "open" or "failed: <why>"
+        self.fallback = ""
+        self._direct: Any = None
+        self._fb_lock = threading.Lock()
+
+    # ------------------------------------------------------------------ the guard died
+    def _guard_died(self) -> bool:
+        c = self.client
+        return c.gone and not c._said_bye and c.took_over is None and not self.closed
+
+    def _via(self) -> Any:
+        """btrun's own link when the guard that held the radio died in flight (opened on a
+        thread of its own the first time this is asked; None while it opens, if it could
+        not, or while the guard is there). The guard's death released the drone's address
+        (:mod:`drivers.crazyflie.link_lock`), and the firmware keeps the motors 2 s after
+        the last set-point: reached within that, the safety supervisor lands the drone."""
+        if not self._guard_died():
+            return None
+        with self._fb_lock:
+            if not self.fallback:
+                self.fallback = "opening"
+                threading.Thread(
+                    target=self._open_direct, name="guard-fallback", daemon=True
+                ).start()
+        return self._direct
+
+    def _open_direct(self) -> None:
+        from drivers.crazyflie.cflib_link import CrazyflieLink
+
+        timeout = min(float(getattr(self.config, "connect_timeout_s", 10.0)), FALLBACK_CONNECT_S)
+        try:
+            config = dataclasses.replace(self.config, connect_timeout_s=timeout)
+            link = CrazyflieLink(config).open()
+        except Exception as exc:  # noqa: BLE001 - said in the summary; the drone is lost
+            self.fallback = (
+                f"failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+            )
+            return
+        if self.closed:  # the run ended meanwhile
+            with contextlib.suppress(Exception):
+                link.close()
+            return
+        self._direct = link
+        self.fallback = "open"
 
     def receive(self, rows: list[list[Any]], connected: bool) -> None:
         """Reader thread: a telemetry batch from the guard."""
@@ -329,6 +377,9 @@ class GuardLink:
     @property
     def connected(self) -> bool:
         """The guard is there, has not taken over, and its link was up at its last batch."""
+        direct = self._via()
+        if direct is not None:
+            return bool(direct.connected)
         c = self.client
         if self.closed or c.gone or c.took_over is not None:
             return False
@@ -336,40 +387,70 @@ class GuardLink:
 
     @property
     def gone_for_good(self) -> bool:
-        """The guard process ended before the run did: its cflib link went with it and no
-        command reaches the drone any more (the safety supervisor does not wait on it)."""
-        return self.client.gone and not self.client._said_bye
+        """The guard process ended before the run did, its cflib link with it, and btrun's
+        own link could not reach the drone either (:meth:`_via`): no command reaches it any
+        more (the safety supervisor does not wait on it)."""
+        if not (self.client.gone and not self.client._said_bye):
+            return False
+        self._via()
+        return self.fallback.startswith("failed")
 
     def arm(self, armed: bool) -> bool:
         """Forward an arming request."""
+        direct = self._via()
+        if direct is not None:
+            return bool(direct.arm(armed))
         return self.client.send(["arm", bool(armed)])
 
     def send_position_setpoint(self, x_m: float, y_m: float, z_m: float, yaw_rad: float) -> None:
         """Forward a position set-point (stamped with its send time)."""
+        direct = self._via()
+        if direct is not None:
+            direct.send_position_setpoint(x_m, y_m, z_m, yaw_rad)
+            return
         self.client.send(["p", x_m, y_m, z_m, yaw_rad, time.monotonic()])
 
     def send_velocity_setpoint(
         self, vx_mps: float, vy_mps: float, vz_mps: float, yaw_rate_radps: float
     ) -> None:
         """Forward a velocity set-point (stamped with its send time)."""
+        direct = self._via()
+        if direct is not None:
+            direct.send_velocity_setpoint(vx_mps, vy_mps, vz_mps, yaw_rate_radps)
+            return
         self.client.send(["v", vx_mps, vy_mps, vz_mps, yaw_rate_radps, time.monotonic()])
 
     def send_stop_setpoint(self) -> None:
         """Forward a stop set-point."""
+        direct = self._via()
+        if direct is not None:
+            direct.send_stop_setpoint()
+            return
         self.client.send(["s"])
 
     def send_external_pose(
         self, x_m: float, y_m: float, z_m: float, quaternion: tuple[float, float, float, float]
     ) -> None:
         """Forward a mocap pose to the drone's estimator."""
+        direct = self._via()
+        if direct is not None:
+            direct.send_external_pose(x_m, y_m, z_m, quaternion)
+            return
         self.client.send(["e", x_m, y_m, z_m, *quaternion])
 
     def emergency_stop(self) -> None:
         """Forward an emergency stop."""
+        direct = self._via()
+        if direct is not None:
+            direct.emergency_stop()
+            return
         self.client.send(["estop"])
 
     def poll(self, now_s: float) -> list[LinkTelemetry]:
         """Telemetry received since the last poll, stamped with ``now_s``."""
+        direct = self._via()
+        if direct is not None:
+            return direct.poll(now_s)
         with self._lock:
             out = [dataclasses.replace(t, t_s=now_s) for t in self._samples]
             self._samples.clear()
@@ -382,18 +463,28 @@ class GuardLink:
         return real_battery_service(kind)
 
     def close(self) -> None:
-        """Ask the guard to close the cflib link and wait (bounded) until it has."""
+        """Ask the guard to close the cflib link and wait (bounded) until it has (or close
+        btrun's own link, opened when the guard died)."""
         if self.closed:
             return
         self.closed = True
+        direct, self._direct = self._direct, None
+        if direct is not None:
+            with contextlib.suppress(Exception):
+                direct.close()
+            self.last_health = {**self.last_health, "connected": False}
+            return
         health = self.client.request("close", "closed", 3.0)
         if isinstance(health, dict):
             self.last_health = health
 
     def health(self) -> dict[str, Any]:
         """The guard's last report of the link, plus the guard's own state."""
-        out = dict(self.last_health)
+        direct = self._direct
+        out = dict(direct.health()) if direct is not None else dict(self.last_health)
         out["via_guard"] = True
+        if self.fallback:
+            out["fallback_link"] = self.fallback  # btrun's own link after the guard died
         if self.client.took_over is not None:
             out["guard_took_over"] = self.client.took_over
         return out
