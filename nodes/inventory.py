@@ -43,7 +43,7 @@ from nodes.inventory_log import (
 from nodes.place_evidence import write_place_evidence
 from nodes.rack_geometry import footprints
 from nodes.stock_files import NotText, byte_loc, csv_rows, export_text, not_text, xlsx_table
-from perception.expected import pallet_of
+from perception.expected import pallet_key, pallet_of
 
 CATEGORY_INVENTORY = "inventory"
 MAX_PLACES = 10_000
@@ -75,14 +75,14 @@ def all_places_order(world: Any) -> list[str]:
 
 def not_in_gallery(stock: ExpectedStock | None, session: Any) -> list[str] | None:
     """The pallets ``stock`` expects that no open gallery of the perception ``session``
-    enrols (by pallet: ``103`` is enrolled when ``103A`` is), sorted; None when there is no
-    stock or no gallery to tell."""
+    enrols (by pallet, without case: ``103`` is enrolled when ``103A`` is, ``pal-7`` when
+    ``PAL-7A`` is), sorted; None when there is no stock or no gallery to tell."""
     galleries = session.galleries() if session is not None else []
     if stock is None or not galleries:
         return None
-    enrolled = {pallet_of(i) for g in galleries for i in g.identities()}
+    enrolled = {pallet_key(i) for g in galleries for i in g.identities()}
     expected = {pallet_of(p) for p in stock.places.values() if p}
-    return sorted(expected - enrolled)
+    return sorted(p for p in expected if pallet_key(p) not in enrolled)  # as the WMS wrote
 
 
 def not_enrolled_line(missing: list[str], stock: ExpectedStock) -> str:

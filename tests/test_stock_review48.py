@@ -444,3 +444,15 @@ def test_a_pallet_name_too_long_is_located_at_the_pallet_and_held_to_the_gallery
     text = "place,pallet\n" + "P" * 201 + ",5\n"
     _, problems = read_expected(_write(tmp_path, "t.csv", text), world, WHERE)
     assert problems[0].loc.col == 1 and "place name longer than 200" in problems[0].message
+
+
+def test_expected_pallets_not_in_the_gallery_are_compared_without_case():
+    """The start-up line listed 'pal-7' as not enrolled when the gallery held 'PAL-7A'."""
+    from types import SimpleNamespace
+
+    from nodes.inventory import not_in_gallery
+
+    gallery = SimpleNamespace(identities=lambda: ["PAL-7A", "PAL-7B", "103A"])
+    session = SimpleNamespace(galleries=lambda: [gallery])
+    stock = SimpleNamespace(places={"A-01-1": "pal-7", "A-01-2": "103", "A-01-3": "Pal-9"})
+    assert not_in_gallery(stock, session) == ["Pal-9"]
