@@ -113,6 +113,8 @@ def _check_listing_and_history(runs: str, url: str) -> None:
         assert status == 200 and doc["store"]
         status, doc = _get(server, "/api/places/A-01-9")
         assert status == 404 and "did you mean" in doc["error"]
+        status, doc = _get(server, "/api/places/a-01-1")  # case and leading zeros first
+        assert status == 404 and "did you mean A-01-1?" in doc["error"], doc
     finally:
         server.stop()
 

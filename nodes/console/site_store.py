@@ -11,7 +11,6 @@ its connect timeout on every request.
 
 from __future__ import annotations
 
-import difflib
 import os
 import threading
 import time
@@ -20,6 +19,7 @@ from typing import Any, NoReturn, TypeVar
 
 from nodes.console.paths import PathRefused, RunsRoot
 from nodes.place_evidence import PLACE_NAME
+from nodes.site.cli import close_place
 from store import InventoryStore, StoreError, disabled, parse_url, redact
 from store.db import db_errors
 
@@ -165,7 +165,7 @@ class SiteStore:
 
         found, places = self._use(read)
         if not found:
-            close = difflib.get_close_matches(place, places, n=1)
+            close = close_place(place, places)  # case and leading zeros first
             hint = f" (did you mean {close[0]}?)" if close else ""
             raise PathRefused(f"the store has no row for place {place!r}{hint}", 404)
         keys = ("run", "started", "answer", "status", "best_id", "distance", "margin")
