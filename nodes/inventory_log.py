@@ -411,12 +411,13 @@ def summarise(
 
 def write_inventory(run_dir: str, rows: list[dict], planned: list[str]) -> None:
     """``inventory.json`` (format, planned places, rows) and ``inventory.csv`` (one line per
-    row), each written atomically."""
+    planned place: a place not answered (yet) is a ``not_scanned`` line, so that a run that
+    ended early still lists every place for the WMS), each written atomically."""
     doc = {"format": FORMAT, "planned": list(planned), "rows": rows}
     atomic_write_text(os.path.join(run_dir, "inventory.json"), json.dumps(doc, indent=1))
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=FIELDS, lineterminator="\n")
     w.writeheader()
-    for r in rows:
+    for r in _with_planned(rows, planned):
         w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in FIELDS})
     atomic_write_text(os.path.join(run_dir, "inventory.csv"), buf.getvalue())

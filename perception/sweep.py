@@ -137,9 +137,10 @@ class PlaceWatch:
     stray: int = 0  # plausible blocks on the place's face that matched no slot
     #: their sightings (camera along, face-plane along), for the parallax test
     stray_hits: list[tuple[float, float]] = field(default_factory=list)
-    #: central sightings of blocks on the place's face but off its row: their height above
-    #: (+) or below (-) the row the map gives, m (``SweepParams.off_row_max_m``)
-    off_row: list[float] = field(default_factory=list)
+    #: central sightings of blocks on the place's face but off its row: (camera along,
+    #: face-plane along, height above (+) or below (-) the row the map gives), m
+    #: (``SweepParams.off_row_max_m``); they count once they stand on the face plane
+    off_row: list[tuple[float, float, float]] = field(default_factory=list)
     outcome: str = ""
     reason: str = ""
     states: list[str] = field(default_factory=list)
@@ -190,29 +191,13 @@ class PlaceWatch:
         least ``min_baseline_m`` apart but never more than 15 cm of travel from the next
         (the same thing seen in nearby frames, not two things that happen to project to the
         same spot from far apart). Things behind the face slide with the camera."""
-        hits = sorted(self.stray_hits, key=lambda h: h[1])
-        groups: list[list[tuple[float, float]]] = []
-        for h in hits:
-            if groups and h[1] - groups[-1][0][1] <= 0.04:
-                groups[-1].append(h)
-            else:
-                groups.append([h])
+        return plane_blocks(self.stray_hits, max_slope, min_baseline_m)
 
-        def runs(g: list[tuple[float, float]]) -> list[list[tuple[float, float]]]:
-            out: list[list[tuple[float, float]]] = []  # sightings from nearby camera positions
-            for h in sorted(g):
-                if out and h[0] - out[-1][-1][0] <= 0.15:
-                    out[-1].append(h)
-                else:
-                    out.append([h])
-            return out
-
-        return sum(
-            any(
-                len(r) >= 2 and hits_state(r, max_slope, min_baseline_m) == "block" for r in runs(g)
-            )
-            for g in groups
-        )
+    def off_row_blocks(self, max_slope: float, min_baseline_m: float) -> int:
+        """Blocks on the face plane but off the row the map gives (a pallet off its beam),
+        by :meth:`stray_blocks`' test: something behind an empty place slides with the
+        camera."""
+        return plane_blocks([h[:2] for h in self.off_row], max_slope, min_baseline_m)
 
     def ordered_crops(self) -> list[np.ndarray]:
         """The crops in the order a scan commits them and the gallery enrols them: right to
@@ -223,6 +208,37 @@ class PlaceWatch:
     def ordered_views(self) -> list[list[np.ndarray]]:
         """Every kept crop per block, blocks in :meth:`ordered_crops`' order."""
         return [[v.crop for v in c] for c in reversed(self.crops)]
+
+
+def plane_blocks(
+    sightings: list[tuple[float, ...]], max_slope: float, min_baseline_m: float
+) -> int:
+    """How many blocks ``sightings`` (camera along, face-plane along) show standing on the
+    face plane: sightings within 4 cm of each other on the face plane, from camera positions
+    at least ``min_baseline_m`` apart but never more than 15 cm of travel from the next (the
+    same thing seen in nearby frames, not two things that happen to project to the same spot
+    from far apart). Things behind the face slide with the camera."""
+    hits = sorted(sightings, key=lambda h: h[1])
+    groups: list[list[tuple[float, ...]]] = []
+    for h in hits:
+        if groups and h[1] - groups[-1][0][1] <= 0.04:
+            groups[-1].append(h)
+        else:
+            groups.append([h])
+
+    def runs(g: list[tuple[float, ...]]) -> list[list[tuple[float, ...]]]:
+        out: list[list[tuple[float, ...]]] = []  # sightings from nearby camera positions
+        for h in sorted(g):
+            if out and h[0] - out[-1][-1][0] <= 0.15:
+                out[-1].append(h)
+            else:
+                out.append([h])
+        return out
+
+    return sum(
+        any(len(r) >= 2 and hits_state(r, max_slope, min_baseline_m) == "block" for r in runs(g))  # type: ignore[arg-type]
+        for g in groups
+    )
 
 
 def hits_state(hits: list[tuple[float, float]], max_slope: float, min_baseline_m: float) -> str:
@@ -384,7 +400,7 @@ class SweepCollector:
             ray = R.T @ np.array([(det.cx - cam.cx) / cam.fx, (cy - cam.cy) / cam.fx, 1.0])
             best: tuple[float, PlaceWatch, int, float] | None = None
             stray: tuple[float, PlaceWatch, float] | None = None
-            off_row: tuple[float, PlaceWatch, float] | None = None  # (|dz|, place, dz)
+            off_row: tuple[float, PlaceWatch, float, float] | None = None  # |dz|, w, along, dz
             for w in near:
                 denom = float(w.normal @ ray)
                 if denom >= -1e-6:  # the ray does not meet the face from the front
@@ -405,7 +421,7 @@ class SweepCollector:
                     ):
                         a = self.along(hit)
                         if min(abs(a - self.along(sl)) for sl in w.slots) <= 0.45:
-                            off_row = (abs(dz), w, dz)
+                            off_row = (abs(dz), w, a, dz)
                     continue
                 along = self.along(hit)
                 errs = [abs(along - self.along(s)) for s in w.slots]
@@ -417,7 +433,8 @@ class SweepCollector:
                     stray = (min(errs), w, along)  # on this place's face, but on no slot
             if best is None:
                 if off_row is not None and central and not off_row[1].outcome:
-                    off_row[1].off_row.append(off_row[2])  # a pallet off its beam?
+                    _, ow, along_hit, dz_hit = off_row  # a pallet off its beam?
+                    ow.off_row.append((self.along(centre), along_hit, dz_hit))
                 if (
                     stray is not None
                     and not stray[1].outcome
@@ -469,6 +486,11 @@ class SweepCollector:
                 out.append(w)
         return out
 
+    def _off_row(self, w: PlaceWatch) -> int:
+        """Blocks seen on ``w``'s face plane off its row (:meth:`PlaceWatch.off_row_blocks`)."""
+        p = self.params
+        return w.off_row_blocks(p.parallax_max_slope, p.parallax_baseline_m)
+
     def _decide(self, w: PlaceWatch, why: str = "") -> None:
         p = self.params
         states = [w.slot_state(k, p.parallax_max_slope, p.parallax_baseline_m) for k in range(3)]
@@ -488,7 +510,7 @@ class SweepCollector:
             and w.stray_blocks(p.parallax_max_slope, p.parallax_baseline_m) == 0
             and all(k > 0 for k in w.looked)
             and not off_slots
-            and len(w.off_row) < p.off_row_min
+            and (len(w.off_row) < p.off_row_min or not self._off_row(w))
         ):
             w.outcome = EMPTY
             deep = states.count("deep")
@@ -507,8 +529,8 @@ class SweepCollector:
                     f"{offset * 100:+.0f} cm along the face from the map: a pallet off its "
                     f"place? ({', '.join(states)})"
                 )
-            elif n == 0 and len(w.off_row) >= p.off_row_min:
-                dz = float(np.median(w.off_row))
+            elif n == 0 and len(w.off_row) >= p.off_row_min and self._off_row(w):
+                dz = float(np.median([h[2] for h in w.off_row]))
                 w.reason = (
                     f"{len(w.off_row)} block sightings {dz * 100:+.0f} cm off the row the map "
                     "gives: a pallet off its beam?"
