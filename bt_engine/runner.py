@@ -10,7 +10,6 @@ a tick that does not return is ended by the watchdog (at once after Ctrl-C), and
 
 from __future__ import annotations
 
-import re
 import threading
 import time
 import traceback
@@ -356,7 +355,7 @@ class Runner:
                     self._halt_watched()
                 except TickOverrun as exc:  # a halt that did not return: stopped
                     why = str(exc.args[0]) if exc.args else "watchdog"
-                    reason += f"; while halting: {_halting_words(why)}"
+                    reason += f"; while halting: {why}"
                     result = "ABORTED"
                 except Exception as exc:
                     self.error_traceback += traceback.format_exc()
@@ -418,6 +417,7 @@ class Runner:
             on_stuck=self._shutdown_hooks,
             running=self._running_leaf,
             on_give_up=self._give_up_halt,
+            subject="halting",
         )
         hw.start_tick(self.mission.ticks)
         try:
@@ -432,7 +432,7 @@ class Runner:
         """The halt watchdog's step 3, on its thread: the main thread never came back from
         halting the tree. Land, keep the result, end the other runs of this process, hand
         over to :attr:`on_give_up` (``btrun`` writes summary.json and exits)."""
-        reason, why = self._halting[1], _halting_words(why)
+        reason = self._halting[1]
         self._halt_given_up.set()
         self._given_up.set()
         try:
@@ -517,12 +517,6 @@ class Runner:
         wd = self.watchdog
         if wd is not None:
             wd.hurry(self._interrupt_outcome()[1])
-
-
-def _halting_words(why: str) -> str:
-    """The tick watchdog's reason, said of a halt (its wording speaks of a tick)."""
-    why = re.sub(r"tick \d+ did not return", "halting did not return", why, count=1)
-    return why.replace("the tick still had not returned", "the halt still had not returned")
 
 
 def _failure_reason(mission: Mission) -> str:

@@ -158,6 +158,7 @@ class TickWatchdog:
         on_give_up: Callable[[str], Any] | None = None,
         give_up_s: float | None = None,
         progress: Callable[[], float | None] | None = None,
+        subject: str = "",
     ) -> None:
         if not budget_s > 0:
             raise ValueError(f"tick budget must be > 0 s, got {budget_s}")
@@ -186,6 +187,9 @@ class TickWatchdog:
         self._raised_at = 0.0
         self._stuck_called = False
         self.progress = None if real_time else progress
+        #: what is watched, as the reason names it: "" for "tick N" (the tick under way),
+        #: or e.g. "halting" (the runner's end-of-run halt)
+        self.subject = subject
         self._thread = threading.Thread(target=self._loop, name="tick-watchdog", daemon=True)
         self._thread.start()
 
@@ -268,7 +272,8 @@ class TickWatchdog:
             if not self.gave_up and now - self._fired_at > give_up_s:
                 self.gave_up = True
                 self.reason = (self.reason or "watchdog") + (
-                    f"; the tick still had not returned {give_up_s:g} s later: given up"
+                    f"; the {self.subject or 'tick'} still had not returned {give_up_s:g} s "
+                    "later: given up"
                 )
                 if self.on_give_up is not None:
                     self.on_give_up(self.reason)
@@ -291,14 +296,15 @@ class TickWatchdog:
         if busy >= 1.05:  # said only when it changed the budget noticeably (not "x1.0")
             waited = budget * busy  # what was waited for: the stretched budget
             where += f" (the {budget:g} s budget x{busy:.1f}: a busy host)"
+        what = self.subject or f"tick {tick}"
         if why:
             self.reason = (
-                f"{why}; watchdog: tick {tick} did not return within {_seconds(waited)} s of it"
+                f"{why}; watchdog: {what} did not return within {_seconds(waited)} s of it"
                 f"{where}; the tree was stopped and the drone landed"
             )
         else:
             self.reason = (
-                f"watchdog: tick {tick} did not return within {_seconds(waited)} s{where}; "
+                f"watchdog: {what} did not return within {_seconds(waited)} s{where}; "
                 "the tree was stopped and the drone landed"
             )
         self._fired_at = now

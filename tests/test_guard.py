@@ -134,6 +134,26 @@ def _airborne_in(run_dir: str) -> bool:
         return False
 
 
+def _airborne_btrun(tmp_path, env: dict, uri: str, run_dir: str) -> subprocess.Popen:
+    """A btrun flying a long Sleep on the emulator at ``uri``, once it has taken off."""
+    mission = _mission(tmp_path, '<Sleep msec="60000"/>')
+    proc = subprocess.Popen(
+        _fly_args(uri, mission, run_dir),
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        wait_until(lambda: _airborne_in(run_dir), 60, "the take-off")
+    except BaseException:
+        proc.kill()
+        proc.communicate(timeout=10)
+        raise
+    return proc
+
+
 @pytest.mark.slow
 @pytest.mark.sitl
 def test_a_leaf_holding_the_gil_in_flight_ends_landed_exited_and_recorded(
@@ -170,17 +190,8 @@ def test_kill_9_of_btrun_in_flight_ends_landed_within_10_s_and_recorded(
     tmp_path, plugin_env, emulator
 ) -> None:
     run_dir = str(tmp_path / "run")
-    mission = _mission(tmp_path, '<Sleep msec="60000"/>')
-    proc = subprocess.Popen(
-        _fly_args(emulator, mission, run_dir),
-        cwd=REPO,
-        env=plugin_env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc = _airborne_btrun(tmp_path, plugin_env, emulator, run_dir)
     try:
-        wait_until(lambda: _airborne_in(run_dir), 60, "the take-off")
         os.kill(proc.pid, signal.SIGKILL)
         killed = time.monotonic()
         proc.wait(10)
@@ -420,17 +431,8 @@ def test_kill_9_of_the_guard_in_flight_btrun_reaches_the_drone_itself_and_lands_
     (the guard's end released the address) within that time, and its safety supervisor
     lands the drone."""
     run_dir = str(tmp_path / "run")
-    mission = _mission(tmp_path, '<Sleep msec="60000"/>')
-    proc = subprocess.Popen(
-        _fly_args(emulator, mission, run_dir),
-        cwd=REPO,
-        env=plugin_env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc = _airborne_btrun(tmp_path, plugin_env, emulator, run_dir)
     try:
-        wait_until(lambda: _airborne_in(run_dir), 60, "the take-off")
         guard = wait_until(lambda: _guard_pid(proc.pid), 10, "the guard process")
         os.kill(guard, signal.SIGKILL)
         _out, err = proc.communicate(timeout=90)
