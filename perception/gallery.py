@@ -57,15 +57,15 @@ from store.db import db_errors
 
 #: the longest identity a gallery holds (an expected stock's pallet names are held to it)
 MAX_IDENTITY_CHARS = 64
-#: characters no identity may hold: path separators (``btrun gallery export`` names files
-#: after identities) besides the control characters refused by category
-_NOT_IN_IDENTITY = "/\\"
 
 
 def identity_problem(identity: str) -> str | None:
     """Why ``identity`` cannot name a pallet side (empty or longer than
-    :data:`MAX_IDENTITY_CHARS`, a control character or line break, a path separator
-    ``/`` or ``\\``), else None."""
+    :data:`MAX_IDENTITY_CHARS`, a control character or line break), else None.
+
+    A WMS's own ids are kept as they are, ``PAL/2026/0001`` included: no identity names a
+    file or a URL (``btrun gallery export`` names its files with
+    :func:`nodes.gallery.cli.crop_file_stem`)."""
     if not isinstance(identity, str) or not identity or len(identity) > MAX_IDENTITY_CHARS:
         return f"identity must be 1-{MAX_IDENTITY_CHARS} characters, got {identity!r:.80}"
     bad = next(
@@ -74,12 +74,6 @@ def identity_problem(identity: str) -> str | None:
     )
     if bad is not None:
         return f"identity {identity!r:.80} holds a control character or line break ({bad!r})"
-    sep = next((c for c in identity if c in _NOT_IN_IDENTITY), None)
-    if sep is not None:
-        return (
-            f"identity {identity!r:.80} holds a path separator ({sep!r}): name it without "
-            "'/' or '\\' (PAL-2026-0001, not PAL/2026/0001)"
-        )
     return None
 
 
