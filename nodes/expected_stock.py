@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bt_engine.files import read_bytes
-from bt_engine.spec import Loc, Problem
+from bt_engine.spec import Loc, Problem, plural
 from drivers.settings import did_you_mean
 from nodes.stock_files import (
     MAX_EXPECTED_PLACES,
@@ -78,6 +78,11 @@ class PlaceHints:
             self._by_canon.setdefault(_canonical(n), n)
         self._asked = 0
 
+    @property
+    def canonical(self) -> dict[str, str]:
+        """The world's places by their names without case and leading zeros."""
+        return self._by_canon
+
     def hint(self, name: str) -> str:
         """The hint for unknown place ``name`` (with its leading space)."""
         same = self._by_canon.get(_canonical(name))
@@ -107,11 +112,21 @@ class ExpectedStock:
     locs: dict[str, Loc] = field(default_factory=dict)
     #: SHA-256 of the file's bytes as read (which WMS export a report was made against)
     sha256: str = ""
+    #: rows left out because their rack is none of the world's (a whole-warehouse export's
+    #: other zones): pallet (:func:`pallet_key`) -> its place, for ``moved_from``
+    elsewhere: dict[str, str] = field(default_factory=dict)
+    #: how many rows were left out so, and the line that says it (empty: none)
+    outside: int = 0
+    outside_note: str = ""
     _where: tuple[int, dict[str, str]] | None = field(default=None, repr=False, compare=False)
 
-    def source(self) -> dict[str, str]:
-        """Which file the stock was read from: its absolute path and SHA-256."""
-        return {"path": os.path.abspath(self.path), "sha256": self.sha256}
+    def source(self) -> dict[str, Any]:
+        """Which file the stock was read from: its absolute path and SHA-256 (and
+        ``rows_outside_world``, the rows of other zones left out, when there were any)."""
+        out: dict[str, Any] = {"path": os.path.abspath(self.path), "sha256": self.sha256}
+        if self.outside:
+            out["rows_outside_world"] = self.outside
+        return out
 
     def at(self, place: str) -> str | None:
         """The pallet expected at ``place``: its name, ``""`` when the place should be
@@ -121,14 +136,16 @@ class ExpectedStock:
         return self.places[place] or ""
 
     def place_of(self, pallet: str) -> str | None:
-        """The place where ``pallet`` (or a side of it: ``103B``) is expected, or None."""
+        """The place where ``pallet`` (or a side of it: ``103B``) is expected, or None;
+        a place of another zone of the warehouse when only such a row lists it."""
         if self._where is None or self._where[0] != len(self.places):
             index: dict[str, str] = {}
             for place, p in self.places.items():
                 if p is not None:
                     index.setdefault(pallet_key(p), place)
             self._where = (len(self.places), index)  # one pass, not one per question
-        return self._where[1].get(pallet_key(pallet))
+        key = pallet_key(pallet)
+        return self._where[1].get(key) or self.elsewhere.get(key)
 
 
 def read_expected(
@@ -169,6 +186,10 @@ def read_expected(
     line = "row" if sheet else "line"
     names = list(getattr(world, "places", None) or {})
     known, hints = set(names), PlaceHints(names)
+    racks = {_rack(n) for n in names}
+    outside: dict[str, int] = {}  # rack -> rows of racks this world does not have
+    first_outside: Loc | None = None
+    in_world = 0  # rows of this world's racks, accepted or not
     stock = ExpectedStock(path, sha256=hashlib.sha256(data).hexdigest())
     pallet_at: dict[str, tuple[str, Loc, str]] = {}
     seen: dict[str, Loc] = {}  # every place listed, an expectation or not
@@ -184,7 +205,15 @@ def read_expected(
         if bad is not None:
             problems.append(bad)
             continue
+        in_world += _rack(place) in racks
         if names and place not in known:
+            if _elsewhere(place, racks, hints):
+                # another zone of the warehouse (a whole-warehouse export): left out
+                outside[_rack(place)] = outside.get(_rack(place), 0) + 1
+                first_outside = first_outside or where_place
+                if pallet.lower() not in EMPTY_SPELLINGS:
+                    stock.elsewhere.setdefault(pallet_key(pallet), place)
+                continue
             problems.append(Problem(where_place, f"unknown place '{place}'{hints.hint(place)}"))
             continue
         if place in seen:
@@ -219,6 +248,8 @@ def read_expected(
             pallet_at[key] = (place, where_place, pallet)
     if not entries and not problems:
         problems.append(Problem(Loc(path, 1, 1), "the expected stock lists no place"))
+    if outside:
+        problems += _outside(stock, outside, first_outside, racks, in_world > 0)
     problems = with_cells(path, sheet, problems)  # an XLSX: Stock!B6 besides row:column
     if len(problems) > MAX_PROBLEMS_SAID:  # a wrong file altogether: the first ones say it
         more = len(problems) - MAX_PROBLEMS_SAID
@@ -226,6 +257,53 @@ def read_expected(
             Problem(Loc(path, 1, 1), f"... and {more} more problems in this file")
         ]
     return stock, problems
+
+
+#: a place name as the world names places (rack-bay-level, ``A-01-1``): only such a name of
+#: a rack the world does not have is another zone's; anything else is a problem
+_PLACE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]{0,15}-\d{1,4}-\d{1,3}")
+
+
+def _rack(place: str) -> str:
+    """The rack a place name starts with (``A`` of ``A-01-1``), in capitals."""
+    return place.split("-", 1)[0].strip().upper()
+
+
+def _elsewhere(place: str, racks: set[str], hints: PlaceHints) -> bool:
+    """Whether ``place`` names a place of a rack ``racks`` does not hold (another zone of
+    the warehouse), not a misspelt place of this world."""
+    return (
+        bool(_PLACE_NAME.fullmatch(place))
+        and _rack(place) not in racks
+        and _canonical(place) not in hints.canonical
+    )
+
+
+def _outside(
+    stock: ExpectedStock, outside: dict[str, int], first: Loc | None, racks: set[str], any_in: bool
+) -> list[Problem]:
+    """Rows whose rack the world does not have: left out, said in ``stock.outside_note``
+    (a whole-warehouse export names every zone); an error when no row is of this world."""
+    n = sum(outside.values())
+    theirs = sorted(outside)
+    shown = ", ".join(theirs[:8]) + (f", ... ({len(theirs)} racks)" if len(theirs) > 8 else "")
+    shown = ("racks " if len(theirs) > 1 else "rack ") + shown
+    mine = ", ".join(sorted(racks)[:12])
+    if not any_in:
+        return [
+            Problem(
+                first or Loc(stock.path, 1, 1),
+                f"no row names a place of this world (its racks: {mine}); the file names "
+                f"{plural(n, 'place')} of {shown}: the expected stock of another site?",
+            )
+        ]
+    stock.outside = n
+    stock.outside_note = (
+        f"expected stock {stock.path}: {plural(n, 'row')} of {shown}, which this world does "
+        f"not have, left out (another zone of the warehouse); "
+        f"{plural(len(stock.places), 'place')} of this world read"
+    )
+    return []
 
 
 def _name_problem(place: str, pallet: str, where_place: Loc, where_pallet: Loc) -> Problem | None:

@@ -235,7 +235,10 @@ class InventoryPlan(SyncActionNode):
             places, problems = self._resolve()
             if not problems:  # what the other leaves' checks look at (reach_problems)
                 self.ctx.resources[PLANNED_PLACES] = list(places)
-            problems += self._expected()[1]
+            stock, more = self._expected()
+            problems += more
+            if stock is not None and stock.outside_note and not more:
+                self.ctx.log(stock.outside_note)  # before flight, as the gallery's loading
             InventoryLog.of(self.ctx)
         except ConfigError as exc:
             return [("places", f"the rig's world cannot be loaded: {exc}")]

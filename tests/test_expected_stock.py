@@ -50,6 +50,36 @@ def test_a_wms_csv_is_read_with_empty_places(tmp_path, world):
     assert stock.place_of("109B") == "A-01-1" and stock.place_of("110") is None
 
 
+def test_a_whole_warehouse_export_reads_this_worlds_racks_only(tmp_path, world):
+    # a WMS exports every zone; the aisle world has rack A only
+    text = "place,pallet\nA-01-1,109\nK-01-1,PAL/2026/7\nK-01-2,\nZZ-44-3,110\nA-01-2,\n"
+    stock, problems = _read(tmp_path, "s.csv", text, world)
+    assert problems == []
+    assert stock.places == {"A-01-1": "109", "A-01-2": None}
+    assert stock.outside == 3 and stock.source()["rows_outside_world"] == 3
+    assert "3 rows of racks K, ZZ, which this world does not have, left out" in (stock.outside_note)
+    # a pallet the WMS has in another zone, found here: moved from there
+    assert stock.place_of("pal/2026/7") == "K-01-1" and stock.place_of("110B") == "ZZ-44-3"
+    assert stock.at("K-01-1") is None  # no expectation of this world
+
+
+@pytest.mark.parametrize(
+    "text, where, message",
+    [
+        # no row of this world at all: another site's file, not a zone of this one
+        ("place,pallet\nK-01-1,1\nK-02-1,\n", (2, 1), "no row names a place of this world (its racks: A); the file names 2 places of rack K"),
+        # this world's rack, a place it does not have: a typo, refused as before
+        ("place,pallet\nA-01-1,1\nA-19-1,2\nK-01-1,3\n", (3, 1), "unknown place 'A-19-1'"),
+        ("place,pallet\na-01-1,1\nK-01-1,3\n", (2, 1), "unknown place 'a-01-1' (did you mean 'A-01-1'?)"),
+    ],
+)  # fmt: skip
+def test_rows_of_other_racks_never_hide_a_typo(tmp_path, world, text, where, message):
+    _, problems = _read(tmp_path, "s.csv", text, world)
+    assert len(problems) == 1, problems
+    assert (problems[0].loc.line, problems[0].loc.col) == where
+    assert message in problems[0].message
+
+
 @pytest.mark.parametrize("delimiter", [";", "\t"])
 def test_a_csv_with_semicolons_or_tabs_reads_as_with_commas(tmp_path, world, delimiter):
     """What a spreadsheet saves as CSV where the decimal mark is a comma (``place;pallet``),
@@ -124,7 +154,7 @@ def test_the_same_as_json_in_three_shapes(tmp_path, world):
         ("s.csv", "location,pallet_id\nA-01-1,109\n", (1, 1), "expected a header 'place,pallet'"),
         ("s.csv", "", (1, 1), "the expected stock is empty"),
         ("s.json", '{"A-01-1": "109",\n "A-01-2": ', (2, 12), "not JSON"),
-        ("s.json", '[{"place": "A-01-1", "pallet": "1"},\n {"place": "B-01-1", "pallet": "3"}]', (2, 2), "unknown place 'B-01-1'"),
+        ("s.json", '[{"place": "A-01-1", "pallet": "1"},\n {"place": "A-19-1", "pallet": "3"}]', (2, 2), "unknown place 'A-19-1'"),
         ("s.json", '[{"place": "A-01-1", "pallet": [1]}]', (1, 2), "pallet must be text or null"),
         # objects are said as the file wrote them, not as Python's [('x', 1)]
         ("s.json", '[{"place": "A-01-1", "pallet": {"x": 1}}]', (1, 2), 'pallet must be text or null, got {"x": 1}'),
@@ -221,7 +251,7 @@ def test_xlsx_cells_that_are_no_pallet_name_are_refused(tmp_path, world):
 
 
 def test_a_wrong_file_says_its_first_problems_only(tmp_path, world):
-    text = "place,pallet\n" + "".join(f"Z-{i:04d}-1,{i}\n" for i in range(2000))
+    text = "place,pallet\n" + "".join(f"A-{i:04d}-9,{i}\n" for i in range(2000))
     _, problems = _read(tmp_path, "s.csv", text, world)
     assert len(problems) == 51 and problems[-1].message == "... and 1950 more problems in this file"
 
@@ -485,20 +515,14 @@ def _injected(world) -> tuple[list[str], dict[str, str | None], dict[str, str]]:
         i for i in sorted({pallet_of(i) for i in world.enrolled_identities()}) if i not in placed
     ]
     pal = {p: pallet_of(truth[p]) for p in full}
-    same, swap_a, swap_b, moved, unexpected, far = (
-        full[0],
-        full[1],
-        full[2],
-        full[3],
-        full[4],
-        full[-1],
-    )
+    same, swap_a, swap_b, moved, unexpected = full[:5]
+    far = "K-07-3"  # a whole-warehouse export: a place of another zone, left out
     expected: dict[str, str | None] = {
         same: pal[same],
         swap_a: pal[swap_b],
         swap_b: pal[swap_a],
         moved: spare[0],  # expected another pallet; its own is expected at `far`
-        far: pal[moved],  # (not flown)
+        far: pal[moved],  # (not in this world)
         unexpected: None,
         empty[0]: spare[1],  # expected a pallet, empty
         empty[1]: None,  # expected empty, empty
@@ -549,7 +573,8 @@ def test_the_mission_reports_every_injected_discrepancy(tmp_path, world, capsys)
     # the one expected pallet the gallery does not enrol is said before and after
     unknown = next(p for p, c in want.items() if c == "unverified")
     assert inv["expected_not_enrolled"] == {"count": 1, "pallets": [expected[unknown]]}
-    assert "expected stock: 1 of 7 expected pallets not in the gallery" in printed
+    assert "expected stock: 1 of 6 expected pallets not in the gallery" in printed
+    assert "1 row of rack K, which this world does not have, left out" in printed
     g = inv["discrepancy_grades"]
     assert g["wrong"] == 0 and g["false_alarms"] == [] and g["missed"] == []
     lines = printed.splitlines()
@@ -639,7 +664,7 @@ def test_a_file_wrong_throughout_counts_every_problem(tmp_path, world, capsys):
     under '... and 19950 more')."""
     from bt_engine.cli import _print_problems
 
-    text = "place,pallet\n" + "".join(f"Z-{i:03d}-1,{i}\n" for i in range(120))
+    text = "place,pallet\n" + "".join(f"A-{i:03d}-9,{i}\n" for i in range(120))
     _, problems = _read(tmp_path, "s.csv", text, world)
     assert len(problems) == 51 and problems[-1].message == "... and 70 more problems in this file"
     _print_problems(problems)
@@ -649,8 +674,8 @@ def test_a_file_wrong_throughout_counts_every_problem(tmp_path, world, capsys):
 @pytest.mark.parametrize(
     "text, where",
     [
-        ('[{"place": "A-01-1", "pallet": "1"}, "x",\n  {"place": "Z-01-1", "pallet": "3"}]', [(1, 38), (2, 3)]),
-        ('{"rows": ["x",\n {"place": "Z-01-1", "pallet": "3"}]}', [(1, 11), (2, 2)]),
+        ('[{"place": "A-01-1", "pallet": "1"}, "x",\n  {"place": "A-09-1", "pallet": "3"}]', [(1, 38), (2, 3)]),
+        ('{"rows": ["x",\n {"place": "A-09-1", "pallet": "3"}]}', [(1, 11), (2, 2)]),
     ],
 )  # fmt: skip
 def test_a_json_row_that_is_no_object_does_not_shift_the_rows_after_it(
@@ -660,7 +685,7 @@ def test_a_json_row_that_is_no_object_does_not_shift_the_rows_after_it(
     point at the object after it (or at 1:1)."""
     _, problems = _read(tmp_path, "s.json", text, world)
     assert [(p.loc.line, p.loc.col) for p in problems] == where, problems
-    assert "expected {" in problems[0].message and "unknown place 'Z-01-1'" in problems[1].message
+    assert "expected {" in problems[0].message and "unknown place 'A-09-1'" in problems[1].message
 
 
 def test_a_workbooks_rows_are_rows_not_lines(tmp_path, world):
