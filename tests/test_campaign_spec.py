@@ -226,3 +226,30 @@ def test_the_example_of_docs_campaigns_md_is_valid(tmp_path, monkeypatch) -> Non
     check_campaign(c, rows)
     assert len(rows) == 3 * 20 * 3 * 2  # faults x seeds x gusts x scan speeds
     assert c.parameters()[:3] == ["wind.gust_std_mps", "scan_speed", "world.scan_pallet"]
+
+
+def test_a_row_key_covers_the_files_its_mission_includes(tmp_path) -> None:
+    """Editing an included subtree runs the rows again (the key had held the mission file's
+    own bytes only, so a resumed campaign kept results of the old subtree); a mission
+    without includes keeps the key it had."""
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    (lib / "hop.xml").write_text(
+        '<root BTCPP_format="4"><BehaviorTree ID="Hop"><AlwaysSuccess/></BehaviorTree></root>'
+    )
+    (tmp_path / "m.xml").write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="Main"><include path="lib/hop.xml"/>'
+        '<BehaviorTree ID="Main"><SubTree ID="Hop"/></BehaviorTree></root>'
+    )
+    text = "missions: [m.xml]\nseeds: {start: 0, count: 2}\n"
+    path = write(tmp_path, text)
+    first = [r.key for r in expand(load_campaign(path))]
+    assert [r.key for r in expand(load_campaign(path))] == first
+    (lib / "hop.xml").write_text(
+        '<root BTCPP_format="4"><BehaviorTree ID="Hop"><AlwaysFailure/></BehaviorTree></root>'
+    )
+    second = [r.key for r in expand(load_campaign(path))]
+    assert set(second).isdisjoint(first)
+    # a mission without includes: its keys do not depend on this (the same as before)
+    c = load_campaign(write(tmp_path, f"missions: [{SQUARE}]\nseeds: {{start: 0, count: 1}}\n"))
+    assert not expand(c)._includes.get(SQUARE)

@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     c = load_campaign(args.campaign)
     if args.dry_run:
-        rows = expand(c)
+        rows = expand(c, args.include_path)
         checked = check_campaign(c, rows, args.include_path)
         selected = rows[: args.limit] if args.limit is not None else rows
         saved = ResultStore(args.out).finished() if args.out else {}

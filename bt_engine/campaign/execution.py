@@ -225,8 +225,8 @@ def run_campaign(
     missions' nodes (:meth:`~bt_engine.campaign.pool.DaskPool.check_workers`; raises
     :class:`~bt_engine.campaign.pool.WorkersCannotRun`: nothing runs)."""
     c = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
-    rows = expand(c)  # lazy; raises first if there are more than c.max_rows
     include_paths = list(include_paths or ())
+    rows = expand(c, include_paths)  # lazy; raises first if there are more than c.max_rows
     check_campaign(c, rows, include_paths)
     keep = keep_runs or c.keep_runs
     selected = rows[:limit] if limit is not None else rows

@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import random
 from collections.abc import Container, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ from typing import Any, overload
 
 from bt_engine.campaign.spec import Campaign
 from bt_engine.files import read_bytes
+from bt_engine.loading import load_spec
 from bt_engine.spec import MissionError
 
 
@@ -118,7 +120,13 @@ class CampaignRows(Sequence[Row]):
     in a list): ``len()`` is arithmetic, ``rows[i]`` computes row ``i`` alone, a slice is
     another lazy view, iteration yields the rows one by one."""
 
-    def __init__(self, c: Campaign, indices: range | None = None, _base: Any = None) -> None:
+    def __init__(
+        self,
+        c: Campaign,
+        indices: range | None = None,
+        _base: Any = None,
+        include_paths: list[str] | None = None,
+    ) -> None:
         self.campaign = c
         if _base is None:
             check_row_count(c)
@@ -126,6 +134,7 @@ class CampaignRows(Sequence[Row]):
             self._grid_keys = list(c.grid)
             self._sizes = [n for _, n in c.dimensions()]
             self._digests: dict[str, str] = dict(c.digests)
+            self._includes = _include_digests(c.mission_paths, include_paths, self._digests)
             self._shared = {
                 "max_time_s": c.max_time_s,
                 "rate_hz": c.rate_hz,
@@ -134,6 +143,7 @@ class CampaignRows(Sequence[Row]):
         else:  # a view: the same campaign, other indices
             self._cases, self._grid_keys = _base._cases, _base._grid_keys
             self._sizes, self._digests, self._shared = _base._sizes, _base._digests, _base._shared
+            self._includes = _base._includes
         self.indices = range(c.row_count()) if indices is None else indices
 
     def __len__(self) -> int:
@@ -191,7 +201,7 @@ class CampaignRows(Sequence[Row]):
         settings = {**c.fixed, **params}
         timeout = case.timeout_s if case is not None and case.timeout_s else c.timeout_s
         content = {
-            "mission": [m, _file_digest(mp, self._digests)],
+            "mission": [m, _file_digest(mp, self._digests), *self._includes.get(mp, ())],
             "rig": [rg, _file_digest(rp, self._digests)],
             "world": [w, _file_digest(wp, self._digests)],
             "seed": seed,
@@ -217,11 +227,33 @@ class CampaignRows(Sequence[Row]):
         )
 
 
-def expand(c: Campaign) -> CampaignRows:
+def expand(c: Campaign, include_paths: list[str] | None = None) -> CampaignRows:
     """Every row of the campaign, in order, as a lazy sequence (nothing is generated until
     asked for); raises :class:`MissionError` first if the campaign has more than
-    ``max_rows`` rows."""
-    return CampaignRows(c)
+    ``max_rows`` rows. A row's key covers the files its mission includes (found as
+    ``btrun run --include-path`` finds them), so an edited subtree runs its rows again."""
+    return CampaignRows(c, include_paths=include_paths)
+
+
+def _include_digests(
+    missions: list[str], include_paths: list[str] | None, cache: dict[str, str]
+) -> dict[str, list[str]]:
+    """Per mission file, ``[path, SHA-256]`` of every file it includes, nested ones too
+    (none for a mission without includes, whose row keys stay as they were; a mission that
+    does not load has none either: the campaign's check refuses it)."""
+    out: dict[str, list[str]] = {}
+    for path in dict.fromkeys(missions):
+        try:
+            spec = load_spec(path, include_paths)
+        except Exception:  # noqa: BLE001 - said by check_campaign, with its location
+            continue
+        rel = os.path.dirname(os.path.abspath(path))
+        out[path] = [
+            x
+            for inc in spec.includes
+            for x in (os.path.relpath(os.path.abspath(inc), rel), _file_digest(inc, cache))
+        ]
+    return out
 
 
 def _rng(draw_seed: int, identity: str, key: str) -> random.Random:
