@@ -29,6 +29,8 @@ MEASURE_AFTER_S = 20.0
 RATE_KEY = "energy_rate"
 #: ``ctx.resources`` key of the last steady charge reading: (mission time, %)
 PERCENT_KEY = "energy_percent"
+#: ``ctx.resources`` key of how many batteries ``ChangeBattery`` has put in so far
+BATTERY_KEY = "energy_battery"
 #: the charge is read as the median of the readings over this many seconds: the gauge dips
 #: for a moment when the drone brakes or climbs (more thrust, more sag: 0.02 V, a few % at
 #: a low charge) and a check on the dip would stop a pass the charge covers
@@ -57,6 +59,7 @@ def forget_battery(ctx: Any) -> None:
     old one no longer hold."""
     ctx.resources.pop(RATE_KEY, None)
     ctx.resources.pop(PERCENT_KEY, None)
+    ctx.resources[BATTERY_KEY] = ctx.resources.get(BATTERY_KEY, 0) + 1
 
 
 def steady_reading(ctx: Any, now: float, max_age_s: float) -> tuple[float, float] | None:
@@ -150,7 +153,14 @@ class EnoughEnergy(ConditionNode):
     def _evaluate(self, v: Any, now: float) -> bool:
         pct = v.battery.percent
         hist = getattr(self, "_hist", None)
-        renewed = hist is not None and pct > hist[-1][1] + NEW_BATTERY_JUMP
+        # a new battery: ChangeBattery said so (a check evaluated only just after each
+        # change reads about the same charge each time, and its readings had spanned the
+        # changes: the time between changes taken as the time per task), or the charge rose
+        battery = self.ctx.resources.get(BATTERY_KEY, 0)
+        renewed = hist is not None and (
+            pct > hist[-1][1] + NEW_BATTERY_JUMP or battery != getattr(self, "_battery", 0)
+        )
+        self._battery = battery
         if hist is None or renewed or not v.is_flying:
             hist = self._hist = []  # a new battery (or on the ground): measure afresh
             if renewed or not v.is_flying:

@@ -68,3 +68,26 @@ def test_a_lasting_sag_still_stops_the_work_and_a_stale_reading_is_not_used() ->
 
     assert steady_percent(Ctx(), 101.0, 35.0) == 40.0  # read 1 s ago: the steady value
     assert steady_percent(Ctx(), 105.0, 35.0) == 35.0  # stale: the gauge now
+
+
+def test_a_check_evaluated_once_per_battery_does_not_time_the_changes_as_tasks() -> None:
+    """EnoughEnergy checked only right after each take-off on a fresh battery read about
+    the same charge each time, so it never saw a new battery: from the third change its
+    readings spanned the changes, and the time between them was taken as the time a task
+    takes (validation probe, site seed 304: FAILURE on a 98 % battery, 60 places not
+    scanned). ChangeBattery now tells it."""
+    xml = wrap(
+        """    <Repeat num_cycles="4">
+      <Sequence>
+        <ChangeBattery mode="swap" duration="1"/>
+        <TakeOff height="1.0" speed="0.5" takeoff_point="{home}"/>
+        <EnoughEnergy name="after_change" target="{home}" home="{home}" speed="1.0"
+                      task_time="0" endurance="60" reserve="15"/>
+        <Land/>
+        <Sleep msec="50000"/>
+      </Sequence>
+    </Repeat>"""
+    )
+    _, runner, _ = sim_mission(xml)
+    result = runner.run(max_time_s=400)
+    assert result.status == "SUCCESS", result.reason
