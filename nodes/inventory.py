@@ -462,8 +462,14 @@ class RecordPlace(SyncActionNode):
             answer, status = "", NOT_SCANNED
             reason = reason or "the place could not be looked at"
         log = InventoryLog.of(self.ctx)
+        ident = self._last_identification()
         if pallet and (seen is None or seen < 0) and self.input_entry("blocks_seen") is None:
             seen = self._blocks_located()
+            crops = len(ident.get("crops") or ()) if ident else 0
+            if crops and (seen is None or seen < crops):  # a rescan saw more than its locate
+                seen = crops
+        if pallet == UNKNOWN and not reason and ident:  # why the identification said unknown
+            reason = str(ident.get("reason") or "")
         row = log.record(
             {
                 "place": self.get_input("place").strip(),
@@ -501,6 +507,15 @@ class RecordPlace(SyncActionNode):
             write_place_evidence(run_dir, place, last.get("crops"), ranking)
         except (OSError, ValueError, TypeError, IndexError) as exc:
             self.ctx.log(f"inventory {place}: evidence not written: {exc}")
+
+    def _last_identification(self) -> dict | None:
+        """The last identification since the previous row (its answer, reason and crops),
+        or None."""
+        session = self.ctx.resources.get("perception")
+        idents = getattr(session, "identifications", None) or []
+        mark = self.ctx.resources.get("inventory_idents_mark", 0)
+        found = [r for r in idents[mark:] if "ranking" in r]
+        return found[-1] if found else None
 
     def _blocks_located(self) -> int | None:
         """How many blocks LocatePallet saw at this place, when the mission does not pass

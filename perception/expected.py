@@ -166,15 +166,25 @@ def check_expected(
     )  # fmt: skip
     why = []
     if z < th.verify_z:
-        why.append(f"texture score {z:.2f} below {th.verify_z:.2f}")
+        why.append(f"texture score {_below(z, th.verify_z)}")
     if not agree >= th.block_z:
-        why.append(f"second-best block {agree:.2f} below {th.block_z:.2f}")
+        why.append(f"second-best block {_below(agree, th.block_z)}")
     if rank is None or rank > th.max_rank:
         where = "beyond" if rank is None else f"{rank},"
         why.append(f"embedding rank {where} needs <= {th.max_rank}")
     if why:
         return replace(check, reason=f"not {expected}: " + "; ".join(why))
     return replace(check, verified=True)
+
+
+def _below(value: float, threshold: float) -> str:
+    """``3.21 below 3.30``, with as many decimals as it takes for the two to differ
+    (``3.296 below 3.30``, not ``3.30 below 3.30``)."""
+    for digits in (2, 3, 4):
+        shown = f"{value:.{digits}f}"
+        if shown != f"{threshold:.{digits}f}":
+            return f"{shown} below {threshold:.2f}"
+    return f"{value:.6g} below {threshold:.6g}"
 
 
 __all__ = [

@@ -82,6 +82,36 @@ def test_record_place_says_what_the_scan_found(tmp_path):
     assert (rows["A-03-1"]["answer"], rows["A-03-1"]["status"]) == ("unknown", "unknown")
 
 
+def test_an_unknown_from_a_rescan_keeps_its_reason_and_the_blocks_it_used(tmp_path):
+    """The rescan's RecordPlace is given no reason: the row had an empty reason and the
+    blocks LocatePallet saw before the rescan (2), not the three the identification used
+    (validation probe, fleet seed 303: five such rows)."""
+    import types
+
+    import numpy as np
+
+    crops = [np.full((40, 30, 3), 90 + 20 * i, np.uint8) for i in range(3)]
+    session = types.SimpleNamespace(
+        faces=[{"stage": "located", "blocks_seen": 2}],
+        identifications=[
+            {
+                "ranking": [["1071B", 0.55, [0.5, 0.6, 0.55]]],
+                "reason": "margin 0.206 to 1071B below the threshold 0.251",
+                "crops": crops,
+            }
+        ],
+    )
+    xml = """<root BTCPP_format="4"><BehaviorTree ID="M"><Sequence>
+      <RecordPlace place="A-03-1" pallet_id="unknown" best_id="1026B"/>
+    </Sequence></BehaviorTree></root>"""
+    m = xml_mission(xml, resources={"run_dir": str(tmp_path), "perception": session})
+    m.tick()
+    row = read_inventory(str(tmp_path))[0]
+    assert (row["answer"], row["status"]) == ("unknown", "unknown")
+    assert row["reason"] == "margin 0.206 to 1071B below the threshold 0.251"
+    assert row["blocks_seen"] == 3
+
+
 def test_energy_needed_covers_the_way_there_the_work_and_the_way_back():
     need, seconds = needed_percent(0.25, 3.0, 2.0, 0.5, 40.0, 8.0, 15.0)
     assert seconds == pytest.approx(10.0 + 40.0 + 8.0)
@@ -245,3 +275,10 @@ def test_the_sweep_look_ahead_uses_a_consumption_measured_minutes_ago(tmp_path):
     result = run.run(max_time_s=60)
     assert result.status == "FAILURE"  # not enough charge for the sweep: change first
     assert "at 12.00 %/min (measured)" in result.reason, result.reason
+
+
+def test_a_reason_never_says_a_score_is_below_itself():
+    from perception.expected import _below
+
+    assert _below(3.296, 3.30) == "3.296 below 3.30"  # it read '3.30 below 3.30'
+    assert _below(3.21, 3.3) == "3.21 below 3.30"
