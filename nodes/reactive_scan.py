@@ -276,6 +276,15 @@ class LocatePallet(ReactiveLeaf):
             "the face may be this much nearer or farther than place, m (farther: something "
             "behind an empty place)",
         ),
+        input_port(
+            "rise",
+            FLOAT,
+            0.4,
+            "the row may stand this much above place (a pallet standing off its beam), m; "
+            "below it, 0.15 m",
+            low=0.0,
+            high=2.0,
+        ),
         _SPEED,
         input_port("pos_threshold", FLOAT, 0.05, "look point position tolerance, m"),
         _DETECTOR,
@@ -315,6 +324,7 @@ class LocatePallet(ReactiveLeaf):
             self.prior,
             self.get_input("window"),
             depth_window_m=self.get_input("depth_window"),
+            height_above_m=max(self.get_input("rise"), 0.15),
         )
         if face is not None:
             face.map_facing_rad = self.facing  # the place's mapped face line: prior, facing

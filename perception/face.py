@@ -258,12 +258,15 @@ class FaceTracker:
         search_centre_rad: float | None = None,
         max_turn_deg: float = 35.0,
         depth_window_m: float | None = None,
+        height_above_m: float | None = None,
     ) -> FaceEstimate | None:
         """The face from the sightings so far (None without a usable one).
 
         ``prior_facing_rad`` and ``prior_centre`` (x, y, z of the row centre) are where the
         map (or an earlier estimate) puts the row: sightings more than ``height_window_m``
-        above or below it are other things (a pallet on the floor below, a beam), and row
+        below it or ``height_above_m`` above it (default: ``height_window_m``; a pallet
+        stands on its beam or above it, never below) are other things (a pallet on the
+        floor below, a beam), and row
         placements whose centre is more than ``window_m`` along the face from it are not
         considered (the neighbours' blocks). ``prior_from_blocks``: the prior facing came
         from an earlier fit. ``depth_window_m``: a face nearer or farther than this from the
@@ -281,7 +284,9 @@ class FaceTracker:
         if not self.sightings:
             return None
         pts = np.array([s.point for s in self.sightings])
-        keep = np.abs(pts[:, 2] - float(prior_centre[2])) <= height_window_m
+        above = height_window_m if height_above_m is None else height_above_m
+        dz = pts[:, 2] - float(prior_centre[2])
+        keep = (dz >= -height_window_m) & (dz <= above)
         if not keep.any():
             return None
         sel = [s for s, k in zip(self.sightings, keep, strict=True) if k]

@@ -150,3 +150,23 @@ def test_inventory_csv_lists_every_planned_place_even_when_the_run_ended_early(t
     ]
     doc = json.loads((tmp_path / "inventory.json").read_text())
     assert [r["place"] for r in doc["rows"]] == ["A-01-1"]
+
+
+@pytest.mark.slow  # a short aisle sweep (two places and their rescans)
+def test_a_pallet_a_fifth_of_a_metre_above_its_beam_is_found_by_the_rescan(tmp_path):
+    """The aisle's seed 304 with pallets up to 0.25 m above their beams: A-01-1 and A-04-1
+    stand 0.22 m high. The pass sends them to the rescan (blocks off the row), whose
+    LocatePallet took sightings within 0.15 m of the mapped row only and answered
+    ``empty`` (validation probe: 16 such places of the site, false ``missing``). It now
+    takes a row up to its ``rise`` (0.4 m) above the mapped one."""
+    import csv
+
+    out = tmp_path / "run"
+    code = main(
+        ["missions/inventory.xml", "--rig", "rigs/aisle.yaml", "--seed", "304", "--quiet"]
+        + ["--set", "world.stock.placement_error.height_m=0.25", "--set", "places=A-01-1;A-04-1"]
+        + ["--out", str(out), "--no-report", "--no-mcap"]
+    )
+    assert code == 0
+    rows = {r["place"]: r for r in csv.DictReader((out / "inventory.csv").open(encoding="utf-8"))}
+    assert (rows["A-01-1"]["answer"], rows["A-04-1"]["answer"]) == ("106B", "103A"), rows
