@@ -23,7 +23,7 @@ from drivers.safety.policies import SafetyConfig
 from drivers.settings import ConfigError
 from nodes.common import config_problems
 from nodes.fleet.plan import split_places
-from nodes.fleet.spec import DroneSpec, FleetSpec, load_fleet
+from nodes.fleet.spec import DroneSpec, FleetSpec, load_fleet, place_drones, rig_overrides
 from nodes.inventory import resolve_places
 from nodes.inventory_log import InventoryError, InventoryLog
 
@@ -35,7 +35,7 @@ def text(value: Any) -> str:
     )
 
 
-def common_sets(spec: FleetSpec, sets: list[str], previous: dict | None = None) -> list[str]:
+def common_sets(spec: FleetSpec | None, sets: list[str], previous: dict | None = None) -> list[str]:
     """The settings of every drone: the fleet file's ``set:`` (resuming, the settings the
     ``previous`` run flew with, its places among them), then the command's ``--set``."""
     if previous is None:
@@ -50,22 +50,29 @@ def common_sets(spec: FleetSpec, sets: list[str], previous: dict | None = None) 
     return base + list(sets)
 
 
+def given_sets(sets: list[str], previous: dict | None = None) -> list[str]:
+    """The settings of every drone beyond the fleet file's ``set:``: resuming, the ones the
+    ``previous`` run flew with (its places among them), then the command's ``--set``."""
+    return list(sets) if previous is None else common_sets(None, list(sets), previous)
+
+
 def rig_and_world(spec: FleetSpec, common: list[str], seed: int) -> tuple[Any, Any]:
     """The fleet's rig with the common rig and world settings, and its world with the
-    seed's stock; raises :class:`MissionError` with located problems."""
+    seed's stock, the drones placed in it (their pads' positions there: the world flown,
+    ``--set world.path=`` included) and checked there; raises :class:`MissionError` with
+    located problems."""
     from drivers.rig.loader import load_rig
 
     over = {}
     for item in common:
         key, _, value = item.partition("=")
-        if "." in key:
-            over[key[4:] if key.startswith("rig.") else key] = value
+        over[key] = value
     try:
-        rig = load_rig(spec.rig, over, own_start=False)  # the drones' own starts, below
+        rig = load_rig(spec.rig, rig_overrides(over), own_start=False)  # the drones' starts
         world = rig.load_world(seed)
     except ConfigError as exc:
         raise MissionError(config_problems(exc)) from None
-    problems = start_problems(spec, rig)
+    problems = place_drones(spec, rig, world) or start_problems(spec, rig)
     if problems:
         raise MissionError(problems)
     return rig, world
@@ -216,8 +223,8 @@ def check_fleet(
     and ``resume`` (``--resume RUN``: its seed, its inventory, the places it left) as
     ``btrun fleet`` does before take-off, flying nothing. Returns one line per drone
     (``cf1: 36 places``); raises :class:`MissionError` with every located problem."""
-    spec = load_fleet(path)
     previous = previous_run(resume)
+    spec = load_fleet(path, given_sets(list(sets or []), previous))  # pads in the world flown
     seed = resumed_seed(previous, seed, resume)
     seed = spec.data["seed"] if seed is None else seed
     common = common_sets(spec, list(sets or []), previous)

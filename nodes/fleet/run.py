@@ -42,6 +42,7 @@ from nodes.fleet.check import (
     check_fleet,
     common_sets,
     drone_sets,
+    given_sets,
     layout,
     planned_places,
     previous_run,
@@ -129,8 +130,8 @@ def run(args: Any) -> int:
         lines = check_fleet(args.fleet, args.set, args.seed, args.resume)
         print(f"{args.fleet}: ok ({plural(len(lines), 'drone')}; " + ", ".join(lines) + ")")
         return 0
-    spec = load_fleet(args.fleet)
     previous = previous_run(args.resume)
+    spec = load_fleet(args.fleet, given_sets(args.set, previous))  # pads in the world flown
     seed = resumed_seed(previous, args.seed, args.resume)
     seed = spec.data["seed"] if seed is None else seed
     out = args.out or os.path.join("runs", f"{spec.data['name']}-{time.strftime('%Y%m%d-%H%M%S')}")

@@ -12,11 +12,13 @@ Example (``fleets/aisle_2.yaml``)::
 
 Paths are relative to the fleet file. Everything is checked before anything flies and every
 problem is reported at once, located (``file:line:col: message``): 1 to 4 drones with
-distinct names, a pad of the world or a start position for each, no pad shared (landing
-pads included), start positions at least the minimum separation apart, no URI used twice,
-the rig, the mission and the place list. The fleet's name and the drones' names become
-folder names (the run folder, ``drones/<name>/``), so they must match :data:`SAFE_NAME` (no
-``/``, no ``..``): a fleet file cannot write outside ``--out``.
+distinct names, a pad of the world or a start position for each (not both), no pad shared
+(landing pads included), start positions at least the minimum separation apart, no
+Crazyflie used twice however its URI is spelled (:func:`_check_uris`), the rig, the mission
+and the place list. The pads are those of the world that is flown: the rig's, after the
+fleet's ``set:`` and the command's ``--set`` (:func:`place_drones`). The fleet's name and
+the drones' names become folder names (the run folder, ``drones/<name>/``), so they must
+match :data:`SAFE_NAME` (no ``/``, no ``..``): a fleet file cannot write outside ``--out``.
 """
 
 from __future__ import annotations
@@ -197,9 +199,13 @@ def _check_inputs(mission: str, data: dict, at: Any) -> None:
                 at(f"{section}.{key}", message)
 
 
-def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
-    """Read and check a fleet file (the world's pads come from its rig); raises
-    :class:`MissionError` with every located problem."""
+def load_fleet(path: str, overrides: list[str] | None = None) -> FleetSpec:
+    """Read and check a fleet file; raises :class:`MissionError` with every located problem.
+
+    The drones' pads are resolved in the world of the fleet's rig with the fleet file's
+    ``set:`` and then ``overrides`` (``KEY=VALUE`` items, as ``--set``: the command's, a
+    resumed run's) applied, as the fleet flies; :func:`nodes.fleet.check.rig_and_world`
+    places them again (:func:`place_drones`) in the very world it loads for the flight."""
     from drivers.rig.loader import load_rig
 
     marks: Marks = {}
@@ -207,6 +213,16 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
         data = load_yaml_file(path, FLEET_SCHEMA, marks=marks, what="fleet files")
     except ConfigError as exc:
         raise MissionError(config_problems(exc)) from None
+    if data["mission"] is None:  # an empty document: the schema's defaults, no mission
+        raise MissionError(
+            [
+                Problem(
+                    Loc(path, 1, 1),
+                    "the fleet file is empty: expected at least mission: (the mission every "
+                    f"drone flies) and drones: (1 to {MAX_DRONES} drones)",
+                )
+            ]
+        )
     problems: list[Problem] = []
 
     def at(key: str, message: str) -> None:
@@ -225,16 +241,13 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
     else:
         _check_inputs(mission, data, at)
     rig_path = _relative(path, data["rig"])
-    common = {
-        str(k): v
-        for k, v in data["set"].items()
-        if "." in str(k) and not str(k).startswith(UNCHECKED_PREFIX)
-    }
+    common = {str(k): v for k, v in data["set"].items()}
+    for item in overrides or []:
+        key, _, value = item.partition("=")
+        common[key] = value
     world = None
     try:
-        rig = load_rig(
-            rig_path, {k[4:] if k.startswith("rig.") else k: v for k, v in common.items()}
-        )
+        rig = load_rig(rig_path, rig_overrides(common), own_start=False)  # the drones' starts
         world = rig.load_world(data["seed"])
     except ConfigError as exc:
         problems += config_problems(exc)
@@ -242,7 +255,6 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
     n = len(data["drones"])
     if not 1 <= n <= MAX_DRONES:
         at("drones", f"a fleet flies 1 to {MAX_DRONES} drones, got {n}")
-    pads = world.pads() if world is not None else {}
     drones: list[DroneSpec] = []
     seen: dict[str, str] = {}
     for i, d in enumerate(data["drones"]):
@@ -253,24 +265,17 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
         if d["name"] in seen:
             at(f"{key}.name", f"two drones named {d['name']!r}")
         seen.setdefault(d["name"], key)
-        start = None
-        if d["pad"] is not None and rig is not None:  # no rig: its world's pads are unknown
-            if d["pad"] not in pads:
-                at(f"{key}.pad", _not_a_pad(d["pad"], pads))
-            else:
-                x, y = pads[d["pad"]]
-                start = (float(x), float(y), 0.0)
-        if d["start_m"] is not None:
-            start = tuple(float(v) for v in d["start_m"])
-        if start is None and rig is not None and not (d["pad"] and d["pad"] not in pads):
-            at(key, f"drone {d['name']!r} needs a pad (one of the world's pads) or start_m")
-        for j, name in enumerate(d["landing_pads"]):
-            if rig is not None and name not in pads:
-                at(f"{key}.landing_pads[{j}]", _not_a_pad(name, pads))
+        if d["pad"] is not None and d["start_m"] is not None:
+            start = ", ".join(f"{float(v):g}" for v in d["start_m"])
+            at(
+                f"{key}.start_m",
+                f"drone {d['name']!r} has both a pad ({d['pad']!r}) and start_m ({start}): "
+                "expected one of them (pad: it starts on that pad; start_m: elsewhere)",
+            )
         drones.append(
             DroneSpec(
                 d["name"],
-                start or (0.0, 0.0, 0.0),
+                (0.0, 0.0, 0.0),  # placed below, in the rig's world
                 d["pad"],
                 d["uri"],
                 dict(d["set"]),
@@ -278,12 +283,61 @@ def load_fleet(path: str, overrides: dict[str, str] | None = None) -> FleetSpec:
                 tuple(d["landing_pads"]),
             )
         )
-    if rig is not None:
-        _check_shared(data, drones, at)
-    _check_uris(data, drones, rig, at)
+    if rig is not None:  # no rig: its world's pads are unknown
+        _place(data, drones, rig, world, at)
     if problems:
         raise MissionError(problems)
     return FleetSpec(path, data, marks, drones, mission, rig_path)
+
+
+def rig_overrides(common: dict[str, Any]) -> dict[str, Any]:
+    """The rig and world settings (``rig.KEY``/``KEY.SUB``, ``world.KEY``) among settings
+    ``common`` (KEY -> value), as :func:`drivers.rig.loader.load_rig` takes them; blackboard
+    inputs (``name``, ``bb.name``) left out."""
+    return {
+        (k[4:] if k.startswith("rig.") else k): v
+        for k, v in common.items()
+        if "." in k and not k.startswith(UNCHECKED_PREFIX)
+    }
+
+
+def place_drones(spec: FleetSpec, rig: Any, world: Any) -> list[Problem]:
+    """Place ``spec``'s drones in ``world`` (the world flown: its rig's, with every setting
+    applied), ``rig`` the rig flown: each drone's start is its pad's position there (or its
+    ``start_m``), and its pads, landing pads, start separation and URI are checked there.
+    Returns the located problems (none: the drones' starts are set)."""
+    problems: list[Problem] = []
+
+    def at(key: str, message: str) -> None:
+        problems.append(Problem(spec.loc(key), message))
+
+    _place(spec.data, spec.drones, rig, world, at)
+    return problems
+
+
+def _place(data: dict, drones: list[DroneSpec], rig: Any, world: Any, at: Any) -> None:
+    """Set each drone's start in ``world`` and check pads, separation and URIs (``at``)."""
+    pads = world.pads() if world is not None else {}
+    for d in drones:
+        raw = data["drones"][d.index]
+        key = f"drones[{d.index}]"
+        start = None
+        if raw["start_m"] is not None:
+            start = tuple(float(v) for v in raw["start_m"])
+        elif raw["pad"] is not None:
+            if raw["pad"] not in pads:
+                at(f"{key}.pad", _not_a_pad(raw["pad"], pads))
+            else:
+                x, y = pads[raw["pad"]]
+                start = (float(x), float(y), 0.0)
+        else:
+            at(key, f"drone {d.name!r} needs a pad (one of the world's pads) or start_m")
+        for j, name in enumerate(d.landing_pads):
+            if name not in pads:
+                at(f"{key}.landing_pads[{j}]", _not_a_pad(name, pads))
+        d.start_m = start or (0.0, 0.0, 0.0)
+    _check_shared(data, drones, at)
+    _check_uris(drones, rig, at)
 
 
 def _not_a_pad(name: str, pads: dict) -> str:
@@ -327,15 +381,37 @@ def _check_shared(data: dict, drones: list[DroneSpec], at: Any) -> None:
                 )
 
 
-def _check_uris(data: dict, drones: list[DroneSpec], rig: Any, at: Any) -> None:
-    """No two drones on one radio address (a real link; SITL picks free ports itself)."""
+def _check_uris(drones: list[DroneSpec], rig: Any, at: Any) -> None:
+    """No two drones on one Crazyflie (a real link; SITL picks free ports itself), however
+    their URIs are spelled: compared by :func:`~drivers.crazyflie.link_lock.link_identity`
+    (for ``radio://``: channel and address, the address in any case, cflib's default
+    E7E7E7E7E7 when left out; the dongle and the data rate do not tell drones apart)."""
+    from drivers.crazyflie.link_lock import link_identity
+
     if rig is None or rig.kind != "crazyflie" or rig.data["crazyflie"]["sitl"]:
         return
     default = rig.data["crazyflie"]["uri"]
-    by_uri: dict[str, str] = {}
+    by_link: dict[str, tuple[str, str]] = {}
     for d in drones:
-        uri = d.uri or str(d.sets.get("crazyflie.uri") or default)
+        own = [v for k, v in d.sets.items() if str(k) in ("crazyflie.uri", "rig.crazyflie.uri")]
+        uri = (d.uri or str((own or [None])[-1] or default)).strip()
         key = f"drones[{d.index}].uri" if d.uri else f"drones[{d.index}]"
-        if uri in by_uri:
-            at(key, f"{d.name} and {by_uri[uri]} both use {uri}: give each drone its own uri")
-        by_uri.setdefault(uri, d.name)
+        link = link_identity(uri)
+        if link in by_link:
+            other, other_uri = by_link[link]
+            if uri == other_uri:
+                at(key, f"{d.name} and {other} both use {uri}: give each drone its own uri")
+            elif link.startswith("radio channel "):
+                at(
+                    key,
+                    f"{d.name} and {other} both use the Crazyflie on {link} ({uri} and "
+                    f"{other_uri}; the address's case, the dongle and the data rate do not "
+                    "tell drones apart): give each drone its own uri",
+                )
+            else:
+                at(
+                    key,
+                    f"{d.name} and {other} both use {link} ({uri} and {other_uri}): give "
+                    "each drone its own uri",
+                )
+        by_link.setdefault(link, (d.name, uri))
