@@ -38,6 +38,28 @@ def top_level_keys(path: str) -> set[str] | None:
     return {str(k.value) for k, _ in node.value if isinstance(k, yaml.ScalarNode)}
 
 
+def is_empty_yaml(path: str) -> bool:
+    """True for a YAML file holding no value at all: 0 bytes, blank lines, comments, a bare
+    ``---``. Its kind cannot be told (a mission? a rig?): it is refused as such, where a
+    mission's check would call it a bad mission and a rig's load would take the defaults."""
+    if not path.lower().endswith(YAML_SUFFIXES):
+        return False
+    text = read_text(path, [], what="btrun files")
+    if text is None:
+        return False
+    empty = (
+        yaml.StreamStartToken,
+        yaml.StreamEndToken,
+        yaml.DocumentStartToken,
+        yaml.DocumentEndToken,
+        yaml.DirectiveToken,
+    )
+    try:
+        return all(isinstance(t, empty) for t in yaml.scan(text, Loader=yaml.SafeLoader))
+    except (yaml.YAMLError, RecursionError, ValueError):
+        return False
+
+
 def _campaign_check(path: str, sets: list[str], seed: int | None) -> list[Problem]:
     from bt_engine.campaign.check import check_campaign
     from bt_engine.campaign.rows import expand
@@ -89,7 +111,16 @@ def check_other_file(
 ) -> tuple[str, list[Problem], str] | None:
     """Check a file that is not a mission as the command that reads it would, flying
     nothing: ``(kind, problems, found)`` (``found``: what the check says the file holds,
-    or ""); None if ``path`` is read as a mission."""
+    or ""); None if ``path`` is read as a mission. An empty YAML file is refused here
+    (kind ``empty``): nothing says what it was meant to be."""
+    if is_empty_yaml(path):
+        names = sorted(_kinds())
+        kinds = f"{', '.join(names[:-1])} or {names[-1]}" if len(names) > 1 else names[0]
+        message = (
+            f"the file is empty: expected a mission (a mapping with `trees:`) or a {kinds} "
+            "file (its settings as a mapping)"
+        )
+        return "empty", [Problem(Loc(path, 1, 1), message)], ""
     found = file_kind(path)
     if found is None:
         return None

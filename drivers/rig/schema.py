@@ -13,6 +13,11 @@ from typing import Any
 
 from drivers.safety.policies import safety_schema
 from drivers.settings import Field, schema_of
+from drivers.sim.crazyflie_params import (
+    crazyflie_integer_params,
+    crazyflie_param_limits,
+    crazyflie_params,
+)
 from drivers.vehicle.config import VehicleConfig
 
 
@@ -39,6 +44,21 @@ def _fault(doc: str, **params: Field) -> Field:
     )
 
 
+#: Each simulator parameter a rig's ``sim.params`` may set, with its range
+#: (:data:`~drivers.sim.crazyflie_params.crazyflie_param_limits`); the rig loader checks the
+#: keys and values against these (``sim.params`` stays a plain mapping of overrides).
+SIM_PARAMS: dict[str, Field] = {
+    name: Field(
+        "int" if name in crazyflie_integer_params else "float",
+        crazyflie_params[name],
+        doc,
+        min=lo,
+        max=hi,
+    )
+    for name, (lo, hi, doc) in crazyflie_param_limits.items()
+}
+
+
 RIG_SCHEMA = _m(
     {
         "name": _f("str", "sim", "rig name (shown in logs)"),
@@ -51,7 +71,9 @@ RIG_SCHEMA = _m(
         "world": _m(
             {
                 "path": _f(
-                    "str", "../worlds/warehouse.yaml", "world file (relative to this rig file)"
+                    "str",
+                    "../worlds/warehouse.yaml",
+                    "world file (relative to this rig file; given by --set: to the working folder)",
                 ),
                 "scan_pallet": _f(
                     "str", None, "override the world's scan_pallet (e.g. 2B)", nullable=True
@@ -78,12 +100,15 @@ RIG_SCHEMA = _m(
                     "float", 500.0, "physics step rate (multiple of 100)", min=100.0, max=5000.0
                 ),
                 "start_m": _f("vec", [0.0, 0.0, 0.0], "start position (m)", length=3),
-                "start_yaw_deg": _f("float", 0.0, "start yaw (deg)"),
+                "start_yaw_deg": _f("float", 0.0, "start yaw (deg)", min=-360.0, max=360.0),
                 "shutdown_max_s": _f(
                     "float", 30.0, "shutdown: simulate at most this long to land", min=0.0
                 ),
                 "params": Field(
-                    "dict", {}, "overrides of drivers/sim/crazyflie_params.py", item=Field("float")
+                    "dict",
+                    {},
+                    "overrides of drivers/sim/crazyflie_params.py (names and ranges: `sim.params`)",
+                    item=Field("float"),
                 ),
                 "telemetry_rate_hz": _f("float", 100.0, "link telemetry rate", min=1.0),
                 "link_loss_probability": _f(
@@ -395,6 +420,25 @@ def settings_markdown() -> str:
                     kind += f" >= {f.min:g}"
                 doc = f.doc.replace("|", "\\|")
                 lines.append(f"| `{key}` | {kind} | `{f.default!r}` | {doc} |")
+        if prefix == "sim":
+            lines.extend(["", "## `sim.params`", ""])
+            lines.extend(
+                [
+                    "Overrides of the simulator's parameters (drivers/sim/crazyflie_params.py);",
+                    "any other name is refused, and so is a value out of its range. Together,",
+                    "the motors must lift more than the weight, each time constant be at least",
+                    "one physics step (1 / `sim.physics_rate_hz`), `tumble_tilt_deg` exceed",
+                    "`max_tilt_deg` and the watchdog level the drone before it stops the motors.",
+                    "",
+                    "| key | type | default | meaning |",
+                    "|---|---|---|---|",
+                ]
+            )
+            for key, f in SIM_PARAMS.items():
+                doc = f.doc.replace("|", "\\|")
+                lines.append(
+                    f"| `{key}` | {f.kind} {f.min:g}..{f.max:g} | `{f.default!r}` | {doc} |"
+                )
         for key, f in maps:
             section(f, f"{prefix}.{key}" if prefix else key)
 
