@@ -234,3 +234,19 @@ def test_a_world_path_given_by_set_is_relative_to_the_working_folder(
     err = capsys.readouterr().err  # not btrun's own worlds/warehouse.yaml
     assert err.startswith("--set world.path 'worlds/warehouse.yaml': no such world file")
     assert "relative to the working folder" in err
+
+
+@pytest.mark.parametrize(
+    "setting, said",
+    [
+        ("pallet_geometry.height_m=0.05", "expected at least 3 boards and a block"),
+        ("pallet_geometry.length_m=0.3", "its three blocks along the face take 0.435 m"),
+        ("pallet_geometry.corner_block_m=[0,0.1]", "expected lengths > 0"),
+    ],
+)
+def test_a_pallet_whose_parts_do_not_fit_together_is_refused(
+    tmp_path, capsys, setting, said
+) -> None:
+    # each value in its range, the pallet not buildable: the pre-flight had failed in numpy
+    first = _refused_everywhere(capsys, tmp_path, ["--set", f"world.{setting}"])
+    assert first.startswith(f"--set world.{setting.split('=')[0]}: ") and said in first, first

@@ -400,10 +400,54 @@ def _world_problems(data: dict) -> list[tuple[str, str]]:
                 f"slots but only {len(data['row_slots'])} are given",
             )
         )
+    problems += _geometry_problems(data["pallet_geometry"])
     problems += layout_problems(data)
     places = [p for rack in data["racks"] for p in rack_places(rack, data["pallet_geometry"])]
     problems += stock_problems(data, places)
     return problems
+
+
+def _geometry_problems(g: dict) -> list[tuple[str, str]]:
+    """(key, message) for a pallet geometry whose parts do not fit together: the boards and
+    blocks taller than the pallet, the blocks wider than its face or deeper than it (each
+    value alone in its range, the pallet not buildable: drawing it failed deep in numpy)."""
+    out = []
+    stack = 3 * g["board_m"] + g["block_height_m"]
+    if stack > g["height_m"] + 1e-9:
+        out.append(
+            (
+                "pallet_geometry.height_m",
+                f"pallet height {g['height_m']:g} m: expected at least 3 boards and a block "
+                f"({3 * g['board_m']:g} + {g['block_height_m']:g} = {stack:g} m; a EPAL: "
+                "0.144 m)",
+            )
+        )
+    corner, middle = g["corner_block_m"], g["middle_block_m"]
+    blocks = 2 * corner[0] + middle[0]
+    if not all(v > 0 for v in (*corner, *middle)):
+        out.append(
+            (
+                "pallet_geometry.corner_block_m",
+                f"block sizes {list(corner)} and {list(middle)}: expected lengths > 0 (m)",
+            )
+        )
+    elif blocks > g["length_m"] + 1e-9:
+        out.append(
+            (
+                "pallet_geometry.length_m",
+                f"pallet length {g['length_m']:g} m: its three blocks along the face take "
+                f"{blocks:g} m (2 x {corner[0]:g} + {middle[0]:g})",
+            )
+        )
+    elif max(corner[1], middle[1]) > g["width_m"] + 1e-9:
+        out.append(
+            (
+                "pallet_geometry.width_m",
+                f"pallet width {g['width_m']:g} m: its blocks are {max(corner[1], middle[1]):g} "
+                "m deep",
+            )
+        )
+    return out
 
 
 def load_world(path: str, overrides: dict[str, str] | None = None, seed: int = 0) -> World:
