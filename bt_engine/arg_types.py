@@ -48,14 +48,14 @@ def count(what: str) -> Callable[[str], int]:
 
 def port_number(most: int = 65535) -> Callable[[str], int]:
     """An argparse ``type``: a TCP port 0..``most``, 0 for any free one (``--groot 99999``
-    said it served on 99999 and listened on 34463: the number wrapped)."""
+    said it served on 99999 and listened on 34463: the number wrapped). Only decimal digits
+    are a port: ``xyz`` and ``1668x`` had become 0 (any free port) without a word, and
+    ``int()`` also takes ``1_668``, ``+1668`` and non-ASCII digits."""
 
     def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = 0
-        if not 0 <= value <= most or text.strip() in ("", "-0"):
+        digits = text.strip()
+        value = int(digits) if digits.isascii() and digits.isdigit() else -1
+        if not 0 <= value <= most:
             raise argparse.ArgumentTypeError(
                 f"expected a TCP port 1 to {most} (0: any free one), got {text!r}"
             )

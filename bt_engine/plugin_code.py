@@ -35,7 +35,8 @@ def creation_problems(spec: MissionSpec, registry: Registry) -> list[Problem]:
     """One problem per node type of the mission whose class cannot be created (its
     ``__init__(name, ctx)`` raises), at its first node: ``btrun validate`` says it, and
     nothing is built. Only classes with an ``__init__`` of their own (outside the engine)
-    are tried, once each, with a mission context that has no vehicle and no resources."""
+    are tried, once each, with a mission context that has no vehicle and no resources. A
+    ``sys.exit()`` in one is such a problem too (``SystemExit: 4 (raised at FILE:LINE)``)."""
     from bt_engine.clock import SimClock
     from bt_engine.node import MissionContext
 
@@ -53,6 +54,8 @@ def creation_problems(spec: MissionSpec, registry: Registry) -> list[Problem]:
                     continue  # the engine's own: it raises nothing
                 try:
                     model.cls(node.name or model.id, MissionContext(SimClock()))
-                except Exception as exc:  # noqa: BLE001 - a plug-in's code: said, located
+                except (Exception, SystemExit) as exc:  # noqa: BLE001 - a plug-in's code:
+                    # said, located (a sys.exit() in it ended btrun with its code, silently;
+                    # Ctrl-C still stops btrun)
                     out.append(Problem(node.type_loc or node.loc, creation_said(model, exc)))
     return out

@@ -206,6 +206,11 @@ def _load(spec: str, source: str = "") -> Plugin:
             obj = getattr(obj, part)
     except SyntaxError as exc:  # the plug-in's own source: file:line:col and the line
         raise PluginError(f"{named} could not be loaded: {_syntax_said(exc)}") from exc
+    except SystemExit as exc:  # sys.exit() at import ended btrun with its code, silently
+        raise PluginError(
+            f"{named} could not be loaded: it called sys.exit({exc.code!r}) while being "
+            f"imported{_where_raised(exc)}"
+        ) from exc
     except Exception as exc:  # any failure of a third party's import: one located line
         raise PluginError(
             f"{named} could not be loaded: {type(exc).__name__}: {exc}{_where_raised(exc)}"

@@ -5,19 +5,31 @@ A run killed mid-way (SIGKILL, power loss) leaves ``run.mcap`` without its summa
 footer, and usually with a torn last record: ``mcap.reader.make_reader(f).iter_messages()``
 (and viewers that seek) then fail. :func:`repair_mcap` rewrites it from every record that can
 still be read in order (as ``mcap recover`` does): same schemas, channels, messages, metadata
-and attachments, a new summary and index. ``btrun replay`` does this by itself for the run it
-is given; a file that a running ``btrun`` still writes (it holds a lock on it) is left alone.
+and attachments, a new summary and index. The original bytes are never lost: they are kept
+beside it (``run.mcap.orig``; ``.orig.1``, ... if that name is taken), and a file of which
+nothing can be read (not an MCAP file, or damaged from its start) is left as it is.
+``btrun replay`` does this by itself for the run it is given; a file that a running ``btrun``
+still writes (it holds a lock on it) is left alone.
+
+A ``ticks.jsonl`` is read as far as it can be (:func:`read_ticks`): a line that is not a
+tick record is skipped and said (``file:line:1: warning: ...``), and so is a last line cut
+short by a killed run, once.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 from dataclasses import dataclass
 
 from bt_engine.display import Row, tree_lines
-from bt_engine.ticklog import read_log
+from bt_engine.files import NotRegularFile, open_regular
+from bt_engine.ticklog import MAX_LINE_BYTES, _check_header, _refused
+
+#: the unreadable lines of a tick log said one by one at most (the others are counted)
+SHOWN_BAD_LINES = 5
 
 
 def states_at(header: dict, records: list[dict], tick: int) -> tuple[list[str], dict]:
@@ -42,11 +54,12 @@ MCAP_STATUS, MCAP_BB, MCAP_VEHICLE, MCAP_HEADER = (
 )
 
 
-def read_mcap(path: str) -> tuple[dict, list[dict]]:
+def read_mcap(path: str, warnings: list[str] | None = None) -> tuple[dict, list[dict]]:
     """Read a run's ``run.mcap`` back into ``(header, tick_records)`` as
     :func:`bt_engine.ticklog.read_log` returns them from ``ticks.jsonl`` (tick, t, status,
     changed, done, bb, messages, vehicle). A file cut short (a killed run) gives the ticks
-    up to its last complete chunk."""
+    up to its last complete chunk; ``warnings`` (if given) then gets a line saying where
+    reading stopped."""
     from mcap.records import Channel, Message, Metadata
     from mcap.stream_reader import StreamReader
 
@@ -73,8 +86,13 @@ def read_mcap(path: str) -> tuple[dict, list[dict]]:
                     elif topic == MCAP_VEHICLE:
                         msg = json.loads(rec.data)
                         vehicle[msg["tick"]] = msg["vehicle"]
-        except Exception:  # noqa: BLE001  (a torn end: keep what was read)
-            pass
+        except Exception as exc:  # noqa: BLE001  (a torn end: keep what was read)
+            if warnings is not None:
+                warnings.append(
+                    f"{path}: warning: reading stopped at byte {f.tell()} of "
+                    f"{os.fstat(f.fileno()).st_size} ({_said(exc)}); the ticks before it "
+                    "are replayed"
+                )
     records = []
     for tick in sorted(ticks):
         msg = ticks[tick]
@@ -92,7 +110,9 @@ def read_mcap(path: str) -> tuple[dict, list[dict]]:
 @dataclass
 class McapRepair:
     """What :func:`repair_mcap` did: ``repaired`` False when the file was already complete
-    (or in use: ``in_use``); the records kept; ``error`` the reason reading stopped."""
+    (or in use: ``in_use``; or nothing of it could be read: ``unreadable``, the file is
+    left as it is); the records kept; ``error`` the reason reading stopped, at byte
+    ``stopped_at`` of ``size``; ``backup`` where the original bytes were kept."""
 
     path: str
     repaired: bool
@@ -102,17 +122,40 @@ class McapRepair:
     attachments: int = 0
     in_use: bool = False
     error: str = ""
+    unreadable: bool = False
+    backup: str = ""
+    stopped_at: int = 0
+    size: int = 0
+
+    def where(self) -> str:
+        """Where and why reading stopped, in a few words."""
+        if not self.error:
+            return "read to the end"
+        return f"reading stopped at byte {self.stopped_at} of {self.size}: {self.error}"
 
     def line(self) -> str:
         """One line for the console."""
         if self.in_use:
             return f"{self.path}: being written by a running btrun; not repaired"
+        if self.unreadable:
+            return (
+                f"{self.path}: not repaired: nothing in it could be recovered ({self.where()});"
+                " the file is left as it is"
+            )
         if not self.repaired:
             return f"{self.path}: complete (summary and index present); nothing to repair"
         return (
             f"{self.path}: repaired: {self.messages} messages on {self.channels} channels "
-            f"kept, summary and index rebuilt (reading stopped at: {self.error or 'the end'})"
+            f"kept, summary and index rebuilt ({self.where()}); the original is kept as "
+            f"{self.backup}"
         )
+
+
+def _said(exc: BaseException) -> str:
+    """``Kind: message`` of an exception, in at most 200 characters (``Kind`` alone when it
+    says nothing more: mcap's ``EndOfFile``)."""
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text}"[:200] if text else type(exc).__name__
 
 
 def mcap_complete(path: str) -> bool:
@@ -152,12 +195,43 @@ def _compression():
     return CompressionType.NONE
 
 
+def _keep_original(path: str) -> str:
+    """Keep the bytes of ``path`` beside it, as ``PATH.orig`` (``PATH.orig.1``, ... when
+    that name is taken: an earlier backup is never overwritten), before a repair replaces
+    it; return the backup's path. A hard link (no copy) where the file system has them."""
+    for i in range(1000):
+        backup = f"{path}.orig" + (f".{i}" if i else "")
+        try:
+            os.link(path, backup)
+            return backup
+        except FileExistsError:
+            continue
+        except OSError:  # no hard links here: a copy, under a name no one has
+            pass
+        try:
+            with open(path, "rb") as src, open(backup, "xb") as dst:
+                try:
+                    shutil.copyfileobj(src, dst)
+                    dst.flush()
+                    os.fsync(dst.fileno())
+                except BaseException:
+                    os.unlink(backup)
+                    raise
+            return backup
+        except FileExistsError:
+            continue
+    raise OSError(f"{path}: no free name for the original (.orig to .orig.999 are taken)")
+
+
 def repair_mcap(path: str) -> McapRepair:
     """Rewrite the MCAP file at ``path`` if the indexed reader cannot open it (a killed
     run): every schema, channel, message, metadata and attachment record that reads back in
     order is written again with a summary and index, to a temporary file that then replaces
-    ``path``. The unfinished last chunk of a killed writer is lost (it was never complete).
-    A file whose writer still holds its lock is left alone (``in_use``)."""
+    ``path``; the original is kept beside it first (:func:`_keep_original`, the path in
+    ``backup``), so nothing is lost. The unfinished last chunk of a killed writer is not in
+    the new file (it was never complete). A file of which no record can be read (not an
+    MCAP file, or damaged from its start) is not replaced (``unreadable``), and a file whose
+    writer still holds its lock is left alone (``in_use``)."""
     from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
     from mcap.writer import Writer
@@ -168,7 +242,7 @@ def repair_mcap(path: str) -> McapRepair:
         if mcap_complete(path):
             return McapRepair(path, False)
         tmp = f"{path}.repair.tmp"
-        out = McapRepair(path, True)
+        out = McapRepair(path, True, size=os.fstat(src.fileno()).st_size)
         schemas: dict[int, int] = {}
         channels: dict[int, int] = {}
         with open(tmp, "wb") as dst:
@@ -176,6 +250,7 @@ def repair_mcap(path: str) -> McapRepair:
             started = False
             try:
                 for rec in StreamReader(src, validate_crcs=True).records:
+                    out.stopped_at = src.tell()  # the end of the last record read
                     if isinstance(rec, Header):
                         writer.start(profile=rec.profile, library=rec.library)
                         started = True
@@ -208,16 +283,25 @@ def repair_mcap(path: str) -> McapRepair:
                         )
                         out.attachments += 1
             except Exception as exc:  # noqa: BLE001 - the torn end: keep what was read
-                out.error = f"{type(exc).__name__}: {exc}".strip()[:200]
+                out.error = _said(exc)
             if not started:
                 writer.start()
             writer.finish()
             dst.flush()
             os.fsync(dst.fileno())
         out.channels = len(channels)
+        if not (schemas or channels or out.metadata or out.attachments):
+            os.unlink(tmp)  # nothing recovered: the file stays as it is, said
+            out.repaired, out.unreadable = False, True
+            return out
         if not mcap_complete(tmp):  # pragma: no cover - the writer's own output
             os.unlink(tmp)
             raise RuntimeError(f"{path}: the repaired copy does not read back")
+        try:
+            out.backup = _keep_original(path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
         os.replace(tmp, path)
     return out
 
@@ -229,6 +313,109 @@ def repair_run(path: str) -> McapRepair | None:
     if not mcap.endswith(".mcap") or not os.path.isfile(mcap):
         return None
     return repair_mcap(mcap)
+
+
+def _tick_record(rec: object) -> str:
+    """Why ``rec`` (a decoded line after the header) is no tick record ("" if it is)."""
+    if not isinstance(rec, dict):
+        return f"expected a JSON object, got {rec!r:.60}"
+    if type(rec.get("tick")) is not int:
+        return f"a tick record has a whole-number 'tick', got {rec.get('tick')!r:.60}"
+    for key in ("changed", "bb", "done"):
+        if key in rec and not isinstance(rec[key], dict):
+            return f"'{key}' must be a JSON object, got {rec[key]!r:.60}"
+    if "t" in rec and (type(rec["t"]) not in (int, float)):
+        return f"'t' must be a number, got {rec['t']!r:.60}"
+    return ""
+
+
+def read_ticks(path: str) -> tuple[dict, list[dict], list[str]]:
+    """Read a tick log for replay: ``(header, tick_records, warnings)``, each warning one
+    located line (``file:line:1: warning: ...``).
+
+    As :func:`bt_engine.ticklog.read_log` (a regular file only; a first line that is not a
+    JSON object, or a header key of the wrong type, raises :class:`MissionError`), but what
+    can be read is replayed: a later line that is not JSON, not a tick record or longer
+    than :data:`~bt_engine.ticklog.MAX_LINE_BYTES` is skipped and said (the first
+    :data:`SHOWN_BAD_LINES` one by one, the others counted), and a last line cut short
+    (a run killed while writing it: no newline, not JSON) is said once. read_log stopped
+    at the first such line without a word (1 tick of 7 shown, exit 0)."""
+    header: dict = {}
+    records: list[dict] = []
+    warnings: list[str] = []
+    skipped: list[int] = []
+    try:
+        f = open_regular(path, what="tick logs")
+    except NotRegularFile as exc:
+        raise _refused(path, 1, 1, str(exc)) from None
+    except (OSError, ValueError) as exc:
+        why = getattr(exc, "strerror", None) or exc
+        raise _refused(path, 1, 1, f"cannot read {path}: {why}") from None
+    with f:
+        number = 0
+        first = True
+        while True:
+            raw = f.readline(MAX_LINE_BYTES + 1)
+            if not raw:
+                break
+            number += 1
+            why = ""
+            cut = False
+            if len(raw) > MAX_LINE_BYTES:
+                while raw and not raw.endswith(b"\n"):  # the rest of the line: skipped
+                    raw = f.readline(MAX_LINE_BYTES + 1)
+                if first:
+                    raise _refused(path, number, 1, f"line longer than {MAX_LINE_BYTES} bytes")
+                why = f"the line is longer than {MAX_LINE_BYTES} bytes"
+            elif not raw.strip():
+                continue
+            else:
+                try:
+                    rec = json.loads(raw)
+                except ValueError:  # not JSON, not UTF-8
+                    if first:
+                        raise _refused(
+                            path, number, 1, "not a tick log: the line is not JSON"
+                        ) from None
+                    cut = not raw.endswith(b"\n")  # only the last line can lack its newline
+                    why = "the line is not JSON"
+                else:
+                    if first and not isinstance(rec, dict):
+                        raise _refused(
+                            path,
+                            number,
+                            1,
+                            f"not a tick log: expected a JSON object, got {rec!r:.60}",
+                        )
+                    if isinstance(rec, dict) and "header" in rec:
+                        text = raw.decode("utf-8", "replace")
+                        header = _check_header(rec["header"], path, number, text)
+                    else:
+                        why = _tick_record(rec)
+                        if not why:
+                            records.append(rec)
+                    first = False
+            if cut:
+                last = records[-1]["tick"] if records else None
+                upto = f"replayed up to tick {last}" if last is not None else "no tick before it"
+                warnings.append(
+                    f"{path}:{number}:1: warning: the last line is cut short (a run killed "
+                    f"while writing it?): {upto}"
+                )
+            elif why:
+                skipped.append(number)
+                if len(skipped) <= SHOWN_BAD_LINES:
+                    warnings.append(
+                        f"{path}:{number}:1: warning: {why}: line skipped (the tick it held is "
+                        "not replayed)"
+                    )
+    if len(skipped) > SHOWN_BAD_LINES:
+        more = skipped[SHOWN_BAD_LINES:]
+        warnings.append(
+            f"{path}:{more[0]}:1: warning: {len(more)} more unreadable lines skipped (lines "
+            f"{more[0]} to {more[-1]})"
+        )
+    return header, records, warnings
 
 
 def _rows(header: dict) -> list[Row]:
@@ -262,8 +449,10 @@ def _fleet_hint(folder: str | None) -> str:
 def replay(path: str, tick: int | None = None, show_all: bool = False, repair: bool = False) -> int:
     """Replay the log at ``path`` (a ``ticks.jsonl``, a run's ``run.mcap`` or a run folder);
     return an exit code. The run's ``run.mcap`` is repaired first if a killed run left it
-    unreadable by indexed readers (a line on stderr says so); ``repair``: only that (the
-    result on stdout, exit 0; 2 if there is no MCAP file or it is in use)."""
+    unreadable by indexed readers (a line on stderr says so; the original is kept beside
+    it); ``repair``: only that (the result on stdout, exit 0; 2 if there is no MCAP file, it
+    is in use or none of it can be read: said on stderr). Lines of a tick log that cannot be
+    read are said on stderr, located, and the rest is replayed (:func:`read_ticks`)."""
     if repair:
         try:
             done = repair_run(path)
@@ -273,14 +462,17 @@ def replay(path: str, tick: int | None = None, show_all: bool = False, repair: b
         if done is None:
             print(f"{path}:0:0: no run.mcap to repair", file=sys.stderr)
             return 2
+        if done.in_use or done.unreadable:
+            print(done.line(), file=sys.stderr)
+            return 2
         print(done.line())
-        return 2 if done.in_use else 0
+        return 0
     try:
         done = repair_run(os.path.dirname(path) if path.endswith("ticks.jsonl") else path)
     except Exception as exc:  # noqa: BLE001 - the replay goes on without it
         print(f"btrun replay: run.mcap not repaired: {type(exc).__name__}: {exc}", file=sys.stderr)
     else:
-        if done is not None and done.repaired:
+        if done is not None and (done.repaired or done.unreadable):
             print(done.line(), file=sys.stderr)
     folder = path if os.path.isdir(path) else None
     if folder is not None:
@@ -289,7 +481,13 @@ def replay(path: str, tick: int | None = None, show_all: bool = False, repair: b
         print(f"{path}:0:0: tick log not found{_fleet_hint(folder)}", file=sys.stderr)
         return 2
     is_mcap = path.endswith(".mcap")
-    header, records = read_mcap(path) if is_mcap else read_log(path)
+    warnings: list[str] = []
+    if is_mcap:
+        header, records = read_mcap(path, warnings)
+    else:
+        header, records, warnings = read_ticks(path)
+    for line in warnings:
+        print(line, file=sys.stderr)
     if not header or not records:
         what = "btrun run.mcap" if is_mcap else "btrun tick log"
         print(f"{path}:1:1: not a {what} (no header or no ticks)", file=sys.stderr)

@@ -508,7 +508,9 @@ def repair_previous(run_dir: str | None) -> str | None:
         done = repair_run(run_dir)
     except Exception as exc:  # noqa: BLE001 - a repair is never a reason not to fly
         return f"{os.path.join(run_dir, FILE_NAME)}: not repaired: {type(exc).__name__}: {exc}"
-    return done.line() if done is not None and done.repaired else None
+    if done is None or not (done.repaired or getattr(done, "unreadable", False)):
+        return None
+    return done.line()  # repaired (the original kept beside), or said unreadable and left
 
 
 def make_mcap_recorder(

@@ -537,8 +537,9 @@ def test_a_file_being_written_is_not_repaired(tmp_path) -> None:
         done = repair_mcap(path)
         assert done.in_use and not done.repaired
     assert os.path.getsize(path) == 48  # untouched
-    done = repair_mcap(path)  # the writer is gone
-    assert done.repaired and mcap_complete(path)
+    done = repair_mcap(path)  # the writer is gone: nothing in it to recover, left as it is
+    assert done.unreadable and not done.repaired and os.path.getsize(path) == 48
+    assert not mcap_complete(path)
 
 
 def test_resuming_a_killed_run_repairs_its_mcap(tmp_path) -> None:

@@ -286,18 +286,18 @@ def test_a_misspelt_command_or_mission_gets_a_did_you_mean(tmp_path, capsys, arg
     assert not (tmp_path / "run").exists()
 
 
-def test_converting_a_mission_that_would_not_fly_warns(tmp_path, capsys):
-    """btrun convert wrote an invalid mission with exit 0 and no word (a file being edited
-    may be converted; it is said it would not fly)."""
+def test_converting_a_mission_that_would_not_fly_is_refused(tmp_path, capsys):
+    """btrun convert wrote an invalid mission with exit 0 (later: with a warning); now its
+    problems are said as validate says them, exit 2, and nothing is written."""
     from bt_engine.cli import main
 
     src = tmp_path / "m.xml"
     src.write_text(
         '<root BTCPP_format="4"><BehaviorTree ID="Main"><Sleep msec="abc"/></BehaviorTree></root>'
     )
-    assert main(["convert", str(src), str(tmp_path / "m.yaml")]) == 0
+    assert main(["convert", str(src), str(tmp_path / "m.yaml")]) == 2
     err = capsys.readouterr().err
-    assert (tmp_path / "m.yaml").exists() and f"warning: {src} has 1 problem" in err
+    assert not (tmp_path / "m.yaml").exists() and f"{src}:1:" in err, err
 
 
 def test_an_entry_read_as_a_type_its_writer_cannot_give_is_refused():
