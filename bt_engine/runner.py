@@ -318,6 +318,9 @@ class Runner:
             return "ABORTED", reason
         except NodeRuntimeError as exc:
             return "ABORTED", str(exc)
+        except SystemExit as exc:  # a plug-in's sys.exit() in a tick: the run ends, landed
+            self.error_traceback = traceback.format_exc()
+            return "ABORTED", f"a node called sys.exit({exc.code!r}){_raising_node(exc)}"
         except Exception as exc:  # a bug in a leaf must not leave the drone flying
             self.error_traceback = traceback.format_exc()
             return "ABORTED", f"internal error{_raising_node(exc)}: {type(exc).__name__}: {exc}"

@@ -186,6 +186,35 @@ def test_exception_in_a_leaf_aborts_and_halts():
     assert m.status_of("s") == "IDLE"  # halted
 
 
+class Exiting(StatefulActionNode):
+    """Calls sys.exit on its second tick (a plug-in written as a script)."""
+
+    bt_id = "Exiting"
+
+    def on_start(self):
+        return RUNNING
+
+    def on_running(self):
+        import sys
+
+        sys.exit(7)
+
+
+def test_sys_exit_in_a_leaf_aborts_halts_and_lands_instead_of_ending_btrun():
+    """A plug-in's sys.exit() in a tick went past the runner: btrun ended with the drone in
+    the air (only its guard was left to land it) and wrote no summary of its own."""
+    reg = REGISTRY.copy()
+    reg.register(Exiting)
+    m = xml_mission(
+        wrap('<Parallel success_count="2"><Exiting/><Sleep name="s" msec="5000"/></Parallel>'),
+        registry=reg,
+    )
+    result = Runner(m).run(max_time_s=10)
+    assert result.status == "ABORTED"
+    assert result.reason == "a node called sys.exit(7) in Exiting (inline.xml:3:29)"
+    assert m.status_of("s") == "IDLE"  # halted
+
+
 def test_interrupt_halts_and_calls_shutdown_hooks():
     calls = []
 
