@@ -360,7 +360,7 @@ class Runner:
                     why = str(exc.args[0]) if exc.args else "watchdog"
                     reason += f"; while halting: {why}"
                     result = "ABORTED"
-                except Exception as exc:
+                except (Exception, SystemExit) as exc:  # a plug-in's sys.exit() too
                     self.error_traceback += traceback.format_exc()
                     reason += f"; halting the tree failed: {type(exc).__name__}: {exc}"
                     result = "ABORTED" if result == "SUCCESS" else result
