@@ -306,3 +306,22 @@ def test_a_place_the_run_never_scanned_says_so_when_reviewed(root):
     with pytest.raises(ReviewError, match="A-02-1 was not scanned") as exc:
         decide(RunsRoot(str(root)), "cut", request, None, GalleryDesk())
     assert exc.value.status == 409
+
+
+@pytest.mark.parametrize(
+    "name, refused", [("a\nb", True), ("unknown", True), ("PAL/2026/1", False)]
+)
+def test_a_review_names_pallets_as_a_gallery_does(root, name, refused):
+    """A new pallet's name follows the gallery's rule: a WMS's own ids (PAL/2026/1) are
+    names, a line break or an answer word is not (the console had its own, narrower rule)."""
+    import numpy as np
+
+    from nodes.place_evidence import write_place_evidence
+
+    run = _run(root, "r", [_row("A-01-2", "unknown", "unknown")], ["A-01-2"])
+    write_place_evidence(str(run), "A-01-2", [np.zeros((20, 30, 3), np.uint8)] * 3, [])
+    request = {"place": "A-01-2", "decision": "new_pallet", "new_name": name, "reviewer": "al"}
+    with pytest.raises(ReviewError) as exc:  # this run names no rig: refused after the name
+        decide(RunsRoot(str(root)), "r", request, None, GalleryDesk())
+    said = str(exc.value)
+    assert ("cannot be a pallet identity" in said or "printable" in said) is refused, said

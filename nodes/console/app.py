@@ -33,7 +33,7 @@ from starlette.staticfiles import StaticFiles
 from nodes.console import export
 from nodes.console.live import RunFollower
 from nodes.console.paths import PathRefused, RunsRoot
-from nodes.console.review import GalleryDesk, ReviewError, decide, gallery_path
+from nodes.console.review import GalleryDesk, ReviewError, check_world, decide, gallery_choice
 from nodes.console.runs import MAX_RUNS, list_runs, run_info
 from nodes.console.site_store import SiteStore, check_place
 from store import StoreError
@@ -211,6 +211,8 @@ def make_app(config: ConsoleConfig) -> Starlette:
         if site is not None:
             try:
                 runs += await run_in_threadpool(site.other_runs, root, MAX_RUNS)
+                # one list, the latest started first, wherever a run is known from
+                runs.sort(key=lambda r: (r.get("started") or 0.0, r["name"]), reverse=True)
             except StoreError as exc:
                 note = f"the site store cannot be read: {exc}; showing the runs folder only"
         shown = site.shown if site is not None else None
@@ -243,8 +245,7 @@ def make_app(config: ConsoleConfig) -> Starlette:
             info = await run_in_threadpool(run_info, root, name, True)
         except PathRefused as exc:
             return _refused(exc)
-        gpath = gallery_path(root, root.run_dir(name), config.gallery)
-        info["gallery"] = {"path": os.path.abspath(gpath), "identities": _identities(gpath)}
+        info["gallery"] = await run_in_threadpool(_gallery_info, root, name, config.gallery)
         info["store"] = site.shown if site is not None else None
         return JSONResponse(info)
 
@@ -292,6 +293,12 @@ def make_app(config: ConsoleConfig) -> Starlette:
             return _refused(exc)
         if info.get("rows_error"):  # never an empty count handed to a WMS as if it were one
             return _plain(409, f"the run's rows cannot be read: {info['rows_error']}")
+        if info.get("no_inventory"):  # a header-only file would read as an empty count
+            return _plain(
+                409,
+                "the run has no inventory.json (it stopped before its first place, or the "
+                "folder is no inventory): nothing to export",
+            )
         if info.get("review_error"):  # nor a count without the operators' decisions
             return _plain(409, f"the run's review decisions cannot be read: {info['review_error']}")
         columns, lines = export.table(info, kind)
@@ -315,7 +322,8 @@ def make_app(config: ConsoleConfig) -> Starlette:
             return JSONResponse({"error": "a review comes from the console's own page"}, 403)
         token = request.headers.get(TOKEN_HEADER) or str(fields.get("token") or "")
         if not hmac.compare_digest(token.encode(), config.token.encode()):
-            return JSONResponse({"error": "a review needs the console's token"}, 403)
+            refused = {"error": "a review needs the console's token", "token_refused": True}
+            return JSONResponse(refused, 403)
         try:
             record = await run_in_threadpool(decide, root, name, fields, config.gallery, desk)
         except PathRefused as exc:
@@ -342,7 +350,28 @@ def make_app(config: ConsoleConfig) -> Starlette:
     middleware = [Middleware(Guard), Middleware(TrustedHostMiddleware, allowed_hosts=config.hosts)]
     app = Starlette(routes=routes, middleware=middleware)
     app.state.site = site
+    app.state.streams = streams  # live views open now (tests)
     return app
+
+
+def _gallery_info(root: RunsRoot, name: str, option: str | None) -> dict:
+    """Which gallery the run's review decisions go to, for the page: ``path`` (None: none),
+    ``source``, ``world``, ``exists``, ``problem`` (why a decision that changes the gallery
+    would be refused) and its ``identities``."""
+    choice = gallery_choice(root, root.run_dir(name), option)
+    path = choice["path"]
+    problem = choice["problem"]
+    if path is not None and problem is None:
+        try:
+            check_world(choice)
+        except ReviewError as exc:
+            problem = str(exc)
+    return {
+        **choice,
+        "problem": problem,
+        "exists": bool(path) and os.path.isfile(path),
+        "identities": _identities(path) if path and problem is None else [],
+    }
 
 
 def _identities(path: str) -> list[str]:

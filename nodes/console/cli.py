@@ -5,6 +5,7 @@
     btrun console                          # runs/ on http://127.0.0.1:8080, token printed
     btrun console --runs /data/runs --port 9000 --token "$CONSOLE_TOKEN"
     btrun console --host 0.0.0.0           # other machines too: a network you trust
+    btrun console --host 0.0.0.0 --allow-host gs1.site.example   # + a DNS alias it answers to
     btrun console --store postgresql://btrun@db.site/btrun   # + the site store's runs
 
 Bad input (a runs folder that does not exist, a port in use, a store that cannot be
@@ -14,6 +15,7 @@ reached) is one line, exit code 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import os
 import secrets
@@ -24,7 +26,7 @@ from typing import Any
 
 from nodes.console.app import ConsoleConfig, make_app
 from nodes.console.paths import RunsRoot
-from nodes.console.review import gallery_path
+from nodes.console.review import DEFAULT_STEM
 from nodes.console.site_store import check_store, resolve_url
 from store import StoreError
 
@@ -44,6 +46,15 @@ def setup(p: argparse.ArgumentParser) -> None:
         "interface, only on a network you trust)",
     )
     p.add_argument(
+        "--allow-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a host name (or address) the console also answers to, beside localhost, the "
+        "--host address and this machine's names and addresses (a DNS alias of the ground "
+        "station; repeatable; '*.site.example' for every name under a domain)",
+    )
+    p.add_argument(
         "--token",
         default=None,
         help="the token review decisions need (default: a random one, printed at start)",
@@ -52,8 +63,8 @@ def setup(p: argparse.ArgumentParser) -> None:
         "--gallery",
         default=None,
         help="gallery file review decisions update (default: the run's gallery file, else "
-        "RUNS/site-gallery.sqlite, started from the demo gallery); fly the next inventory "
-        "with --set gallery=THIS_FILE",
+        "RUNS/site-gallery-<world>-<key>.sqlite, one per world, started from that world's "
+        "demo gallery); fly the next inventory with --set gallery=THAT_FILE",
     )
     p.add_argument(
         "--store",
@@ -86,6 +97,47 @@ def _bind(host: str, port: int) -> socket.socket:
     return sock
 
 
+LOOPBACK_NAMES = ["127.0.0.1", "localhost", "[::1]"]
+
+
+def allowed_hosts(host: str, extra: list[str]) -> list[str]:
+    """The ``Host`` names the console answers to: the loopback names, the bound address,
+    and for an address other machines reach (``0.0.0.0``, a LAN address) this machine's
+    names and addresses, plus ``--allow-host`` names. Never every name: a web page of
+    another site reached through DNS rebinding names its own host, and is refused."""
+    names = list(LOOPBACK_NAMES)
+    for name in extra:
+        name = name.strip().lower()
+        if (
+            not name
+            or any(c in name for c in "/: \t")
+            or ("*" in name and not name.startswith("*."))
+        ):
+            raise ConsoleError(f"--allow-host {name!r}: a host name or IPv4 address (no port)")
+        names.append(name)
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        if host not in ("0.0.0.0", "::", ""):
+            names.append(f"[{host}]" if ":" in host else host.lower())
+        names += machine_names()
+    return list(dict.fromkeys(names))
+
+
+def machine_names() -> list[str]:
+    """This machine's host name, its fully qualified name and its IPv4 addresses (those its
+    names resolve to and the one it reaches other hosts from): how an operator's browser on
+    the network may name the console."""
+    out: list[str] = []
+    for name in {socket.gethostname(), socket.getfqdn()}:
+        if name:
+            out.append(name.lower())
+            with contextlib.suppress(OSError):
+                out += [i[4][0] for i in socket.getaddrinfo(name, None, socket.AF_INET)]
+    with contextlib.suppress(OSError), socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.connect(("192.0.2.1", 9))  # a documentation address: no packet is sent
+        out.append(s.getsockname()[0])
+    return [n for n in dict.fromkeys(out) if n and n != "0.0.0.0"]
+
+
 def make_config(args: Any) -> ConsoleConfig:
     """The console's settings from the options; :class:`ConsoleError` for a bad one."""
     runs = args.runs
@@ -96,9 +148,7 @@ def make_config(args: Any) -> ConsoleConfig:
         raise ConsoleError("--token: at least 8 printable characters without spaces")
     if args.gallery is not None and os.path.isdir(args.gallery):
         raise ConsoleError(f"--gallery {args.gallery}: a folder, expected a gallery file")
-    hosts = ["127.0.0.1", "localhost", "[::1]"]
-    if args.host not in ("127.0.0.1", "localhost", "::1"):
-        hosts = ["*"]  # reached by whatever name the network gives this machine
+    hosts = allowed_hosts(args.host, getattr(args, "allow_host", None) or [])
     store = resolve_url(args.store, runs)
     if store is not None:
         try:
@@ -164,7 +214,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"btrun console: {exc}", file=sys.stderr)
         return 2
     root = RunsRoot(config.runs)
-    gallery = config.gallery or gallery_path(root, root.root, None)
+    gallery = config.gallery or os.path.join(
+        root.root,
+        f"{DEFAULT_STEM}-<world>-<key>.sqlite (one per world; each run's review page names it)",
+    )
     print(f"btrun console: {server.url}/?token={config.token}", flush=True)
     print(f"  runs: {root.root}", flush=True)
     print(f"  review decisions update: {gallery}", flush=True)

@@ -22,7 +22,7 @@ import io
 import time
 
 from nodes.console.files import latest_by_place, safe_cell
-from nodes.console.runs import discrepancy, needs_review
+from nodes.console.runs import discrepancy, needs_review, reviewed_discrepancies
 
 COLUMNS = ("place", "pallet", "status", "time", "drone")
 #: ``moved_from`` last: the columns before it stand where they stood before it was added
@@ -82,9 +82,13 @@ def discrepancy_rows(info: dict) -> list[dict]:
     by_place = {r["place"]: r for r in info.get("rows") or []}
     reviews = latest_by_place(info.get("review") or [])
     grades, truth = info.get("grades") or {}, info.get("truth") or {}
+    after_review = reviewed_discrepancies(list(by_place.values()), info.get("review") or [])
     out = []
     for line in wms_rows(info):
         row = by_place.get(line["place"]) or {"place": line["place"], "status": "not_scanned"}
+        if line["place"] in after_review:  # the reviewed answer against the expected stock
+            again = after_review[line["place"]]
+            row = {**row, "discrepancy": again["category"], "moved_from": again["moved_from"]}
         category = discrepancy(row)
         if category is None and needs_review(row):
             category = "exception"

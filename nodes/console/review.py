@@ -16,16 +16,21 @@ The corrected answer is appended to ``review.json`` (every decision, oldest firs
 ``inventory.json`` are never rewritten.
 
 The gallery written is the console's ``--gallery`` file, else the gallery file the run
-used (``--set gallery=FILE``), else ``site-gallery.sqlite`` in the runs folder; a file that
-does not exist yet starts as a copy of the demo gallery of the run's world, so the next
-inventory flown with ``--set gallery=THAT_FILE`` knows everything the demo knew plus the
-operator's decisions.
+used (``--set gallery=FILE``), else the runs folder's review gallery of the run's world:
+``site-gallery-<world>-<key>.sqlite`` (:func:`world_label`: the world file's name and a
+short hash of what its demo gallery enrols), one per world, so that runs of several worlds
+in one runs folder never share one. A file that does not exist yet starts as a copy of the
+demo gallery of the run's world, so the next inventory flown with ``--set
+gallery=THAT_FILE`` knows everything the demo knew plus the operator's decisions. A
+gallery the console started records that world (:data:`WORLD_META` in its metadata), and a
+decision of a run of another world into it is refused.
 """
 
 from __future__ import annotations
 
 import contextlib
 import fcntl
+import hashlib
 import os
 import re
 import sqlite3
@@ -39,10 +44,13 @@ from nodes.console.files import ReviewFileError, read_header, read_review, write
 from nodes.console.paths import RunsRoot
 from nodes.console.runs import drone_dirs, evidence, needs_review, read_rows
 from nodes.gallery.cli import REVIEW_RUN
+from perception.gallery import identity_problem
 
-DEFAULT_GALLERY = "site-gallery.sqlite"
+#: the default review gallery of a world: ``site-gallery-<world label>.sqlite``
+DEFAULT_STEM = "site-gallery"
+#: the gallery metadata key naming the world whose demo gallery the console copied
+WORLD_META = "console_review_world"
 DECISIONS = ("identity", "new_pallet", "leave_unknown")
-IDENTITY = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 _LOCK = threading.Lock()  # one decision at a time: the gallery and review files
 
 
@@ -54,19 +62,112 @@ class ReviewError(Exception):
         self.status = status
 
 
-def gallery_path(root: RunsRoot, run_dir: str, option: str | None) -> str:
-    """The gallery file review decisions go to (see the module doc)."""
+def world_label(header: dict) -> tuple[str | None, str | None]:
+    """(label, problem) of the run's world for its default review gallery: ``<world file
+    name>-<8 hex digits>``, the digits a hash of what the world's demo gallery enrols
+    (:func:`nodes.gallery.demo.appearance_key`, with the run's ``--set world.*`` look and
+    stock items), so two worlds, or one world whose ``not_enrolled`` pallets differ, never
+    share a gallery. (None, why) when the world cannot be read on this machine."""
+    rig_path = header_path(header, header.get("rig") or header.get("rig_arg"))
+    if not rig_path:
+        return None, "the run's tick log names no rig"
+    if not os.path.isfile(rig_path):
+        return None, f"the run's rig {rig_path} is not on this machine"
+    sets = tuple(
+        s for s in header.get("sets") or [] if isinstance(s, str) and s.startswith("world.")
+    )
+    key = (rig_path, sets)
+    if key not in _LABELS:
+        _LABELS[key] = _world_label(rig_path, sets)
+        if len(_LABELS) > 64:
+            _LABELS.pop(next(iter(_LABELS)))
+    return _LABELS[key]
+
+
+_LABELS: dict[tuple, tuple[str | None, str | None]] = {}
+
+
+def _world_label(rig_path: str, sets: tuple) -> tuple[str | None, str | None]:
+    try:
+        from drivers.rig.loader import load_rig
+        from drivers.sim.world import load_world
+        from nodes.gallery.demo import appearance_key
+        from nodes.gallery.enrol_scan import look_overrides
+
+        rig = load_rig(rig_path, dict(s.split("=", 1) for s in sets if "=" in s))
+        if rig.kind != "sim":
+            return None, f"the run's rig {rig_path} has no simulated world (no demo gallery)"
+        data = load_world(rig.world_path, look_overrides(rig.world_overrides)).data
+    except Exception as exc:  # noqa: BLE001 - said on the page, and a decision is refused
+        return None, f"the world of the run's rig {rig_path} cannot be read ({exc})"[:300]
+    digest = hashlib.sha256(appearance_key(data)).hexdigest()[:8]
+    stem = re.sub(r"[^A-Za-z0-9_.-]", "_", os.path.splitext(os.path.basename(rig.world_path))[0])
+    return f"{stem[:40]}-{digest}", None
+
+
+def gallery_choice(root: RunsRoot, run_dir: str, option: str | None) -> dict:
+    """Where the review decisions of the run in ``run_dir`` go (see the module doc):
+    ``path`` (None: nowhere, ``problem`` says why), ``source`` (``option``: --gallery,
+    ``run``: the run's own gallery file, ``world``: the runs folder's gallery of the run's
+    world), ``world`` (the run's world label, None if not known) and ``problem``."""
+    drones = drone_dirs(run_dir)
+    header = read_header(os.path.join(run_dir, next(iter(drones.values())), "ticks.jsonl"))
+    label, why = world_label(header) if header else (None, "the run has no tick log header")
+    out = {"path": None, "source": None, "world": label, "problem": None}
     if option:
-        return option
-    for d in drone_dirs(run_dir).values():
-        header = read_header(os.path.join(run_dir, d, "ticks.jsonl"))
-        for item in header.get("sets") or []:
-            if isinstance(item, str) and item.startswith("gallery="):
-                value = header_path(header, item.split("=", 1)[1])
-                if value and item != "gallery=demo" and os.path.isfile(value):
-                    return value
-        break
-    return os.path.join(root.root, DEFAULT_GALLERY)
+        return {**out, "path": os.path.abspath(option), "source": "option"}
+    for item in header.get("sets") or []:
+        if isinstance(item, str) and item.startswith("gallery="):
+            value = header_path(header, item.split("=", 1)[1])
+            if value and item != "gallery=demo" and os.path.isfile(value):
+                return {**out, "path": os.path.abspath(value), "source": "run"}
+    if label is None:
+        return {
+            **out,
+            "problem": f"{why}: the console cannot tell which world's demo gallery a "
+            "review gallery of this run starts from; start the console with --gallery FILE "
+            "(a gallery that knows the run's pallets) to teach it",
+        }
+    path = os.path.join(root.root, f"{DEFAULT_STEM}-{label}.sqlite")
+    return {**out, "path": path, "source": "world"}
+
+
+def gallery_path(root: RunsRoot, run_dir: str, option: str | None) -> str | None:
+    """The gallery file review decisions of the run go to (None: none, see
+    :func:`gallery_choice`)."""
+    return gallery_choice(root, run_dir, option)["path"]
+
+
+def gallery_world(path: str) -> str | None:
+    """The world a gallery the console started was copied for (:data:`WORLD_META`), None
+    for any other gallery (or no file)."""
+    if not os.path.isfile(path):
+        return None
+    try:
+        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            row = conn.execute("SELECT value FROM meta WHERE key = ?", (WORLD_META,)).fetchone()
+        finally:
+            conn.close()
+    except sqlite3.Error:
+        return None
+    return str(row[0]) if row else None
+
+
+def check_world(choice: dict) -> None:
+    """:class:`ReviewError` (409) when the chosen gallery was started by the console for
+    another world than the run's: its pallets are not the run's."""
+    path, world = choice.get("path"), choice.get("world")
+    if not path or choice.get("source") == "run":
+        return
+    seeded = gallery_world(path)
+    if seeded is not None and world is not None and seeded != world:
+        raise ReviewError(
+            f"{path} was started from the demo gallery of world {seeded}, this run flew "
+            f"world {world}: its pallets are not this run's; start the console without "
+            "--gallery (a review gallery per world), or with the gallery of this world",
+            409,
+        )
 
 
 class GalleryDesk:
@@ -74,51 +175,59 @@ class GalleryDesk:
     takes a few seconds; pages never wait for it)."""
 
     def __init__(self) -> None:
-        self._sessions: dict[str, Any] = {}
+        self._sessions: dict[Any, Any] = {}
 
-    def session(self, rig_path: str | None) -> Any:
-        """A perception session of the run's rig (its world names the demo gallery)."""
+    def session(self, rig_path: str | None, sets: tuple = ()) -> Any:
+        """A perception session of the run's rig with its ``--set world.*`` items (its world
+        names the demo gallery: the one the run flew with)."""
         from drivers.rig.loader import load_rig
         from nodes.perception_session import PerceptionSession
 
-        key = rig_path or ""
+        key = (rig_path or "", tuple(sets))
         if key not in self._sessions:
-            rig = load_rig(rig_path if rig_path and os.path.isfile(rig_path) else None)
+            found = rig_path if rig_path and os.path.isfile(rig_path) else None
+            overrides = dict(s.split("=", 1) for s in sets if "=" in s) if found else None
+            rig = load_rig(found, overrides)
             self._sessions[key] = PerceptionSession(rig)
         return self._sessions[key]
 
-    def open(self, path: str, rig_path: str | None) -> tuple[Any, Any]:
+    def open(
+        self, path: str, rig_path: str | None, sets: tuple = (), world: str | None = None
+    ) -> tuple[Any, Any]:
         """(embedder, gallery ``path``), the file first copied from the demo gallery of the
-        rig's world when it does not exist (:class:`ReviewError` if that rig is not on
-        this machine: another world's demo would know none of the run's pallets)."""
+        rig's world when it does not exist (recording ``world``, the run's world label, in
+        its metadata; :class:`ReviewError` if that rig is not on this machine: another
+        world's demo would know none of the run's pallets)."""
+        from nodes.perception_session import PerceptionError
         from perception.gallery import Gallery
 
-        if rig_path and not os.path.isfile(rig_path) and not os.path.exists(path):
+        if not os.path.exists(path) and (not rig_path or not os.path.isfile(rig_path)):
             raise ReviewError(
                 f"the run's rig {rig_path} is not on this machine: a new review gallery "
                 "starts as the demo gallery of the run's world; start the console with "
                 "--gallery FILE (a gallery that knows the run's pallets)",
                 409,
             )
-        s = self.session(rig_path)
+        s = self.session(rig_path, sets)
         emb = s.embedder("")
         if not os.path.exists(path):
-            demo = s.gallery("demo", emb)
+            try:
+                demo = s.gallery("demo", emb)
+            except PerceptionError as exc:
+                raise ReviewError(f"no demo gallery to start {path} from: {exc}", 409) from None
             os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
             tmp = f"{path}.tmp{os.getpid()}"
             with sqlite3.connect(tmp) as dst:
                 demo.conn.backup(dst)
+                if world:
+                    dst.execute(
+                        "INSERT INTO meta VALUES (?, ?) ON CONFLICT (key) DO UPDATE "
+                        "SET value = excluded.value",
+                        (WORLD_META, world),
+                    )
+            dst.close()
             os.replace(tmp, path)
         return emb, Gallery.open(path, emb.model_version)
-
-
-def identities(desk: GalleryDesk, path: str, rig_path: str | None) -> list[str]:
-    """The identities the review gallery knows (for the operator's choice)."""
-    _, g = desk.open(path, rig_path)
-    try:
-        return g.identities()
-    finally:
-        g.close()
 
 
 def _crops(run_dir: str, ev: dict | None) -> list:
@@ -183,18 +292,32 @@ def decide(
     if kind != "leave_unknown":
         field = "identity" if kind == "identity" else "new_name"
         ident = _text(request.get(field), "identity" if kind == "identity" else "new name", 64)
-        if not IDENTITY.fullmatch(ident) or ident in ("unknown", "empty"):
-            raise ReviewError(f"{ident!r:.70} cannot be a pallet identity")
+        why = identity_problem(ident)  # a WMS's own ids (PAL/2026/0001) as a gallery's
+        if why is not None or ident.lower() in ("unknown", "empty", "not_scanned"):
+            raise ReviewError(
+                f"{ident!r:.70} cannot be a pallet identity" + (f": {why}" if why else "")
+            )
     drones = drone_dirs(run_dir)
     rel = drones.get(row.get("drone") or "") or next(iter(drones.values()))
-    gpath = gallery_path(root, run_dir, gallery_option)
+    choice = gallery_choice(root, run_dir, gallery_option)
+    gpath = choice["path"]
+    if kind != "leave_unknown":
+        if gpath is None:
+            raise ReviewError(choice["problem"] or "no review gallery for this run", 409)
+        check_world(choice)
     header = read_header(os.path.join(run_dir, rel, "ticks.jsonl"))
     rig = header_path(header, header.get("rig"))
+    sets = tuple(
+        s for s in header.get("sets") or [] if isinstance(s, str) and s.startswith("world.")
+    )
     with _LOCK, _run_lock(run_dir):  # one decision at a time, in every console process
         try:  # before the gallery changes: a decision that cannot be recorded is not taken
             decisions = read_review(run_dir, strict=True)
         except ReviewFileError as exc:
             raise ReviewError(str(exc), 409) from None
+        same = _same_as_latest(decisions, place, kind, ident, reviewer, reason)
+        if same is not None:  # a double click, a retry: recorded once
+            return {**same, "already_recorded": True}
         _not_decided_meanwhile(decisions, place, request)
         event = None
         if kind != "leave_unknown":
@@ -206,7 +329,17 @@ def decide(
                     409,
                 )
             try:
-                event = _learn(desk, gpath, rig, kind, ident, crops, name, place, reviewer, reason)
+                event = _learn(
+                    desk,
+                    (gpath, rig, sets, choice["world"]),
+                    kind,
+                    ident,
+                    crops,
+                    name,
+                    place,
+                    reviewer,
+                    reason,
+                )
             except (GalleryError, ModelError) as exc:
                 raise ReviewError(str(exc), 409) from None
         record = {
@@ -232,6 +365,22 @@ def decision_seq(decisions: list[dict], index: int) -> int:
     ``review.json`` for one recorded before decisions were numbered)."""
     seq = decisions[index].get("seq")
     return seq if type(seq) is int else index + 1
+
+
+def _same_as_latest(
+    decisions: list[dict], place: str, kind: str, answer: str, reviewer: str, reason: str
+) -> dict | None:
+    """The place's latest decision when the one asked is the same (decision, answer,
+    reviewer and reason): a second click on "Decide", or a retry after a lost answer,
+    records nothing again (nor teaches the gallery the same view twice)."""
+    last = next((d for d in reversed(decisions) if d.get("place") == place), None)
+    if last is None:
+        return None
+    asked = (kind, answer or "unknown", reviewer, reason)
+    had = (last.get("decision"), last.get("answer"), last.get("reviewer"), last.get("reason") or "")
+    if asked != had:
+        return None
+    return {**last, "seq": decision_seq(decisions, decisions.index(last))}
 
 
 def _next_seq(decisions: list[dict]) -> int:
@@ -278,8 +427,7 @@ def _run_lock(run_dir: str):
 
 def _learn(
     desk: GalleryDesk,
-    gpath: str,
-    rig: str | None,
+    where: tuple,
     kind: str,
     ident: str,
     crops: list,
@@ -291,7 +439,7 @@ def _learn(
     """Change the gallery; return the history event's number."""
     from perception.gallery_views import png_bytes
 
-    emb, g = desk.open(gpath, rig)
+    emb, g = desk.open(*where)
     try:
         desc = emb.describe(crops)
         vis = desc.visibility if emb.occlusion_aware else None

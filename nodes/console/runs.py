@@ -136,6 +136,41 @@ def discrepancy(row: dict) -> str | None:
     return status if status in ("mismatch", "unverified") else None
 
 
+def reviewed_discrepancies(rows: list[dict], decisions: list[dict]) -> dict[str, dict]:
+    """Place -> ``{"category", "moved_from", "expected"}`` of every reviewed place of a run
+    that had an expected stock (its rows carry ``discrepancy``): the category of the
+    reviewed answer against what the stock expected there
+    (:func:`nodes.discrepancy.categorise`), and for a ``mismatch`` or an ``unexpected``
+    pallet the place of the run where the stock expects it. A reviewed answer that is the
+    expected pallet is ``confirmed``, no more a ``mismatch`` moved from elsewhere."""
+    from nodes.discrepancy import MISMATCH, UNEXPECTED, UNLISTED, categorise
+    from perception.expected import pallet_key
+
+    latest = {d["place"]: d for d in decisions if isinstance(d.get("place"), str)}
+    if not latest:
+        return {}
+    where: dict[str, str] = {}
+    for r in rows:
+        expected = r.get("expected")
+        if r.get("discrepancy") and r.get("discrepancy") != UNLISTED and expected:
+            where.setdefault(pallet_key(str(expected)), r["place"])
+    out = {}
+    for r in rows:
+        d = latest.get(r["place"])
+        cat = r.get("discrepancy")
+        if d is None or not isinstance(cat, str) or not cat:
+            continue
+        expected = None if cat == UNLISTED else str(r.get("expected") or "")
+        answer = d.get("answer") if isinstance(d.get("answer"), str) else ""
+        category, found = categorise(expected, answer or UNKNOWN)
+        moved = ""
+        if category in (MISMATCH, UNEXPECTED) and found not in (UNKNOWN, EMPTY):
+            moved = where.get(pallet_key(found), "")
+            moved = "" if moved == r["place"] else moved
+        out[r["place"]] = {"category": category, "moved_from": moved, "expected": expected}
+    return out
+
+
 def needs_review(row: dict) -> bool:
     """An exception for the operator: unknown, not identified, unverified or a mismatch."""
     return (
@@ -326,19 +361,24 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
         truth = {p: stock.get(p) for p in places}
     places_n = len(set(planned) | {r["place"] for r in rows})
     answered = sum(1 for r in rows if r.get("status") != "not_scanned")
+    after_review = reviewed_discrepancies(rows, reviews)
     discrepancies: dict[str, int] = {}
-    for r in rows:
-        cat = discrepancy(r)
+    for r in rows:  # as the export counts them: a review's answer recategorises its place
+        cat = after_review[r["place"]]["category"] if r["place"] in after_review else None
+        cat = cat or discrepancy(r)
         if cat and cat != "confirmed":
             discrepancies[cat] = discrepancies.get(cat, 0) + 1
     status = run_status(run_dir, summary)
     accuracy, accuracy_over = inv.get("accuracy"), "planned"
-    if accuracy is None and grades:
-        counted = grades
-        if status == "RUNNING":  # a place not reached yet is not a miss yet
-            done = {r["place"] for r in rows if r.get("status") != "not_scanned"}
-            counted = {p: g for p, g in grades.items() if p in done}
+    done = {r["place"] for r in rows if r.get("status") != "not_scanned"}
+    if grades and (accuracy is None or answered < places_n):
+        # a place not reached (yet: RUNNING; ever: an interrupted run) is not a wrong answer:
+        # the accuracy is over the places answered, and the page says how many were not
+        counted = {p: g for p, g in grades.items() if p in done}
+        if answered < places_n or status == "RUNNING":
             accuracy_over = "answered"
+        else:
+            counted = grades
         right = sum(1 for g in counted.values() if g == "right")
         accuracy = round(right / len(counted), 4) if counted else None
     exceptions = [r["place"] for r in rows if needs_review(r)]
@@ -360,6 +400,9 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
         "drones": [d for d in drones if d],
         "error": "; ".join(problems) or None,
         "rows_error": error,
+        # nothing to export: no inventory.json (a run stopped before its first place, or a
+        # folder that is no inventory): never a header-only file handed over as a count
+        "no_inventory": error is None and not rows and not planned,
         "review_error": review_error,
     }
     if not full:
@@ -385,6 +428,17 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
                 pads.append({"name": pad["name"], "xy": list(pad["position_m"][:2])})
             except (KeyError, TypeError):
                 continue
+    if after_review:
+        rows = [
+            {
+                **r,
+                "reviewed_discrepancy": after_review[r["place"]]["category"],
+                "reviewed_moved_from": after_review[r["place"]]["moved_from"],
+            }
+            if r["place"] in after_review
+            else r
+            for r in rows
+        ]
     info.update(
         rows=rows,
         planned=planned,

@@ -139,6 +139,9 @@ class SiteStore:
                     "started": r.get("started"),
                     "modified": r.get("ended") or r.get("started"),
                     "places": rows,
+                    # the store records the rows a run wrote, not the places it planned: a
+                    # run that did not finish may have planned more than it answered
+                    "places_known": rows > answered or _status_of(r.get("status")) == "SUCCESS",
                     "answered": answered,
                     "accuracy": None,
                     "discrepancies": {},

@@ -10,6 +10,7 @@ const SVGNS = "http://www.w3.org/2000/svg";
   const token = url.searchParams.get("token");
   if (token) {
     sessionStorage.setItem("console-token", token);
+    sessionStorage.removeItem("console-token-state");
     url.searchParams.delete("token");
     history.replaceState(null, "", url.pathname + url.search + url.hash);
   }
@@ -111,6 +112,20 @@ const COLOURS = {
   },
 };
 
+// The text colour (class ink-dark / ink-light) readable on a fill: black or white, whichever
+// contrasts more (every fill above gives at least 4.5:1, WCAG AA)
+function luminance(hex) {
+  const c = [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16) / 255)
+    .map((x) => (x <= 0.04045 ? x / 12.92 : ((x + 0.055) / 1.055) ** 2.4));
+  return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+}
+
+function inkFor(fill) {
+  if (!/^#[0-9a-fA-F]{6}$/.test(fill)) return "ink-dark";
+  const l = luminance(fill);
+  return (l + 0.05) / 0.05 >= 1.05 / (l + 0.05) ? "ink-dark" : "ink-light";
+}
+
 function swatch(colour) {
   return svg("svg", { class: "swatch", width: 12, height: 12, viewBox: "0 0 12 12" },
     svg("rect", { x: 0.5, y: 0.5, width: 11, height: 11, fill: colour, stroke: "#666" }));
@@ -125,8 +140,17 @@ function legend(scheme) {
 function tokenState() {
   const span = document.getElementById("token-state");
   if (!span) return;
-  span.textContent = consoleToken() ? "review token set" : "read only (open the URL btrun console printed to review)";
-  span.className = consoleToken() ? "token ok" : "token none";
+  const checked = sessionStorage.getItem("console-token-state");
+  if (consoleToken()) {
+    span.textContent = checked === "accepted" ? "review token accepted" : "review token set (checked at the first decision)";
+    span.className = "token ok";
+  } else if (checked === "refused") {
+    span.textContent = "review token refused: type the token btrun console printed";
+    span.className = "token refused";
+  } else {
+    span.textContent = "read only (open the URL btrun console printed to review)";
+    span.className = "token none";
+  }
 }
 
 document.addEventListener("DOMContentLoaded", tokenState);

@@ -23,8 +23,10 @@ async function indexPage() {
       el("td", {}, r.mission),
       el("td", {}, el("span", { class: `status status-${r.status}` }, r.status),
         r.error ? el("span", { class: "error problem", title: r.error }, " damaged files") : null),
-      el("td", { class: "num" }, `${r.answered}/${r.places}`),
-      el("td", { class: "num" }, pct(r.accuracy)),
+      r.places_known === false
+        ? el("td", { class: "num", title: "the site store records the places a run answered, not those it planned" }, `${r.answered}/?`)
+        : el("td", { class: "num" }, `${r.answered}/${r.places}`),
+      el("td", { class: "num", title: r.accuracy_over === "answered" ? "over the places answered" : "" }, pct(r.accuracy) + (typeof r.accuracy === "number" && r.accuracy_over === "answered" && r.answered < r.places ? ` of ${r.answered}` : "")),
       el("td", {}, disc || (r.exceptions ? "" : "")),
       el("td", { class: "num" }, r.exceptions ? `${r.exceptions - Math.min(r.reviewed, r.exceptions)} of ${r.exceptions}` : "0"),
       el("td", {}, fmtTime(r.started)));
@@ -39,11 +41,17 @@ async function indexPage() {
           "discrepancies", "to review", "started"].map((h) => el("th", {}, h)))),
         el("tbody", {}, rows))),
     data.skipped ? el("p", { class: "note", id: "skipped" }, `not listed: ${data.skipped}`) : null);
-  if (data.runs.some((r) => r.status === "RUNNING")) setTimeout(indexPage, 3000);
+  if (data.runs.some((r) => r.status === "RUNNING")) setTimeout(indexAgain, 3000);
+}
+
+// Again while a run is RUNNING; a hidden tab waits until it is shown
+function indexAgain() {
+  if (!document.hidden) { indexPage(); return; }
+  document.addEventListener("visibilitychange", indexAgain, { once: true });
 }
 
 // ---- one inventory -------------------------------------------------------------------------
-const state = { info: null, colourBy: "status", filter: "", statusFilter: "", sortKey: null, sortUp: true, selected: null, source: null };
+const state = { info: null, colourBy: "status", filter: "", statusFilter: "", sortKey: null, sortUp: true, selected: null, source: null, poll: null, live: null };
 
 function rowOf(place) {
   return state.info.rows.find((r) => r.place === place) || null;
@@ -57,7 +65,7 @@ function reviewOf(place) {
 
 function categoryOf(row) {
   if (!row) return "pending";
-  const d = row.discrepancy || row.category;
+  const d = row.reviewed_discrepancy || row.discrepancy || row.category;
   if (d) return d;
   if (row.status === "mismatch" || row.status === "unverified") return row.status;
   if (state.info.queue.includes(row.place)) return "exception";
@@ -89,7 +97,8 @@ function rackFaces() {
     const bays = Math.max(...cells.map((c) => c.bay));
     const levels = Math.max(...cells.map((c) => c.level));
     const w = bays * CW + 40, h = levels * CH + 36;
-    const g = svg("svg", { class: "rack", "data-rack": rack, viewBox: `0 0 ${w} ${h}`, width: w, height: h });
+    const g = svg("svg", { class: "rack", "data-rack": rack, viewBox: `0 0 ${w} ${h}`, width: w, height: h,
+      role: "group", "aria-label": `rack ${rack}: ${cells.length} places, bays 1 to ${bays} left to right, level 1 at the bottom; Enter on a place opens it` });
     g.append(svg("text", { x: 4, y: 14, class: "rack-name" }, `rack ${rack}`));
     for (let b = 1; b <= bays; b++) {
       g.append(svg("text", { x: 30 + (b - 0.5) * CW, y: h - 4, class: "axis" }, String(b).padStart(2, "0")));
@@ -99,14 +108,16 @@ function rackFaces() {
       const d = reviewOf(c.place);
       const answer = d ? d.answer : row ? (row.answer || "-") : "";
       const x = 30 + (c.bay - 1) * CW, y = 18 + (levels - c.level) * CH;
+      const ink = inkFor(colour(c.place));
       const cell = svg("g", {
         class: "place" + (state.selected === c.place ? " selected" : ""), "data-place": c.place,
         "data-answer": row ? (row.answer || "") : "", "data-status": row ? row.status : "pending",
         "data-colour": colourKey(c.place), onclick: () => select(c.place),
+        "aria-label": `${c.place}: ${answer || "not answered"} (${colourKey(c.place).replace("_", " ")})`,
       },
       svg("rect", { x: x + 2, y: y + 2, width: CW - 4, height: CH - 4, rx: 3, fill: colour(c.place), stroke: "#555" }),
-      svg("text", { x: x + CW / 2, y: y + 17, class: "cell-place" }, c.place),
-      svg("text", { x: x + CW / 2, y: y + 33, class: "cell-answer" }, answer));
+      svg("text", { x: x + CW / 2, y: y + 17, class: `cell-place ${ink}` }, c.place),
+      svg("text", { x: x + CW / 2, y: y + 33, class: `cell-answer ${ink}` }, answer));
       g.append(cell);
     }
     return g;
@@ -133,7 +144,8 @@ function mapView() {
   state.toMap = turned
     ? (x, y) => [PX + (maxY - y) * S, PY + (maxX - x) * S]
     : (x, y) => [PX + (x - minX) * S, PY + (maxY - y) * S];
-  const m = svg("svg", { id: "map", viewBox: `0 0 ${W} ${H}`, width: W, height: H });
+  const m = svg("svg", { id: "map", viewBox: `0 0 ${W} ${H}`, width: W, height: H, role: "img",
+    "aria-label": `map, top view: ${Object.keys(state.info.positions).length} places, ${state.info.pads.length} pads and the tracks of ${Object.keys(state.info.tracks).length} drones` });
   // the levels of a bay stand one above the other: drawn side by side, the lowest first
   const spots = {};
   for (const [place, p] of Object.entries(state.info.positions)) {
@@ -220,8 +232,32 @@ function placesTable() {
 }
 
 function renderTable() {
-  const old = document.getElementById("places");
-  if (old) old.replaceWith(placesTable());
+  keepFocus(() => {
+    const old = document.getElementById("places");
+    if (old) old.replaceWith(placesTable());
+  });
+}
+
+// Redraw without losing the keyboard focus (and the caret of a text field): live updates
+// and clicks redraw the page, and the operator typing in the filter keeps typing there
+function keepFocus(draw) {
+  const a = document.activeElement;
+  const was = a && a !== document.body && app.contains(a) ? {
+    id: a.id, place: a.getAttribute("data-place"), key: a.getAttribute("data-key"),
+    where: a.closest("#racks") ? "#racks g.place" : a.closest("#places tbody") ? "#places tbody tr" : a.closest("#places thead") ? "#places th" : null,
+    start: typeof a.selectionStart === "number" ? a.selectionStart : null, end: a.selectionEnd,
+  } : null;
+  draw();
+  if (!was) return;
+  let next = null;
+  if (was.id) next = document.getElementById(was.id);
+  else if (was.where && was.place) next = app.querySelector(`${was.where}[data-place="${CSS.escape(was.place)}"]`);
+  else if (was.where && was.key) next = app.querySelector(`${was.where}[data-key="${CSS.escape(was.key)}"]`);
+  if (!next || next === document.activeElement) return;
+  next.focus({ preventScroll: true });
+  if (was.start !== null && typeof next.setSelectionRange === "function") {
+    try { next.setSelectionRange(was.start, was.end); } catch (e) { /* not a text field */ }
+  }
 }
 
 function placeDetail() {
@@ -254,13 +290,19 @@ function summaryLine() {
   for (const r of i.rows) counts[r.status] = (counts[r.status] || 0) + 1;
   const parts = Object.entries(counts).map(([k, n]) => `${n} ${k.replace("_", " ")}`);
   // a place not scanned (an interrupted run) has a row, but no answer
+  const notScanned = i.places - i.answered;
   const shown = typeof i.accuracy !== "number" ? "" : i.accuracy_over === "answered"
-    ? ` - accuracy in simulation so far ${pct(i.accuracy)} of the places answered`
+    ? ` - accuracy in simulation ${i.status === "RUNNING" ? "so far " : ""}${pct(i.accuracy)} of the places answered` +
+      (i.status !== "RUNNING" && notScanned > 0 ? ` (${notScanned} not scanned)` : "")
     : ` - accuracy in simulation ${pct(i.accuracy)}`;
   return `${i.answered} of ${i.places} places answered` + (parts.length ? `: ${parts.join(", ")}` : "") + shown;
 }
 
 function renderRun() {
+  keepFocus(drawRun);
+}
+
+function drawRun() {
   const i = state.info;
   const exp = (kind, fmt) => el("a", { href: `/export/${encodeURIComponent(RUN)}/${kind}.${fmt}`, class: "button", "data-export": `${kind}.${fmt}`, download: "" }, `${kind} ${fmt.toUpperCase()}`);
   const pending = i.queue.filter((p) => !reviewOf(p)).length;
@@ -275,9 +317,11 @@ function renderRun() {
     el("h1", {}, i.name, " ", el("span", { id: "run-status", class: `status status-${i.status}` }, i.status)),
     el("p", { id: "run-summary" }, `${i.mission} - ${i.kind}${i.drones.length ? " of " + i.drones.join(", ") : ""} - `, summaryLine()),
     i.error ? el("p", { class: "error" }, i.error) : null,
+    state.live ? el("p", { id: "live-state", class: state.live.cls, role: "status" }, state.live.text) : null,
     el("p", { class: "actions" },
       el("a", { href: `/runs/${encodeURIComponent(RUN)}/review`, class: "button", id: "review-link" }, `review queue (${pending} to review)`),
-      i.rows_error ? el("span", { class: "note" }, "no export: the run's rows cannot be read") : [exp("inventory", "csv"), exp("inventory", "xlsx"), exp("discrepancies", "csv"), exp("discrepancies", "xlsx")],
+      i.rows_error ? el("span", { class: "note" }, "no export: the run's rows cannot be read")
+        : i.no_inventory ? el("span", { class: "note", id: "no-export" }, "no export: the run has no inventory.json (no place answered yet, or not an inventory)") : [exp("inventory", "csv"), exp("inventory", "xlsx"), exp("discrepancies", "csv"), exp("discrepancies", "xlsx")],
       i.report ? el("a", { href: fileUrl(RUN, "report.html"), class: "button" }, "flight report") : null),
     el("section", {}, el("h2", {}, "Rack faces ", colourBy), legend(state.colourBy), el("div", { id: "racks" }, rackFaces())),
     el("div", { class: "two" },
@@ -286,10 +330,61 @@ function renderRun() {
     el("section", {}, el("h2", {}, "Places ", filter, statusSel), placesTable()));
 }
 
-function follow() {
-  if (state.source || !["RUNNING", "INCOMPLETE"].includes(state.info.status)) return;
+// Live updates: one event stream while the tab is shown. A hidden tab closes it (a browser
+// has 6 connections per host: six tabs left open on running runs locked the console out),
+// and opens it again when shown; a stream the console refuses (too many live views) or
+// loses is said on the page, which then checks every POLL_MS instead.
+const POLL_MS = 10000;
+
+function setLive(text, cls) {
+  state.live = text ? { text, cls: cls || "note" } : null;
+  const old = document.getElementById("live-state");
+  if (old && state.live) { old.textContent = text; old.className = state.live.cls; }
+  else if (old) old.remove();
+  else if (state.live) {
+    const after = document.getElementById("run-summary");
+    if (after) after.after(el("p", { id: "live-state", class: state.live.cls, role: "status" }, text));
+  }
+}
+
+function isLive() {
+  return state.info && ["RUNNING", "INCOMPLETE"].includes(state.info.status);
+}
+
+function stopFollowing() {
+  if (state.source) { state.source.close(); state.source = null; }
+  if (state.poll) { clearTimeout(state.poll); state.poll = null; }
+}
+
+function pollLater() {
+  if (state.poll) clearTimeout(state.poll);
+  state.poll = setTimeout(async () => {
+    state.poll = null;
+    if (document.hidden) return;
+    try { await refresh(); } catch (e) { setLive(`live updates stopped: the console did not answer (${e.message}); trying again`, "error"); pollLater(); return; }
+    if (!isLive()) { setLive(null); return; }
+    follow(true);
+  }, POLL_MS);
+}
+
+function follow(retry) {
+  if (state.source) return;
+  if (!isLive()) { if (state.live) setLive(null); return; }
+  if (document.hidden) { setLive("live updates paused while this tab is hidden"); return; }
   const src = new EventSource(`/api/runs/${encodeURIComponent(RUN)}/events`);
   state.source = src;
+  if (!retry) setLive("live: updating as the run writes its files");
+  src.addEventListener("open", () => setLive("live: updating as the run writes its files"));
+  src.addEventListener("error", () => {
+    if (state.source !== src) return;
+    if (src.readyState === EventSource.CLOSED) {  // refused (503), or not an event stream
+      state.source = null;
+      setLive(`live view refused by the console (too many live views open, or it stopped): this page checks for changes every ${POLL_MS / 1000} s instead`, "error");
+      pollLater();
+    } else {
+      setLive("live updates interrupted: reconnecting...", "error");
+    }
+  });
   src.addEventListener("drones", (e) => {
     for (const [drone, d] of Object.entries(JSON.parse(e.data))) {
       const tr = state.info.tracks[drone] || (state.info.tracks[drone] = []);
@@ -309,8 +404,22 @@ function follow() {
   });
   src.addEventListener("review", (e) => { state.info.review = JSON.parse(e.data); renderRun(); });
   src.addEventListener("status", async () => { await refresh(); });
-  src.addEventListener("end", () => { src.close(); state.source = null; });
+  src.addEventListener("end", () => { src.close(); state.source = null; setLive(null); });
 }
+
+document.addEventListener("visibilitychange", async () => {
+  if (PAGE !== "run" || !state.info) return;
+  if (document.hidden) {
+    if (state.source || state.poll) {
+      stopFollowing();
+      setLive("live updates paused while this tab is hidden");
+    }
+    return;
+  }
+  if (!isLive()) return;
+  await refresh();  // what changed while hidden
+  follow();
+});
 
 // Everything again (new places' evidence, grades at the end), keeping the view's choices.
 async function refresh() {
