@@ -31,6 +31,7 @@ from typing import Any
 
 from bt_engine.files import atomic_write_text
 from nodes.expected_stock import ExpectedStock
+from nodes.inventory_rows import safe_cell
 from perception.expected import pallet_key, pallet_of
 
 CONFIRMED, MISMATCH, MISSING = "confirmed", "mismatch", "missing"
@@ -176,7 +177,13 @@ def write_discrepancies(run_dir: str, rows: list[dict], stock: ExpectedStock) ->
     for r in rows:
         w.writerow(
             {
-                k: ("true" if r.get(k) is True else "false" if r.get(k) is False else r.get(k, ""))
+                k: (
+                    "true"
+                    if r.get(k) is True
+                    else "false"
+                    if r.get(k) is False
+                    else safe_cell(r.get(k, ""))  # a WMS's cell "=HYPERLINK(...)" is text
+                )
                 for k in FIELDS
             }
         )

@@ -40,10 +40,12 @@ from nodes.inventory_rows import (  # noqa: F401 - importable from here as befor
     MAX_ROW_TEXT,
     NOT_IDENTIFIED,
     NOT_SCANNED,
+    TEXT_FIELDS,
     UNKNOWN,
     InventoryError,
     grade,
     read_inventory,
+    safe_cell,
 )
 
 
@@ -419,5 +421,12 @@ def write_inventory(run_dir: str, rows: list[dict], planned: list[str]) -> None:
     w = csv.DictWriter(buf, fieldnames=FIELDS, lineterminator="\n")
     w.writeheader()
     for r in _with_planned(rows, planned):
-        w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in FIELDS})
+        w.writerow(
+            {
+                k: safe_cell(r.get(k))
+                if k in TEXT_FIELDS
+                else ("" if r.get(k) is None else r.get(k))
+                for k in FIELDS
+            }
+        )
     atomic_write_text(os.path.join(run_dir, "inventory.csv"), buf.getvalue())

@@ -37,6 +37,17 @@ FIELDS = (
     "decided_by",
 )
 FORMAT = "btrun-inventory-1"
+#: the columns of inventory.csv that hold text from outside btrun (a gallery's identities,
+#: reasons quoting them): written so that a spreadsheet never runs them as a formula
+TEXT_FIELDS = ("place", "answer", "best_id", "drone", "run", "reason")
+
+
+def safe_cell(value: Any) -> str:
+    """A text cell a spreadsheet will not run as a formula (CSV injection): ``'`` before a
+    text that starts with ``=``, ``+``, ``-``, ``@`` (after spaces), a tab or a return."""
+    text = "" if value is None else str(value)
+    lead = text.lstrip(" ")[:1]  # " =2+2": an importer that trims would run it
+    return "'" + text if text[:1] in ("\t", "\r") or lead in ("=", "+", "-", "@") else text
 
 
 #: The most rows an inventory read back (``--resume``) may hold: far more places than any

@@ -426,6 +426,25 @@ def test_the_log_writes_the_report_and_leads_with_the_counts(tmp_path):
     assert lines[0].startswith("discrepancies: 1 confirmed, 0 mismatch, 0 missing, 1 unexpected")
 
 
+def test_the_run_folders_csv_files_never_hold_a_formula(tmp_path):
+    """A WMS cell "=HYPERLINK(...)" (or a gallery identity "=cmd|...") went into the run
+    folder's discrepancies.csv and inventory.csv as it was: a spreadsheet opening them runs
+    it. Text cells are written as the console's exports write them; the JSON keeps them."""
+    log = InventoryLog(str(tmp_path), drone="cf1")
+    log.expected = _stock({"A-01-1": '=HYPERLINK("http://x","y")', "A-01-2": None})
+    log.plan(["A-01-1", "A-01-2"])
+    log.record({"place": "A-01-1", "answer": "unknown", "status": "unknown"})
+    log.record({"place": "A-01-2", "answer": "=cmd|' calc'!A0", "status": "identified"})
+    with open(tmp_path / "discrepancies.csv", newline="") as f:
+        disc = {r["place"]: r for r in csv.DictReader(f)}
+    assert disc["A-01-1"]["expected"] == '\'=HYPERLINK("http://x","y")'
+    with open(tmp_path / "inventory.csv", newline="") as f:
+        inv = {r["place"]: r for r in csv.DictReader(f)}
+    assert inv["A-01-2"]["answer"] == "'=cmd|' calc'!A0"
+    doc = json.loads((tmp_path / "inventory.json").read_text())
+    assert doc["rows"][1]["answer"] == "=cmd|' calc'!A0"  # as recorded
+
+
 def test_a_fleets_merged_folder_gets_the_report_too(tmp_path):
     merged = InventoryLog(str(tmp_path / "fleet"), drone="fleet")
     drone = InventoryLog(

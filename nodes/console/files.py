@@ -16,6 +16,7 @@ from typing import Any
 
 from bt_engine.files import atomic_write_text, read_text
 from nodes.console.paths import plain
+from nodes.inventory_rows import safe_cell
 
 #: the largest summary.json / fleet.json / review.json read, bytes
 MAX_JSON_BYTES = 16_000_000
@@ -90,13 +91,6 @@ def read_review(run_dir: str, strict: bool = False) -> list[dict]:
 def latest_by_place(decisions: list[dict]) -> dict[str, dict]:
     """The latest decision of each place."""
     return {d["place"]: d for d in decisions}
-
-
-def safe_cell(value: Any) -> str:
-    """A text cell a spreadsheet will not run as a formula (CSV injection)."""
-    text = "" if value is None else str(value)
-    lead = text.lstrip(" ")[:1]  # " =2+2": an importer that trims would run it
-    return "'" + text if text[:1] in ("\t", "\r") or lead in ("=", "+", "-", "@") else text
 
 
 def write_review(run_dir: str, decisions: list[dict]) -> None:
