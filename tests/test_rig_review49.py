@@ -250,3 +250,13 @@ def test_a_pallet_whose_parts_do_not_fit_together_is_refused(
     # each value in its range, the pallet not buildable: the pre-flight had failed in numpy
     first = _refused_everywhere(capsys, tmp_path, ["--set", f"world.{setting}"])
     assert first.startswith(f"--set world.{setting.split('=')[0]}: ") and said in first, first
+
+
+@pytest.mark.parametrize(
+    "setting",
+    ["sim.shutdown_max_s=1000.0", "sim.telemetry_rate_hz=5000.0", "crazyflie.link_timeout_s=60.0"],
+)
+def test_time_outs_and_rates_have_an_upper_bound(tmp_path, capsys, setting) -> None:
+    # 1.0e+300 had been a shutdown that never gives up: every action has a time-out
+    first = _refused_everywhere(capsys, tmp_path, ["--set", setting])
+    assert "is above the maximum" in first, first

@@ -102,7 +102,11 @@ RIG_SCHEMA = _m(
                 "start_m": _f("vec", [0.0, 0.0, 0.0], "start position (m)", length=3),
                 "start_yaw_deg": _f("float", 0.0, "start yaw (deg)", min=-360.0, max=360.0),
                 "shutdown_max_s": _f(
-                    "float", 30.0, "shutdown: simulate at most this long to land", min=0.0
+                    "float",
+                    30.0,
+                    "shutdown: simulate at most this long to land",
+                    min=0.0,
+                    max=600.0,
                 ),
                 "params": Field(
                     "dict",
@@ -110,7 +114,7 @@ RIG_SCHEMA = _m(
                     "overrides of drivers/sim/crazyflie_params.py (names and ranges: `sim.params`)",
                     item=Field("float"),
                 ),
-                "telemetry_rate_hz": _f("float", 100.0, "link telemetry rate", min=1.0),
+                "telemetry_rate_hz": _f("float", 100.0, "link telemetry rate", min=1.0, max=1000.0),
                 "link_loss_probability": _f(
                     "float", 0.0, "probability of losing one packet", min=0.0, max=1.0
                 ),
@@ -151,10 +155,14 @@ RIG_SCHEMA = _m(
                         "imu_rate_hz": _f("float", 0.0, "gyro+acc (0: off)", min=0.0, max=100.0),
                     }
                 ),
-                "link_timeout_s": _f("float", 0.5, "link lost after this silence", min=0.05),
-                "connect_timeout_s": _f("float", 10.0, "give up connecting after", min=0.5),
+                "link_timeout_s": _f(
+                    "float", 0.5, "link lost after this silence", min=0.05, max=30.0
+                ),
+                "connect_timeout_s": _f(
+                    "float", 10.0, "give up connecting after", min=0.5, max=600.0
+                ),
                 "shutdown_max_s": _f(
-                    "float", 15.0, "at shutdown, wait at most this to land", min=0.0
+                    "float", 15.0, "at shutdown, wait at most this to land", min=0.0, max=600.0
                 ),
                 "toc_cache_dir": _f(
                     "str", None, "cflib TOC cache (null: a temp folder)", nullable=True
