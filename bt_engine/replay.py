@@ -25,8 +25,7 @@ import sys
 from dataclasses import dataclass
 
 from bt_engine.display import Row, tree_lines
-from bt_engine.files import NotRegularFile, open_regular
-from bt_engine.ticklog import MAX_LINE_BYTES, _check_header, _refused
+from bt_engine.ticklog import MAX_LINE_BYTES, _check_header, _refused, open_log
 
 #: the unreadable lines of a tick log said one by one at most (the others are counted)
 SHOWN_BAD_LINES = 5
@@ -344,14 +343,7 @@ def read_ticks(path: str) -> tuple[dict, list[dict], list[str]]:
     records: list[dict] = []
     warnings: list[str] = []
     skipped: list[int] = []
-    try:
-        f = open_regular(path, what="tick logs")
-    except NotRegularFile as exc:
-        raise _refused(path, 1, 1, str(exc)) from None
-    except (OSError, ValueError) as exc:
-        why = getattr(exc, "strerror", None) or exc
-        raise _refused(path, 1, 1, f"cannot read {path}: {why}") from None
-    with f:
+    with open_log(path) as f:
         number = 0
         first = True
         while True:

@@ -279,6 +279,18 @@ def _check_header(header: Any, path: str, number: int, text: str) -> dict:
     return header
 
 
+def open_log(path: str) -> Any:
+    """The tick log ``path`` opened for reading (binary); a located problem (``MissionError``)
+    if it is no regular file or cannot be read."""
+    try:
+        return open_regular(path, what="tick logs")
+    except NotRegularFile as exc:
+        raise _refused(path, 1, 1, str(exc)) from None
+    except (OSError, ValueError) as exc:
+        why = getattr(exc, "strerror", None) or exc
+        raise _refused(path, 1, 1, f"cannot read {path}: {why}") from None
+
+
 def read_log(path: str, header_only: bool = False) -> tuple[dict, list[dict]]:
     """Read a tick log: return ``(header, tick_records)``; a torn last line is ignored.
     ``header_only``: stop after the header line (``--resume`` needs nothing else, and a
@@ -292,14 +304,7 @@ def read_log(path: str, header_only: bool = False) -> tuple[dict, list[dict]]:
     (``"seed": "x"``, ``"sets": 5``)."""
     header: dict = {}
     records: list[dict] = []
-    try:
-        f = open_regular(path, what="tick logs")
-    except NotRegularFile as exc:
-        raise _refused(path, 1, 1, str(exc)) from None
-    except (OSError, ValueError) as exc:
-        why = getattr(exc, "strerror", None) or exc
-        raise _refused(path, 1, 1, f"cannot read {path}: {why}") from None
-    with f:
+    with open_log(path) as f:
         number = 0
         first = True
         while True:
