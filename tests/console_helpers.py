@@ -3,6 +3,7 @@ through Playwright (never a downloaded browser), polling with a deadline."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import time
@@ -86,3 +87,18 @@ def screenshot(page: Any, name: str) -> None:
     """docs/img/console_<name>.png, only when $BTRUN_CONSOLE_SCREENSHOTS is set."""
     if os.environ.get(SCREENSHOTS_ENV):
         page.screenshot(path=os.path.join(REPO, "docs", "img", f"console_{name}.png"))
+
+
+def make_run(
+    root: Any, name: str, rows: list[dict], planned: list[str], header: dict | None = None
+):
+    """A run folder ``root/name`` holding an inventory of ``rows`` (``planned`` places) and
+    a tick log of one header line (the mission, plus ``header``)."""
+    from nodes.inventory_log import write_inventory
+
+    run = root / name
+    run.mkdir(parents=True)
+    head = {"mission": "missions/inventory.xml", **(header or {})}
+    (run / "ticks.jsonl").write_text(json.dumps({"header": head}) + "\n")
+    write_inventory(str(run), rows, planned)
+    return run

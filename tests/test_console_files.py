@@ -11,7 +11,7 @@ import time
 import urllib.parse
 
 import pytest
-from console_helpers import REPO
+from console_helpers import REPO, make_run
 from test_console_security import _row
 
 from nodes.console import export
@@ -19,18 +19,11 @@ from nodes.console.files import REVIEW_JSON, write_review
 from nodes.console.paths import RunsRoot
 from nodes.console.review import GalleryDesk, ReviewError, decide
 from nodes.console.runs import list_runs, run_info, world_of
-from nodes.inventory_log import write_inventory
 
 SECRET = "SECRET-FROM-OUTSIDE"
 
 
-def _run(root, name: str, rows: list[dict], planned: list[str], header: dict | None = None):
-    run = root / name
-    run.mkdir(parents=True)
-    head = {"mission": "missions/inventory.xml", **(header or {})}
-    (run / "ticks.jsonl").write_text(json.dumps({"header": head}) + "\n")
-    write_inventory(str(run), rows, planned)
-    return run
+_run = make_run
 
 
 @pytest.fixture

@@ -14,12 +14,11 @@ import json
 import os
 import socket
 import sqlite3
-import time
 import urllib.error
 import urllib.request
 
 import pytest
-from console_helpers import REPO, TOKEN, browser_page, console, wait_for
+from console_helpers import REPO, TOKEN, browser_page, console, make_run, wait_for
 
 from nodes.console import export
 from nodes.console.app import ConsoleConfig
@@ -35,7 +34,6 @@ from nodes.console.review import (
     gallery_world,
 )
 from nodes.console.runs import run_info
-from nodes.inventory_log import write_inventory
 
 RUN = "inventory-20261126-101500"
 
@@ -47,13 +45,7 @@ def _row(place: str, answer: str, status: str, **extra) -> dict:
     return row
 
 
-def _run(root, name: str, rows: list[dict], planned: list[str], header: dict | None = None):
-    run = root / name
-    run.mkdir(parents=True)
-    head = {"mission": "missions/inventory.xml", **(header or {})}
-    (run / "ticks.jsonl").write_text(json.dumps({"header": head}) + "\n")
-    write_inventory(str(run), rows, planned)
-    return run
+_run = make_run
 
 
 def _discrepancies(run, rows: list[dict]) -> None:
@@ -322,7 +314,7 @@ def test_a_double_click_on_decide_records_one_decision(root):
         item.locator('input[value="leave_unknown"]').check()
         item.locator("button[type=submit]").dblclick()
         item.locator(".result.ok").wait_for()
-        time.sleep(0.5)
+        wait_for(lambda: item.locator("button[type=submit]").is_enabled())  # no request left
         assert "recorded" in item.locator(".result").inner_text()
         item.locator("button[type=submit]").click()  # again, after the answer
         wait_for(lambda: "already recorded" in item.locator(".result").inner_text())
