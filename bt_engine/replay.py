@@ -25,7 +25,7 @@ import sys
 from dataclasses import dataclass
 
 from bt_engine.display import Row, tree_lines
-from bt_engine.ticklog import MAX_LINE_BYTES, _check_header, _refused, open_log
+from bt_engine.ticklog import MAX_LINE_BYTES, _check_header, _refused, log_lines, open_log
 
 #: the unreadable lines of a tick log said one by one at most (the others are counted)
 SHOWN_BAD_LINES = 5
@@ -344,23 +344,14 @@ def read_ticks(path: str) -> tuple[dict, list[dict], list[str]]:
     warnings: list[str] = []
     skipped: list[int] = []
     with open_log(path) as f:
-        number = 0
         first = True
-        while True:
-            raw = f.readline(MAX_LINE_BYTES + 1)
-            if not raw:
-                break
-            number += 1
+        for number, raw, long in log_lines(f):
             why = ""
             cut = False
-            if len(raw) > MAX_LINE_BYTES:
-                while raw and not raw.endswith(b"\n"):  # the rest of the line: skipped
-                    raw = f.readline(MAX_LINE_BYTES + 1)
+            if long:
                 if first:
                     raise _refused(path, number, 1, f"line longer than {MAX_LINE_BYTES} bytes")
                 why = f"the line is longer than {MAX_LINE_BYTES} bytes"
-            elif not raw.strip():
-                continue
             else:
                 try:
                     rec = json.loads(raw)

@@ -13,6 +13,7 @@ import math
 import os
 import re
 import time
+from collections.abc import Iterator
 from datetime import datetime
 from typing import IO, Any
 
@@ -291,6 +292,26 @@ def open_log(path: str) -> Any:
         raise _refused(path, 1, 1, f"cannot read {path}: {why}") from None
 
 
+def log_lines(f: IO[bytes]) -> Iterator[tuple[int, bytes, bool]]:
+    """``(line number, raw line, too long)`` of an open tick log, blank lines left out; a
+    line longer than :data:`MAX_LINE_BYTES` is read no further than that (the rest of it
+    is skipped) and flagged."""
+    number = 0
+    while True:
+        raw = f.readline(MAX_LINE_BYTES + 1)
+        if not raw:
+            return
+        number += 1
+        long = len(raw) > MAX_LINE_BYTES
+        if long:
+            rest = raw
+            while rest and not rest.endswith(b"\n"):  # the rest of the line: skipped
+                rest = f.readline(MAX_LINE_BYTES + 1)
+        elif not raw.strip():
+            continue
+        yield number, raw, long
+
+
 def read_log(path: str, header_only: bool = False) -> tuple[dict, list[dict]]:
     """Read a tick log: return ``(header, tick_records)``; a torn last line is ignored.
     ``header_only``: stop after the header line (``--resume`` needs nothing else, and a
@@ -305,17 +326,10 @@ def read_log(path: str, header_only: bool = False) -> tuple[dict, list[dict]]:
     header: dict = {}
     records: list[dict] = []
     with open_log(path) as f:
-        number = 0
         first = True
-        while True:
-            raw = f.readline(MAX_LINE_BYTES + 1)
-            if not raw:
-                break
-            number += 1
-            if len(raw) > MAX_LINE_BYTES:
+        for number, raw, long in log_lines(f):
+            if long:
                 raise _refused(path, number, 1, f"line longer than {MAX_LINE_BYTES} bytes")
-            if not raw.strip():
-                continue
             try:
                 rec = json.loads(raw)
             except ValueError:  # not JSON, not UTF-8: a torn last line, unless it is the first
