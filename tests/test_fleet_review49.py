@@ -1,7 +1,7 @@
 """Review 49 of the fleet file's checks: one Crazyflie under two spellings of its URI (the
 fleet's check and the link lock), pads resolved in the world that is flown (``--set
 world.path=``, the fleet file's ``set:``), a drone with both a pad and a start, an empty
-fleet file."""
+fleet file, a drone setting what the drones share."""
 
 from __future__ import annotations
 
@@ -204,3 +204,25 @@ def test_pads_only_the_set_world_has_are_flown_as_they_are_checked(tmp_path, cap
     assert main(["fleet", path, "--set", f"world.path={world}", "--out", str(taken)]) == 2
     err = capsys.readouterr().err
     assert "pad-9" not in err and str(taken) in err, err
+
+
+# -- 5. what the drones share, set for one drone ---------------------------------------------
+
+
+def test_a_drones_own_world_clock_or_link_setting_is_refused_at_its_line(tmp_path, capsys):
+    """A drone's own ``set: {world.path: ...}`` had been flown: its check took the fleet's
+    world's pads, its flight another world."""
+    site = os.path.join(REPO, "worlds", "site.yaml")
+    drones = (
+        f"  - {{name: a, pad: pad-1, set: {{world.path: {site}}}}}\n"
+        "  - name: b\n    pad: pad-2\n    set:\n"
+        "      rig.clock.mode: realtime\n      rig.link: crazyflie\n      bb.note: fine\n"
+    )
+    path = _fleet(tmp_path, drones)
+    assert main(["fleet", path, "--check"]) == 2
+    err = capsys.readouterr().err
+    shared = "the drones of a fleet share one world, clock and link kind"
+    assert f"{path}:5:" in err and f"world.path cannot be set for one drone ('a'): {shared}" in err
+    assert f"{path}:9:23: rig.clock.mode cannot be set for one drone ('b')" in err, err
+    assert f"{path}:10:17: rig.link cannot be set for one drone ('b')" in err, err
+    assert "bb.note" not in err and "3 problems found" in err, err

@@ -199,6 +199,27 @@ def _check_inputs(mission: str, data: dict, at: Any) -> None:
                 at(f"{section}.{key}", message)
 
 
+#: Rig settings every drone of a fleet shares (one world, one clock, one kind of link): a
+#: drone's own ``set:`` cannot change them.
+SHARED_SETTINGS = ("world", "clock", "link")
+
+
+def _check_own_sets(data: dict, at: Any) -> None:
+    """A drone's own ``set:`` changing what the drones share (the world they fly in, the
+    clock, the link kind), located where it is written: one drone in another world would
+    take off from pads, and answer places, that the others do not have."""
+    for i, d in enumerate(data["drones"]):
+        for key in map(str, d["set"]):
+            bare = key[4:] if key.startswith("rig.") else key
+            if "." in key and bare.partition(".")[0] in SHARED_SETTINGS:
+                at(
+                    f"drones[{i}].set.{key}",
+                    f"{key} cannot be set for one drone ({d['name']!r}): the drones of a fleet "
+                    "share one world, clock and link kind; set it in the fleet's set: (or with "
+                    "--set) for every drone",
+                )
+
+
 def load_fleet(path: str, overrides: list[str] | None = None) -> FleetSpec:
     """Read and check a fleet file; raises :class:`MissionError` with every located problem.
 
@@ -240,6 +261,7 @@ def load_fleet(path: str, overrides: list[str] | None = None) -> FleetSpec:
         at("mission", f"mission file {data['mission']!r} not found (relative to {path})")
     else:
         _check_inputs(mission, data, at)
+    _check_own_sets(data, at)
     rig_path = _relative(path, data["rig"])
     common = {str(k): v for k, v in data["set"].items()}
     for item in overrides or []:
