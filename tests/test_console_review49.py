@@ -22,7 +22,7 @@ from console_helpers import REPO, TOKEN, browser_page, console, make_run, wait_f
 
 from nodes.console import export
 from nodes.console.app import ConsoleConfig
-from nodes.console.cli import ConsoleServer, allowed_hosts, make_config
+from nodes.console.cli import ConsoleError, ConsoleServer, allowed_hosts, make_config
 from nodes.console.files import write_review
 from nodes.console.paths import RunsRoot
 from nodes.console.review import (
@@ -422,6 +422,23 @@ def test_a_lan_bind_keeps_a_host_allow_list(root):
         assert _status(server, "ground.site.example") == 200
         assert _status(server, socket.gethostname().lower()) == 200
         assert _status(server, "localhost") == 200
+    finally:
+        server.stop()
+
+
+def test_ipv6_hosts_are_named_as_browsers_send_them(root):
+    """An IPv6 address could not be allowed (``--allow-host`` refused every ``:``), and a
+    bind to an IPv6 address was listed unbracketed in another spelling than browsers send."""
+    hosts = allowed_hosts("FD00:0:0::20", ["FD00::21", "[fd00::22]", "ground.example"])
+    assert {"[fd00::20]", "[fd00::21]", "[fd00::22]", "ground.example"} <= set(hosts)
+    for bad in ["fd00::21:8080x", "[ground.example]", "host:8080"]:
+        with pytest.raises(ConsoleError, match="an IPv6 address"):
+            allowed_hosts("127.0.0.1", [bad])
+    config = ConsoleConfig(str(root), TOKEN, hosts=hosts)
+    server = ConsoleServer(config, "127.0.0.1", 0).start()
+    try:
+        assert _status(server, "[fd00::21]") == 200  # _status adds the port
+        assert _status(server, "[fd00::99]") == 400
     finally:
         server.stop()
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import errno
+import ipaddress
 import os
 import secrets
 import socket
@@ -108,30 +109,51 @@ def allowed_hosts(host: str, extra: list[str]) -> list[str]:
     names = list(LOOPBACK_NAMES)
     for name in extra:
         name = name.strip().lower()
+        literal = ipv6_name(name)
+        if literal is not None:
+            names.append(literal)
+            continue
         if (
             not name
-            or any(c in name for c in "/: \t")
+            or any(c in name for c in "/: \t[]")
             or ("*" in name and not name.startswith("*."))
         ):
-            raise ConsoleError(f"--allow-host {name!r}: a host name or IPv4 address (no port)")
+            raise ConsoleError(
+                f"--allow-host {name!r}: a host name, an IPv4 address or an IPv6 address (no port)"
+            )
         names.append(name)
     if host not in ("127.0.0.1", "localhost", "::1"):
         if host not in ("0.0.0.0", "::", ""):
-            names.append(f"[{host}]" if ":" in host else host.lower())
-        names += machine_names()
+            names.append(ipv6_name(host) or host.lower())
+        names += machine_names(ipv6=":" in host)
     return list(dict.fromkeys(names))
 
 
-def machine_names() -> list[str]:
+def ipv6_name(text: str) -> str | None:
+    """``text`` as a ``Host`` header names an IPv6 address (``[fe80::1]``: bracketed,
+    lower case, compressed), or None when it is no IPv6 address (with or without brackets)."""
+    bare = text[1:-1] if text.startswith("[") and text.endswith("]") else text
+    try:
+        return f"[{ipaddress.IPv6Address(bare).compressed}]"
+    except ValueError:
+        return None
+
+
+def machine_names(ipv6: bool = False) -> list[str]:
     """This machine's host name, its fully qualified name and its IPv4 addresses (those its
-    names resolve to and the one it reaches other hosts from): how an operator's browser on
-    the network may name the console."""
+    names resolve to and the one it reaches other hosts from), and with ``ipv6`` (a bind to
+    an IPv6 address) the IPv6 addresses its names resolve to, bracketed as a ``Host``
+    header has them: how an operator's browser on the network may name the console."""
     out: list[str] = []
     for name in {socket.gethostname(), socket.getfqdn()}:
         if name:
             out.append(name.lower())
             with contextlib.suppress(OSError):
                 out += [i[4][0] for i in socket.getaddrinfo(name, None, socket.AF_INET)]
+            if ipv6:
+                with contextlib.suppress(OSError):
+                    found = socket.getaddrinfo(name, None, socket.AF_INET6)
+                    out += [ipv6_name(str(i[4][0]).partition("%")[0]) or "" for i in found]
     with contextlib.suppress(OSError), socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.connect(("192.0.2.1", 9))  # a documentation address: no packet is sent
         out.append(s.getsockname()[0])
