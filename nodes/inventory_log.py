@@ -22,12 +22,14 @@ import csv
 import io
 import json
 import os
+import sys
 from collections.abc import Callable
 from typing import Any
 
 from bt_engine.files import atomic_write_text
 from bt_engine.spec import Loc, plural
 from nodes import discrepancy
+from nodes.console.files import carry_reviews
 from nodes.expected_stock import ExpectedStock
 from nodes.inventory_rows import (  # noqa: F401 - importable from here as before
     EMPTY,
@@ -47,6 +49,7 @@ from nodes.inventory_rows import (  # noqa: F401 - importable from here as befor
     read_inventory,
     safe_cell,
 )
+from nodes.place_evidence import carry_evidence
 
 
 class InventoryLog:
@@ -87,6 +90,10 @@ class InventoryLog:
         self.expected: ExpectedStock | None = None
         #: the expected pallets the gallery does not enrol (None: not known)
         self.expected_not_enrolled: list[str] | None = None
+        #: the run continued (``--resume``): its carried places' crops and review decisions
+        #: are copied into this run's folder on the first write (:meth:`_carry_files`)
+        self.resume_from = resume_from
+        self._files_carried = False
         if resume_from:
             for row in read_inventory(resume_from):
                 self.rows[row["place"]] = dict(row)
@@ -183,6 +190,7 @@ class InventoryLog:
         rows = self.ordered_rows()
         if self.run_dir:
             os.makedirs(self.run_dir, exist_ok=True)
+            self._carry_files()
             write_inventory(self.run_dir, rows, self.planned)
             if self.expected is not None:
                 found = discrepancy.discrepancy_rows(
@@ -193,6 +201,27 @@ class InventoryLog:
             self.sink(self)
         if self.recorder is not None:
             self.recorder.record(rows)
+
+    def _carry_files(self) -> None:
+        """Once, in a resumed run's folder: the carried places' evidence (crops and
+        candidates) and review decisions from the run it continues, so the console shows
+        and exports them here as there. A copy that fails is said, never fatal."""
+        if self._files_carried or not self.resume_from or not self.run_dir:
+            return
+        self._files_carried = True
+        carried = {  # answered there (a place not scanned there is flown again here)
+            p: str(self.rows[p].get("drone") or "")
+            for p in self.carried
+            if self.rows[p].get("status") in FINISHED
+        }
+        try:
+            carry_evidence(self.resume_from, self.run_dir, carried)
+            carry_reviews(self.resume_from, self.run_dir, set(carried))
+        except OSError as exc:
+            print(
+                f"btrun: the resumed run's crops and reviews were not all carried over: {exc}",
+                file=sys.stderr,
+            )
 
     def absorb(self, other: InventoryLog) -> None:
         """Take ``other``'s rows and plan into this one (a fleet's merged inventory is the

@@ -18,6 +18,7 @@ import json
 import math
 import os
 import re
+import shutil
 
 import cv2
 import numpy as np
@@ -76,3 +77,39 @@ def write_place_evidence(
         out.append([ident, round(dist, 4) if math.isfinite(dist) else None])
     doc = {"place": place, "crops": kept, "candidates": out}
     atomic_write_text(os.path.join(folder, CANDIDATES_FILE), json.dumps(doc, indent=1))
+
+
+def carry_evidence(previous: str, run_dir: str, places: dict[str, str]) -> int:
+    """Copy the evidence of the places a resumed run carries over (place -> the drone that
+    answered it) from run folder ``previous`` into ``run_dir/places/<place>``, so the
+    console shows a carried place's crops and candidates in the run that continues it.
+    The previous run's own ``places/<place>`` is taken first (a solo run, or one that
+    carried it already), else its drone's ``drones/<drone>/places/<place>``; a place with
+    no evidence there, or already holding some here, is left. Symbolic links are not
+    followed. Returns the number of places copied."""
+    copied = 0
+    for place, drone in places.items():
+        try:
+            target = place_dir(run_dir, place)
+        except PlaceEvidenceError:
+            continue
+        sources = [os.path.join(previous, PLACES_DIR, place)]
+        if drone and PLACE_NAME.fullmatch(drone) and ".." not in drone:
+            sources.append(os.path.join(previous, "drones", drone, PLACES_DIR, place))
+        source = next((s for s in sources if os.path.isdir(s) and not os.path.islink(s)), None)
+        if source is None or os.path.exists(target):
+            continue
+        names = [
+            n
+            for n in os.listdir(source)
+            if (re.fullmatch(r"block_\d+\.png", n) or n == CANDIDATES_FILE)
+            and os.path.isfile(os.path.join(source, n))
+            and not os.path.islink(os.path.join(source, n))
+        ]
+        if not names:
+            continue
+        os.makedirs(target, exist_ok=True)
+        for n in names:
+            shutil.copyfile(os.path.join(source, n), os.path.join(target, n))
+        copied += 1
+    return copied

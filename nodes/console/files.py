@@ -106,3 +106,17 @@ def write_review(run_dir: str, decisions: list[dict]) -> None:
     for d in latest_by_place(decisions).values():
         w.writerow({k: safe_cell(d.get(k)) for k in REVIEW_CSV_FIELDS})
     atomic_write_text(os.path.join(run_dir, REVIEW_CSV), buf.getvalue())
+
+
+def carry_reviews(previous: str, run_dir: str, places: set[str]) -> int:
+    """Copy the review decisions the previous run holds for ``places`` (those a resumed
+    run carries over) into ``run_dir``'s review files, so an operator's decision on a
+    place stays with its answer in the run that continues it. Nothing is written when the
+    previous run has none, or when ``run_dir`` holds decisions already. Returns how many
+    decisions were carried."""
+    if os.path.lexists(os.path.join(run_dir, REVIEW_JSON)):
+        return 0
+    carried = [d for d in read_review(previous) if d["place"] in places]
+    if carried:
+        write_review(run_dir, carried)
+    return len(carried)

@@ -42,7 +42,7 @@ from typing import Any
 from bt_engine.ticklog import header_path
 from nodes.console.files import ReviewFileError, read_header, read_review, write_review
 from nodes.console.paths import RunsRoot
-from nodes.console.runs import drone_dirs, evidence, needs_review, read_rows
+from nodes.console.runs import drone_dirs, evidence_of, needs_review, read_rows
 from nodes.gallery.cli import REVIEW_RUN
 from perception.gallery import identity_problem
 
@@ -321,7 +321,7 @@ def decide(
         _not_decided_meanwhile(decisions, place, request)
         event = None
         if kind != "leave_unknown":
-            crops = _crops(run_dir, evidence(run_dir, rel, place))
+            crops = _crops(run_dir, evidence_of(run_dir, rel, place))
             if len(crops) != 3:
                 raise ReviewError(
                     f"{place} has {len(crops)} block crops, a gallery change needs 3: "

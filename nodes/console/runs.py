@@ -322,6 +322,16 @@ def evidence(run_dir: str, rel_drone: str, place: str) -> dict | None:
     return {"crops": [f"{base}/{n}" for n in crops], "candidates": ok[:20]}
 
 
+def evidence_of(run_dir: str, rel_drone: str, place: str) -> dict | None:
+    """A place's evidence in its drone's folder, else in the run's own ``places/`` (where
+    a resumed fleet keeps the places it carried over: :func:`nodes.place_evidence.
+    carry_evidence`)."""
+    found = evidence(run_dir, rel_drone, place)
+    if found is None and os.path.normpath(rel_drone) != ".":
+        found = evidence(run_dir, ".", place)
+    return found
+
+
 def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
     """What the index (``full`` False) or a run's page (``full`` True) shows of run ``name``."""
     run_dir = root.run_dir(name)
@@ -414,7 +424,7 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
         rel = by_drone.get(r.get("drone") or "", by_drone.get("", "."))
         if r.get("drone") not in by_drone and "" not in by_drone:
             rel = next(iter(by_drone.values()))
-        found = evidence(run_dir, rel, r["place"])
+        found = evidence_of(run_dir, rel, r["place"])
         if found is not None:
             ev[r["place"]] = found
     positions = {}
@@ -511,4 +521,4 @@ def list_runs(root: RunsRoot, skipped: list[str] | None = None) -> list[dict]:
     return out
 
 
-__all__ = ["EMPTY", "list_runs", "needs_review", "run_info", "read_rows", "track"]
+__all__ = ["EMPTY", "evidence_of", "list_runs", "needs_review", "run_info", "read_rows", "track"]
