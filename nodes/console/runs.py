@@ -470,6 +470,54 @@ def run_info(root: RunsRoot, name: str, full: bool = False) -> dict:
     return info
 
 
+#: the files whose change changes what the index shows of a run
+_LISTED_FILES = (
+    ".",
+    "summary.json",
+    "fleet.json",
+    "inventory.json",
+    "discrepancies.json",
+    "review.json",
+    "ticks.jsonl",
+    "drones",
+)
+#: (runs folder, run name) -> (its files' signature, what the index showed of it)
+_LISTED: dict[tuple[str, str], tuple[tuple, dict]] = {}
+
+
+def _signature(run_dir: str) -> tuple:
+    """What the index's line of a run depends on: the time, size and inode of its files
+    (an atomic rewrite changes all three) and of the first drone's tick log."""
+    paths = [os.path.join(run_dir, f) for f in _LISTED_FILES]
+    drones = drone_dirs(run_dir)
+    paths.append(os.path.join(run_dir, next(iter(drones.values())), "ticks.jsonl"))
+    out = []
+    for path in paths:
+        try:
+            st = os.stat(path)
+        except OSError:
+            out.append(None)
+            continue
+        out.append((st.st_mtime_ns, st.st_size, st.st_ino))
+    return tuple(out)
+
+
+def _listed_info(root: RunsRoot, name: str) -> dict:
+    """:func:`run_info` of the index, read again only when the run's files changed: a
+    refresh of a runs folder of 500 site runs had read every inventory each time (about 3 s
+    of CPU). A run without a summary is read every time: whether it is ``RUNNING`` depends
+    on the clock, not only on its files."""
+    run_dir = root.run_dir(name)
+    key, sig = (root.root, name), _signature(run_dir)
+    hit = _LISTED.get(key)
+    if hit is not None and hit[0] == sig:
+        return dict(hit[1])
+    info = run_info(root, name)
+    if sig[1] is not None and info["status"] != "RUNNING":
+        _LISTED[key] = (sig, info)
+    return dict(info)
+
+
 def list_runs(root: RunsRoot, skipped: list[str] | None = None) -> list[dict]:
     """Every run and fleet folder directly under the root, the latest started first (at most
     :data:`MAX_RUNS`: the folders written last; a review or a copy changes a folder's time,
@@ -514,9 +562,11 @@ def list_runs(root: RunsRoot, skipped: list[str] | None = None) -> list[dict]:
     out = []
     for _, name in found[:MAX_RUNS]:
         try:
-            out.append(run_info(root, name))
+            out.append(_listed_info(root, name))
         except (PathRefused, OSError):
             continue
+    if len(_LISTED) > 2 * MAX_RUNS:  # runs moved away: forget them
+        _LISTED.clear()
     out.sort(key=lambda r: (r["started"] or 0.0, r["name"]), reverse=True)
     return out
 
