@@ -16,7 +16,7 @@ import urllib.error
 import urllib.request
 
 import pytest
-from console_helpers import REPO, TOKEN
+from console_helpers import REPO, TOKEN, browser_page
 
 from nodes.console.app import ConsoleConfig
 from nodes.console.cli import ConsoleError, ConsoleServer, make_config
@@ -35,7 +35,13 @@ def _row(place: str, answer: str, status: str) -> dict:
 def _record(url: str) -> None:
     """Three runs, recorded out of order: OLDEST, then HERE, then ELSEWHERE started between."""
     with InventoryStore.open(url) as s:
-        s.begin_run(HERE, mission="missions/inventory.xml", started=3000.0, host="gs-1")
+        s.begin_run(
+            HERE,
+            mission="missions/inventory.xml",
+            rig="/gs1/btrun/rigs/site.yaml",
+            started=3000.0,
+            host="gs-1",
+        )
         s.record_rows(HERE, [_row("A-01-1", "101", "identified"), _row("A-01-2", "", "unknown")])
         s.end_run(HERE, "SUCCESS")
         s.begin_run(OLDEST, mission="missions/inventory.xml", started=1000.0, host="gs-2")
@@ -107,8 +113,18 @@ def _check_listing_and_history(runs: str, url: str) -> None:
         assert [h["answer"] for h in doc["history"]] == ["empty", "101", "101"]
         assert [h["here"] for h in doc["history"]] == [False, False, True]
         assert "folder" not in doc["history"][0]  # another station's paths are not shown
+        rigs = [(h["rig"], h["fleet"]) for h in doc["history"]]
+        assert rigs == [(None, None), (None, "aisle_2"), ("site.yaml", None)]
         status, page = _get(server, "/places/A-01-1")
         assert status == 200 and 'data-page="place"' in page
+        with browser_page() as tab:  # the rig or fleet of each run, side by side
+            tab.goto(f"{server.url}/places/A-01-1")
+            tab.locator("#history tbody tr").first.wait_for()
+            assert tab.inner_text("#history thead th:last-child") == "rig or fleet"
+            cells = tab.locator("#history tbody td:last-child").all_inner_texts()
+            assert cells == ["", "aisle_2 (fleet)", "site.yaml"]
+            assert "flown by fleet aisle_2, rig site.yaml" in tab.inner_text("#history-rigs")
+            assert not tab.errors
         status, doc = _get(server, f"/api/runs/{HERE}")
         assert status == 200 and doc["store"]
         status, doc = _get(server, "/api/places/A-01-9")

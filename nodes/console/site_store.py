@@ -172,8 +172,12 @@ class SiteStore:
             hint = f" (did you mean {close[0]}?)" if close else ""
             raise PathRefused(f"the store has no row for place {place!r}{hint}", 404)
         keys = ("run", "started", "answer", "status", "best_id", "distance", "margin")
-        keys += ("drone", "reason", "run_status")
-        return [{**{k: h.get(k) for k in keys}, "here": _has_folder(root, h["run"])} for h in found]
+        keys += ("drone", "reason", "run_status", "rig", "fleet")
+        out = [{**{k: h.get(k) for k in keys}, "here": _has_folder(root, h["run"])} for h in found]
+        for h in out:  # the rig file's name: another station's folders are not shown
+            if isinstance(h["rig"], str):
+                h["rig"] = os.path.basename(h["rig"].replace("\\", "/")) or None
+        return out
 
 
 def _has_folder(root: RunsRoot, run: Any) -> bool:

@@ -440,13 +440,19 @@ async function placePage() {
     el("td", {}, h.here ? el("a", { href: `/runs/${encodeURIComponent(h.run)}` }, h.run) : h.run),
     el("td", {}, fmtTime(h.started)), el("td", {}, h.answer ?? ""), el("td", {}, h.status ?? ""),
     el("td", {}, h.drone ?? ""), el("td", { class: "num" }, fmtNumber(h.distance, 3)),
-    el("td", { class: "num" }, fmtNumber(h.margin, 3)), el("td", {}, h.run_status ?? "")));
+    el("td", { class: "num" }, fmtNumber(h.margin, 3)), el("td", {}, h.run_status ?? ""),
+    el("td", {}, h.fleet ? `${h.fleet} (fleet)` : (h.rig ?? ""))));
+  // runs of several rigs or fleets (one store may hold several sites): said above the table
+  const flownBy = new Set(data.history.map((h) => h.fleet ? `fleet ${h.fleet}` : (h.rig ? `rig ${h.rig}` : "")));
+  flownBy.delete("");
   mount(
     el("h1", {}, `Place ${place}`),
     el("p", { class: "note" }, `${data.history.length} runs, oldest first, from the site store ${data.store}`),
+    flownBy.size > 1 ? el("p", { class: "note", id: "history-rigs" },
+      `flown by ${[...flownBy].join(", ")}: compare answers of one rig or fleet with care`) : null,
     el("table", { id: "history", class: "grid" },
       el("thead", {}, el("tr", {}, ["run", "started", "answer", "status", "drone", "distance", "margin",
-        "run status"].map((h) => el("th", {}, h)))),
+        "run status", "rig or fleet"].map((h) => el("th", {}, h)))),
       el("tbody", {}, rows)));
 }
 
