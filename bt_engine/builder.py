@@ -115,7 +115,10 @@ class _Builder:
             else:
                 literals[key] = attr.value
         model = self.spec.models.get(target)
-        if model is not None:
+        if model is not None and not autoremap:
+            # BehaviorTree.CPP applies a <TreeNodesModel> port's default only to a call
+            # without _autoremap: with it, the port is the parent's entry of that name (a
+            # local default would hide the parent's value and swallow the tree's writes)
             for p in model.ports.values():
                 if p.name not in remap and p.name not in literals and p.default is not None:
                     literals[p.name] = p.default

@@ -763,3 +763,32 @@ def test_timers_wake_the_tree_up(case: str) -> None:
             return
         problems.append(problem)
     pytest.fail(f"{problems[0]}\n{xml}")
+
+
+# -- a SubTree port's <TreeNodesModel> default under _autoremap ------------------------------
+AUTOREMAP_DEFAULTS = {
+    # the tree reads the parent's entry, not the model's default
+    "autoremap_reads_the_parents_entry": (
+        '<Sequence name="s"><Script name="a" code="c1 := 3"/>'
+        '<SubTree name="st" ID="T1" _autoremap="true"/></Sequence>',
+        '<Script name="in" code="c2 := c1"/>',
+    ),
+    # and its writes reach the parent
+    "autoremap_writes_reach_the_parent": (
+        '<Sequence name="s"><SubTree name="st" ID="T1" _autoremap="true"/>'
+        '<Script name="after" code="c0 := c1"/></Sequence>',
+        '<Script name="in" code="c1 := 9"/>',
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(AUTOREMAP_DEFAULTS))
+def test_a_subtree_port_default_under_autoremap_matches_btcpp(case: str) -> None:
+    """A model default had made a local entry under ``_autoremap``: the tree read it
+    instead of the parent's value and its writes never reached the parent (a Groot2
+    square flew at the default speed whatever ``--set speed=`` said)."""
+    model = (
+        '<TreeNodesModel><SubTree ID="T1"><input_port name="c1" type="int" default="5"/>'
+        "</SubTree></TreeNodesModel></root>"
+    )
+    check(doc(*AUTOREMAP_DEFAULTS[case]).replace("</root>", model), ticks=3)
