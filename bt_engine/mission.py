@@ -29,6 +29,7 @@ from bt_engine.node import (
     NodeRuntimeError,
     NodeStatus,
 )
+from bt_engine.plugin_code import conversion_said
 from bt_engine.registry import REGISTRY, Registry
 from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
 from bt_engine.validate import (
@@ -305,28 +306,35 @@ class Mission:
                     text = str(exc)
                     if "which is not set" in text:  # an output writes it in flight
                         continue
-                    done.add(entry)
                     why = text.split(f"from {{{key}}}: ", 1)[-1]
-                    where = f" ({node.loc})" if node.loc is not None else ""
-                    if entry in set_keys:
-                        value = self.scope.get(entry, None)
-                        out.append(
-                            Problem(
-                                Loc("--set", 0, 0),
-                                f"{entry}={value}: {why} (read as '{decl.name}' by "
-                                f"{node.describe()}{where})",
-                            )
+                except (Exception, SystemExit) as exc:  # noqa: BLE001 - a plug-in port
+                    # type's convert raising other than PortValueError: said, located (it
+                    # had been a traceback of btrun validate and run)
+                    value = node.scope.get(key, None)
+                    why = conversion_said(decl, type(node).__name__, value, exc)
+                else:
+                    continue
+                done.add(entry)
+                where = f" ({node.loc})" if node.loc is not None else ""
+                if entry in set_keys:
+                    value = self.scope.get(entry, None)
+                    out.append(
+                        Problem(
+                            Loc("--set", 0, 0),
+                            f"{entry}={value}: {why} (read as '{decl.name}' by "
+                            f"{node.describe()}{where})",
                         )
-                    else:
-                        loc = node.loc or Loc(self.spec.file or "mission", 0, 0)
-                        out.append(
-                            Problem(
-                                loc,
-                                f"{{{key}}}: the value the mission gives it (a default or a "
-                                f"SubTree's value) cannot be read as '{decl.name}' by "
-                                f"{node.describe()}: {why}",
-                            )
+                    )
+                else:
+                    loc = node.loc or Loc(self.spec.file or "mission", 0, 0)
+                    out.append(
+                        Problem(
+                            loc,
+                            f"{{{key}}}: the value the mission gives it (a default or a "
+                            f"SubTree's value) cannot be read as '{decl.name}' by "
+                            f"{node.describe()}: {why}",
                         )
+                    )
         return out
 
     def _note_failure(self, text: str) -> None:

@@ -352,6 +352,37 @@ def test_a_port_type_or_init_that_raises_is_a_located_problem(
     assert not (out / "summary.json").exists()  # nothing flew
 
 
+def test_a_port_type_that_raises_on_an_input_or_set_value_is_a_located_problem(
+    plugin_env, tmp_path, capsys
+) -> None:
+    """The value reaching the port through a mission input (its default, or ``--set``)
+    had been a traceback of validate and run (exit 1): only literals were located."""
+    plugin_env("f3_48:PLUGIN", F3_PLUGIN + LEAF_PLUGIN_TAIL)
+    mission = tmp_path / "m.xml"
+    mission.write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main">\n'
+        '<Sequence>\n <Aim angle="{a}"/>\n</Sequence></BehaviorTree>\n'
+        '<TreeNodesModel><SubTree ID="Main"><input_port name="a" default="ninety"/>'
+        "</SubTree></TreeNodesModel></root>"
+    )
+    converted = (
+        "port 'angle' of Aim: 'ninety' could not be converted to angle: ValueError: could not "
+        f"convert string to float: 'ninety' (raised at {tmp_path / 'f3_48.py'}:9)"
+    )
+    assert main(["validate", str(mission)]) == 2
+    err = capsys.readouterr().err
+    assert f"{mission}:3:2: {{a}}: the value the mission gives it" in err, err
+    assert converted in err and "Traceback" not in err, err
+    out = tmp_path / "run"
+    for value in ("ninety", "x90"):
+        assert main([str(mission), "--set", f"a={value}", "--out", str(out), "-q"]) == 2
+        err = capsys.readouterr().err
+        assert f"--set a={value}: " + converted.replace("ninety", value) in err, err
+        assert f"(read as 'angle' by Aim ({mission}:3:2))" in err and "Traceback" not in err
+    assert not out.exists()  # nothing flew
+    assert main([str(mission), "--set", "a=90deg", "--out", str(out), "-q", "--no-report"]) == 0
+
+
 def test_the_builder_locates_a_port_type_that_raises() -> None:
     """Without validation (a spec built directly), the builder says it too."""
     from bt_engine.builder import build_tree
