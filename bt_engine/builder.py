@@ -83,6 +83,12 @@ class _Builder:
                     )
                     raise MissionError([Problem(attr.loc, message)]) from None
                 node.bind_literal(key, value)
+        for key, port in model.ports.items():  # a default naming an entry ("{kk}"), as
+            # BehaviorTree.CPP's InputPort<T>("k", "{kk}", ...): the port reads that entry
+            if key not in spec.attrs and isinstance(port.default, str):
+                ref = blackboard_ref(port.default)
+                if ref is not None:
+                    node.bind_entry(key, key if ref == "=" else ref)
         labels = _child_labels(spec.children, self.registry)
         for child_spec, child_label in zip(spec.children, labels, strict=True):
             node.add_child(self.node(child_spec, scope, path, child_label, depth + 1))

@@ -435,3 +435,38 @@ def test_the_watchdog_says_how_long_it_waited_on_a_busy_host(monkeypatch) -> Non
         w.close()
     assert stops and "did not return within 0.3 s" in stops[0], stops
     assert "(the 0.1 s budget x3.0: a busy host)" in stops[0], stops
+
+
+REF_DEFAULT_PLUGIN = """from bt_engine import SyncActionNode, register, SUCCESS
+from bt_engine.ports import INT, input_port, output_port
+
+
+@register
+class Doubles(SyncActionNode):
+    ports = (
+        input_port("k", INT, "{kk}", "k, from the entry kk unless given"),
+        input_port("same", INT, "{=}", "from the entry of its own name"),
+        output_port("o", INT, "2 k + same"),
+    )
+
+    def tick_impl(self):
+        self.set_output("o", 2 * self.get_input("k") + self.get_input("same"))
+        return SUCCESS
+"""
+
+
+def test_a_port_default_naming_an_entry_reads_that_entry(plugin_env, tmp_path) -> None:
+    """``input_port("k", INT, "{kk}")`` (BehaviorTree.CPP's ``InputPort<T>("k", "{kk}")``)
+    passed loading and validation, then ABORTED the run at its first tick: the text
+    ``{kk}`` was converted as the value."""
+    plugin_env("refdef_50:PLUGIN", REF_DEFAULT_PLUGIN + LEAF_PLUGIN_TAIL)
+    mission = tmp_path / "m.xml"
+    mission.write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main">\n'
+        '<Sequence><Script code="kk := 21; same := 1"/><Doubles o="{o}"/>'
+        '<Doubles k="5" o="{o2}"/></Sequence></BehaviorTree></root>'
+    )
+    out = tmp_path / "run"
+    assert main([str(mission), "--out", str(out), "-q", "--no-report"]) == 0
+    blackboard = json.loads((out / "summary.json").read_text())["blackboard"]
+    assert (blackboard["o"], blackboard["o2"]) == (43, 11)
