@@ -41,6 +41,7 @@ class Scope:
         "path",
         "writes",
         "seq",
+        "defaults",
         "_store",
     )
 
@@ -69,6 +70,9 @@ class Scope:
             self.writes = None
             self.seq = parent.seq
         self._store: dict[str, Any] = py_trees.blackboard.Blackboard.storage
+        #: a ``_autoremap`` SubTree's ``<TreeNodesModel>`` port defaults: read only while
+        #: no scope the name reaches holds the entry (:meth:`get`)
+        self.defaults: dict[str, Any] | None = None
 
     # -- resolution -------------------------------------------------------------
     def _owner(self, key: str) -> tuple[Scope, str]:
@@ -104,13 +108,36 @@ class Scope:
         try:
             return self._store[full]
         except KeyError:
+            found = self._model_default(key)
+            if found is not _MISSING:
+                return found
             if default is _MISSING:
                 raise KeyError(key) from None
             return default
 
     def has(self, key: str) -> bool:
         """True if ``key`` has a value visible from this scope."""
-        return self.full_key(key) in self._store
+        return self.full_key(key) in self._store or self._model_default(key) is not _MISSING
+
+    def _model_default(self, key: str) -> Any:
+        """The ``<TreeNodesModel>`` default of ``key`` of a ``_autoremap`` SubTree the name
+        reaches (the nearest), for an entry no scope holds: BehaviorTree.CPP shares the
+        parent's entry under ``_autoremap`` and fails where the parent has none; btrun then
+        reads the default the model declares (a write still goes to the parent)."""
+        scope: Scope | None = self
+        k = key
+        while scope is not None and not k.startswith("@"):
+            if scope.defaults is not None and k in scope.defaults:
+                return scope.defaults[k]
+            if scope.parent is None:
+                break
+            if k in scope.remap:
+                k, scope = scope.remap[k], scope.parent
+            elif scope.autoremap and not k.startswith("_"):
+                scope = scope.parent
+            else:
+                break
+        return _MISSING
 
     def set(self, key: str, value: Any) -> None:
         """Write ``key`` (creating it in the scope the remapping rules choose)."""

@@ -121,16 +121,21 @@ class _Builder:
             else:
                 literals[key] = attr.value
         model = self.spec.models.get(target)
-        if model is not None and not autoremap:
-            # BehaviorTree.CPP applies a <TreeNodesModel> port's default only to a call
-            # without _autoremap: with it, the port is the parent's entry of that name (a
-            # local default would hide the parent's value and swallow the tree's writes)
+        defaults: dict[str, Any] = {}
+        if model is not None:
             for p in model.ports.values():
                 if p.name not in remap and p.name not in literals and p.default is not None:
-                    literals[p.name] = p.default
+                    defaults[p.name] = p.default
         child_scope = Scope(
             f"{path.split('/', 1)[-1]}", parent=scope, remap=remap, autoremap=autoremap
         )
+        if autoremap:
+            # BehaviorTree.CPP: under _autoremap the port is the parent's entry of that name
+            # (a local default had hidden the parent's value and swallowed the tree's
+            # writes); the default is read only while no scope holds the entry
+            child_scope.defaults = defaults or None
+        else:
+            literals.update(defaults)
         child_scope.prefix = f"{scope.root.prefix}{path.split('/', 1)[-1]}/"
         for k, v in literals.items():
             child_scope._store[child_scope.prefix + k] = v

@@ -792,3 +792,23 @@ def test_a_subtree_port_default_under_autoremap_matches_btcpp(case: str) -> None
         "</SubTree></TreeNodesModel></root>"
     )
     check(doc(*AUTOREMAP_DEFAULTS[case]).replace("</root>", model), ticks=3)
+
+
+def test_an_autoremap_default_is_read_only_while_no_scope_holds_the_entry() -> None:
+    """Where BehaviorTree.CPP fails (``_autoremap`` and a parent without the entry: its
+    "Variable not found"), btrun reads the model's default, so a mission's main tree
+    called as a SubTree keeps its inputs' defaults; once the parent writes the entry, the
+    SubTree reads the parent's, and its writes reach the parent."""
+    sub = '<Script name="r" code="c2 := c1 + 1"/>'
+    body = (
+        '<Sequence name="s"><SubTree name="st" ID="T1" _autoremap="true"/>'
+        '<Script name="first" code="c3 := c2"/><Script name="w" code="c1 := 40"/>'
+        '<SubTree name="st2" ID="T1" _autoremap="true"/></Sequence>'
+    )
+    model = (
+        '<TreeNodesModel><SubTree ID="T1"><input_port name="c1" type="int" default="5"/>'
+        "</SubTree></TreeNodesModel></root>"
+    )
+    m = Mission(load_xml("d.xml", text=doc(body, sub).replace("</root>", model)), registry=REG)
+    assert m.tick() == SUCCESS
+    assert (m.scope.get("c3"), m.scope.get("c2")) == (6, 41)
