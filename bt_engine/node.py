@@ -341,9 +341,18 @@ class BTNode(py_trees.behaviour.Behaviour):
         return value
 
     def set_output(self, name: str, value: Any) -> bool:
-        """Write output port ``name`` if the mission bound it; return True if written."""
+        """Write output port ``name`` if the mission bound it; return True if written.
+        A plug-in's node (a class outside btrun's own packages) raises
+        :class:`NodeRuntimeError` (located) for a port it does not declare: a misspelt
+        output name had dropped the value without a word. (btrun's own leaves share writes
+        between kinds, e.g. every motion's ``distance_to_go``, and declare what they show.)"""
         b = self._bindings.get(name)
         if b is None or b[0] != _REF:
+            if b is None and self.port_decl(name) is None and _plugin_class(type(self)):
+                names = ", ".join(q.name for q in type(self).ports) or "none"
+                raise NodeRuntimeError(
+                    self, f"output port '{name}' is not declared by this node (its ports: {names})"
+                )
             return False
         self.scope.set(b[1], value)
         return True
@@ -477,6 +486,37 @@ class ConditionNode(LeafNode):
         if held is None:  # "no", 1, None...: an error, not whatever Python finds true
             raise NodeRuntimeError(self, checks.check_said(value))
         return SUCCESS if held else FAILURE
+
+
+#: btrun's own packages: a node class defined elsewhere is a plug-in's
+OWN_PACKAGES = frozenset(("bt_engine", "nodes", "drivers", "perception"))
+
+
+def _plugin_class(cls: type) -> bool:
+    """Whether node class ``cls`` is a plug-in's (defined outside btrun's own packages)."""
+    return str(getattr(cls, "__module__", "")).partition(".")[0] not in OWN_PACKAGES
+
+
+def unimplemented(cls: type) -> str | None:
+    """What a leaf class lacks that its kind of node calls (``on_running`` of a
+    :class:`StatefulActionNode`, ``check`` of a :class:`ConditionNode`), said as the
+    registry refuses it; None when nothing is missing. A class that ticks its own way
+    (overrides ``tick_impl``) lacks nothing."""
+    if issubclass(cls, StatefulActionNode) and cls.tick_impl is StatefulActionNode.tick_impl:
+        need = [
+            m
+            for m in ("on_start", "on_running")
+            if getattr(cls, m) is getattr(StatefulActionNode, m)
+        ]
+        if need:
+            return (
+                f"does not define {' and '.join(need)}: a StatefulActionNode "
+                "calls on_start on its first tick and on_running while it is RUNNING"
+            )
+    if issubclass(cls, ConditionNode) and cls.tick_impl is ConditionNode.tick_impl:
+        if cls.check is ConditionNode.check:
+            return "does not define check: a ConditionNode returns what check() returns"
+    return None
 
 
 class StatefulActionNode(LeafNode):

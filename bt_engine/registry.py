@@ -160,6 +160,11 @@ class Registry:
                     f"alias {name!r} of {node_id!r} is already a node: give yours another "
                     f"alias (that one: {_defined_at(self._models[name].cls)})"
                 )
+        from bt_engine.node import unimplemented
+
+        missing = unimplemented(cls)
+        if missing is not None:  # it had loaded, then failed in the air
+            raise ValueError(f"{node_id} {missing}")
         ports = _checked_ports(node_id, getattr(cls, "ports", ()))
         self._check_enums(node_id, ports)
         lo, hi = _children_range(kind, cls)

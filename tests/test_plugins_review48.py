@@ -470,3 +470,57 @@ def test_a_port_default_naming_an_entry_reads_that_entry(plugin_env, tmp_path) -
     assert main([str(mission), "--out", str(out), "-q", "--no-report"]) == 0
     blackboard = json.loads((out / "summary.json").read_text())["blackboard"]
     assert (blackboard["o"], blackboard["o2"]) == (43, 11)
+
+
+CONTRACT_PLUGIN = """from bt_engine import SyncActionNode, register, SUCCESS
+from bt_engine.ports import INT, output_port
+
+
+@register
+class Typo(SyncActionNode):
+    ports = (output_port("count", INT, "how many"),)
+
+    def tick_impl(self):
+        self.set_output("cuont", 3)
+        return SUCCESS
+"""
+
+
+def test_a_plugin_writing_an_undeclared_output_is_stopped_where_it_writes(
+    plugin_env, tmp_path
+) -> None:
+    """``set_output("cuont", 3)`` had returned False and dropped the value: the run ended
+    SUCCESS with nothing written (``get_input`` of an undeclared port was already an
+    error)."""
+    plugin_env("contract_50:PLUGIN", CONTRACT_PLUGIN + LEAF_PLUGIN_TAIL)
+    mission = tmp_path / "m.xml"
+    mission.write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main">\n'
+        '<Typo count="{n}"/></BehaviorTree></root>'
+    )
+    out = tmp_path / "run"
+    assert main([str(mission), "--out", str(out), "-q", "--no-report"]) == 1
+    reason = json.loads((out / "summary.json").read_text())["reason"]
+    assert reason == (
+        f"{mission}:2:1: Typo 'Typo': output port 'cuont' is not declared by this node "
+        "(its ports: count)"
+    )
+
+
+def test_a_stateful_action_without_on_running_or_a_condition_without_check_is_refused() -> None:
+    """They loaded and validated, then ABORTED in the air with an empty
+    NotImplementedError."""
+    from bt_engine import StatefulActionNode
+
+    class NoRun(StatefulActionNode):
+        """Starts, never goes on."""
+
+        def on_start(self):
+            return RUNNING
+
+    class NoCheck(ConditionNode):
+        """Checks nothing."""
+
+    for cls, said in ((NoRun, "on_running"), (NoCheck, "check")):
+        with pytest.raises(ValueError, match=f"{cls.__name__} does not define {said}"):
+            REGISTRY.copy().register(cls)
