@@ -211,3 +211,36 @@ def test_sitl_fault_in_flight_ends_with_the_drone_landed(tmp_path, fault, sets) 
     # time depends on the machine's load (real time: on a loaded machine it may still be
     # climbing), so only the upper bound is checked; the land action above shows it flew
     assert truth["final_pose"]["x_m"] < 1.0
+
+
+def test_a_link_error_raised_while_sending_does_not_wait_for_the_ping_thread(tmp_path) -> None:
+    """cflib's UDP driver reports a failed send from inside ``send_packet``, holding the
+    send lock; its link-error handling stopped the link statistics by joining the ping
+    thread, itself waiting for that lock: the guard's thread, forwarding a set-point or
+    landing, waited for ever (seen in 3 of 6 probes: no landing, no record, the drone's
+    link lock held by a dead guard)."""
+    import threading
+
+    from cflib.crazyflie import Crazyflie
+
+    from drivers.crazyflie.cflib_link import PING_STOP_WAIT_S, bound_ping_stop
+
+    cf = Crazyflie(rw_cache=str(tmp_path))
+    bound_ping_stop(cf)
+    cf._send_lock.acquire()  # the sending thread, in the driver's error callback
+    try:
+        cf.link_statistics.start()  # its ping thread now waits for the send lock
+        time.sleep(0.2)
+        stopper = threading.Thread(target=cf.link_statistics.stop, daemon=True)
+        started = time.monotonic()
+        stopper.start()  # what the link error does, from the thread holding the lock
+        stopper.join(5.0)
+        assert not stopper.is_alive(), "the link error waited for the ping thread"
+        assert time.monotonic() - started < PING_STOP_WAIT_S + 1.0
+    finally:
+        cf.link_statistics.latency._stop_event.set()  # whatever happened: no thread left
+        cf._send_lock.release()
+    ping = cf.link_statistics.latency._ping_thread_instance
+    if ping is not None:  # it ends by itself once the lock is free
+        ping.join(5.0)
+        assert not ping.is_alive()

@@ -71,6 +71,34 @@ def init_drivers() -> None:
             _drivers_ready = True
 
 
+#: how long a link error waits for cflib's ping thread to end (it may be waiting for the
+#: send lock the erroring thread holds)
+PING_STOP_WAIT_S = 0.2
+
+
+def bound_ping_stop(cf: Any) -> None:
+    """Make cflib's link-statistics stop of ``cf`` wait at most :data:`PING_STOP_WAIT_S`
+    for its ping thread. cflib's UDP driver reports a failed send from inside
+    ``Crazyflie.send_packet``, which holds the send lock; the link-error handling then
+    stops the link statistics, which joined the ping thread, itself waiting for that lock:
+    the sending thread (the guard's, forwarding a set-point or landing) waited for ever,
+    never landed the drone nor wrote its record. The thread still ends by itself at its next
+    loop once told to stop."""
+    latency = getattr(getattr(cf, "link_statistics", None), "latency", None)
+    if latency is None or not hasattr(latency, "_stop_event"):
+        return
+
+    def stop() -> None:
+        latency._stop_event.set()
+        thread = getattr(latency, "_ping_thread_instance", None)
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(PING_STOP_WAIT_S)
+        if thread is None or not thread.is_alive():  # alive: it ends at its next loop
+            latency._ping_thread_instance = None
+
+    latency.stop = stop
+
+
 def plan_log_blocks(
     names: list[str], type_of: Callable[[str], str | None], max_bytes: int = MAX_LOG_BYTES
 ) -> tuple[list[list[str]], list[str]]:
@@ -191,6 +219,7 @@ class CrazyflieLink:
         cache = c.toc_cache_dir or os.path.join(tempfile.gettempdir(), "btrun-cflib-toc")
         os.makedirs(cache, exist_ok=True)
         self.cf = Crazyflie(rw_cache=cache)
+        bound_ping_stop(self.cf)
         self.scf = SyncCrazyflie(c.uri, cf=self.cf)
         self.cf.packet_received.add_callback(self._on_packet)
         self.cf.connection_lost.add_callback(self._on_lost)
