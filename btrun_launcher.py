@@ -12,6 +12,7 @@ with summary.json, exit code 1; any other command prints ``interrupted`` and exi
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 
@@ -82,10 +83,51 @@ def main() -> int:
             except (ValueError, TypeError):  # pragma: no cover
                 pass
     try:
-        return cli_main(earlier_interrupts=PENDING)
+        code = cli_main(earlier_interrupts=PENDING)
     except KeyboardInterrupt:  # between the two handlers: nothing has started yet
         print("interrupted", file=sys.stderr)
         return 1
+    if os.path.basename(sys.argv[0]).startswith("btrun"):  # the command, not a test's call
+        _exit_without_stray_threads(code)
+    return code
+
+
+#: how long ``btrun`` waits, once its command is done, for threads that are not daemons
+EXIT_WAIT_S = 5.0
+
+
+def _exit_without_stray_threads(code: int) -> None:
+    """Exit with ``code`` even when a thread that is no daemon still runs (a plug-in's that
+    never ends): Python waits for such threads at exit, so btrun had hung after writing its
+    summary, ignoring Ctrl-C, and the exit code a campaign or CI waits for never came. Waits
+    :data:`EXIT_WAIT_S` for them, then says which and leaves (atexit handlers run first)."""
+    import atexit
+    import threading
+    import time
+
+    deadline = time.monotonic() + EXIT_WAIT_S
+    stray = []
+    for t in threading.enumerate():
+        if t is threading.main_thread() or t.daemon:
+            continue
+        t.join(max(0.0, deadline - time.monotonic()))
+        if t.is_alive():
+            stray.append(t.name)
+    if not stray:
+        return
+    print(
+        f"btrun: exiting with {len(stray)} thread(s) still running ({', '.join(stray[:5])}): "
+        "a thread that never ends (a plug-in's?) is left behind; make it a daemon or end it "
+        "in the leaf's halt",
+        file=sys.stderr,
+    )
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,55 @@
+"""``btrun`` exits with its code even when a plug-in leaves a thread running that is no
+daemon: Python waits for such threads at exit, so btrun had hung after its summary (Ctrl-C
+ignored), and the exit code a campaign or CI waits for never came."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+from helpers import leaf_plugin_env
+
+from btrun_launcher import EXIT_WAIT_S
+
+BTRUN = os.path.join(os.path.dirname(sys.executable), "btrun")
+
+LEAVES = '''
+import threading
+
+from bt_engine.node import SUCCESS, SyncActionNode
+from bt_engine.registry import register
+
+
+@register
+class StartsAThread(SyncActionNode):
+    """Starts a thread that never ends and is no daemon."""
+
+    def tick_impl(self):
+        threading.Thread(target=threading.Event().wait, name="forever", daemon=False).start()
+        return SUCCESS
+'''
+
+
+def test_a_stray_thread_does_not_keep_btrun_from_exiting(tmp_path) -> None:
+    env = leaf_plugin_env(tmp_path, "btrun_stray_thread", LEAVES)
+    mission = tmp_path / "m.xml"
+    mission.write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main">'
+        "<StartsAThread/></BehaviorTree></root>"
+    )
+    out = tmp_path / "run"
+    started = time.monotonic()
+    done = subprocess.run(
+        [BTRUN, str(mission), "--out", str(out), "-q", "--no-report"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=EXIT_WAIT_S + 60,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "exiting with 1 thread(s) still running (forever)" in done.stderr
+    assert time.monotonic() - started < EXIT_WAIT_S + 45
+    assert json.loads((out / "summary.json").read_text())["status"] == "SUCCESS"
