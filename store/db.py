@@ -240,6 +240,11 @@ def connect_postgresql(url: str, schema: str | None = None, create: bool = False
     return conn
 
 
+def _lower(value: Any) -> Any:
+    """SQLite's ``LOWER``, in Unicode (Python's ``str.lower``), as PostgreSQL's."""
+    return value.lower() if isinstance(value, str) else value
+
+
 def connect_sqlite(
     path: str, create: bool = True, check: Callable[[sqlite3.Connection], None] | None = None
 ) -> sqlite3.Connection:
@@ -261,6 +266,8 @@ def connect_sqlite(
             check_same_thread=False,
         )
         conn.execute(f"PRAGMA busy_timeout = {SQLITE_BUSY_TIMEOUT_MS}")
+        # SQLite's LOWER folds ASCII only: a pallet 'ÄB-7A' was never found in any case
+        conn.create_function("lower", 1, _lower, deterministic=True)
         if check is not None:
             try:
                 check(conn)

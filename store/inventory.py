@@ -378,13 +378,18 @@ class InventoryStore:
         """Rows whose answer contains ``text`` in any case (the caller picks the pallet's
         own), run by run (oldest first; the newest ``limit``), with the run's start and
         status; rows a resumed run carried over are left out as in :meth:`history`."""
-        text = text.lower()
-        pattern = "%" + text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
-        return self._found_rows("LOWER(i.answer) LIKE ? ESCAPE '\\'", pattern, limit)
 
-    def _found_rows(self, where: str, value: str, limit: int | None) -> list[dict]:
-        """The rows matching ``where`` (one ``?``, given ``value``) that their own run found
-        (see :meth:`history`), with the run's start and status, oldest first."""
+        def like(t: str) -> str:
+            return "%" + t.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
+
+        # in any case (LOWER: Python's on SQLite, the database's on PostgreSQL), and as
+        # written (the database's case folding may differ from Python's: final sigma, İ)
+        where = "(LOWER(i.answer) LIKE ? ESCAPE '\\' OR i.answer LIKE ? ESCAPE '\\')"
+        return self._found_rows(where, (like(text.lower()), like(text)), limit)
+
+    def _found_rows(self, where: str, value: str | tuple, limit: int | None) -> list[dict]:
+        """The rows matching ``where`` (``?`` given ``value``: one, or a tuple) that their
+        own run found (see :meth:`history`), with the run's start and status, oldest first."""
         keys = ("run", "started", "run_status", "rig", "fleet", *ROW_FIELDS)
         q = "SELECT i.run, r.started, r.status, r.rig, r.fleet, "
         q += ", ".join(f"i.{k}" for k in ROW_FIELDS)
@@ -396,7 +401,8 @@ class InventoryStore:
         q += "ORDER BY r.started DESC, i.run DESC, i.place"
         if limit:
             q += f" LIMIT {int(limit)}"
-        return list(rows_as_dicts(self.conn.execute(q, (value,)), keys))[::-1]
+        params = value if isinstance(value, tuple) else (value,)
+        return list(rows_as_dicts(self.conn.execute(q, params), keys))[::-1]
 
     def counts(self) -> dict[str, tuple[int, int]]:
         """Run -> (rows, answered rows: every status but ``not_scanned``), in one query.

@@ -174,3 +174,51 @@ def test_where_a_pallet_was_seen_run_by_run(tmp_path, capsys, request, db) -> No
     assert seen == [("20261101", "A-01-1", "111A"), ("20261102", "B-03-2", "111B")]
     assert main(["inventory", "history", "111", "--store", store]) == 2
     assert "(where a pallet was seen: history --pallet 111)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("db", ["sqlite", "postgresql"])
+def test_a_pallet_named_with_non_ascii_letters_is_found_in_any_case(
+    tmp_path, capsys, request, db
+) -> None:
+    """SQLite's LOWER folds ASCII only: 'ÄB-7A' was never found on the default store, in
+    any spelling, while PostgreSQL found it; a name both databases fold unlike Python
+    (final sigma) is found as written."""
+    store = f"sqlite:///{tmp_path}/site.sqlite"
+    if db == "postgresql":
+        store = request.getfixturevalue("postgresql_server").database("pallet_unicode")
+    rows = [("A-01-1", "ÄB-7A", "identified"), ("A-01-2", "ΣΊΣΥΦΟΣ-3B", "identified")]
+    a = _run_folder(tmp_path / "inventory-20261101-080000", rows)
+    assert main(["inventory", "import", a, "--store", store]) == 0
+    capsys.readouterr()
+    for query, place in [("ÄB-7", "A-01-1"), ("äb-7", "A-01-1"), ("ΣΊΣΥΦΟΣ-3", "A-01-2")]:
+        assert main(["inventory", "history", "--pallet", query, "--store", store, "--json"]) == 0
+        found = json.loads(capsys.readouterr().out)
+        assert [h["place"] for h in found] == [place], (query, found)
+
+
+def test_a_damaged_store_is_one_line_not_a_traceback(tmp_path, capsys) -> None:
+    """A store file with damaged pages opened, then history --pallet and diff ended in
+    sqlite3.DatabaseError's traceback."""
+    path = tmp_path / "site.sqlite"
+    store = f"sqlite:///{path}"
+    rows = [(f"A-{b:02d}-{lv}", f"{100 + b}A", "identified") for b in range(1, 40) for lv in (1, 2)]
+    a = _run_folder(tmp_path / "inventory-20261101-080000", rows)
+    b = _run_folder(tmp_path / "inventory-20261102-080000", rows)
+    assert main(["inventory", "import", a, b, "--store", store]) == 0
+    data = bytearray(path.read_bytes())
+    page = 4096
+    for n in range(1, len(data) // page):  # every page but the header's: garbage inside
+        data[n * page + 200 : n * page + 1200] = b"\xa5" * 1000
+    path.write_bytes(bytes(data))
+    for wal in (tmp_path / "site.sqlite-wal", tmp_path / "site.sqlite-shm"):
+        if wal.exists():
+            wal.unlink()
+    capsys.readouterr()
+    names = [os.path.basename(a), os.path.basename(b)]
+    for argv in (["history", "--pallet", "101"], ["diff", *names]):
+        code = main(["inventory", *argv, "--store", store])
+        err = capsys.readouterr().err
+        assert "Traceback" not in err
+        if code != 0:
+            assert code == 2 and f"btrun inventory: {store}: the store" in err, err
+            assert "the store cannot be used:" in err and "PRAGMA integrity_check" in err

@@ -73,11 +73,23 @@ def run(args: argparse.Namespace) -> int:
     if disabled(url):
         print("btrun inventory: --store none has nothing to show", file=sys.stderr)
         return 2
+    from store.db import db_errors, parse_url
+
     try:
         with InventoryStore.open(url, create=args.inventory_command == "import") as store:
             return _COMMANDS[args.inventory_command](store, args)
     except StoreError as exc:
         print(f"btrun inventory: {exc}", file=sys.stderr)
+        return 2
+    except db_errors() as exc:  # a damaged file, a schema of another program: one line
+        where = parse_url(url).shown
+        print(
+            f"btrun inventory: {where}: the store cannot be used: "
+            f"{str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__} "
+            "(a damaged file or another program's database: check it with `sqlite3 FILE "
+            "'PRAGMA integrity_check'`, or restore a copy)",
+            file=sys.stderr,
+        )
         return 2
 
 
