@@ -28,6 +28,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import unicodedata
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -179,6 +180,7 @@ def read_expected(
                     ": expected CSV, JSON or an XLSX workbook",
                 )
             ]
+        text = text.removesuffix("\x1a")  # a DOS end-of-file byte (old WMS exports)
         if path.lower().endswith(".json") or text.lstrip()[:1] in ("[", "{"):
             entries, problems = entries_json(path, text)
         else:
@@ -201,6 +203,7 @@ def read_expected(
             ),
         )
     for place, pallet, where_place, where_pallet, status in entries[:MAX_EXPECTED_PLACES]:
+        place, pallet = plain_name(place), plain_name(pallet)
         bad = _name_problem(place, pallet, where_place, where_pallet)
         if bad is not None:
             problems.append(bad)
@@ -304,6 +307,18 @@ def _outside(
         f"{plural(len(stock.places), 'place')} of this world read"
     )
     return []
+
+
+def plain_name(text: str) -> str:
+    """A WMS cell's name as the gallery and the world spell theirs: compatibility forms
+    folded (NFKC: full-width digits and letters of an East-Asian input method, ``１０９`` ->
+    ``109``) and invisible format characters dropped (a zero-width space or joiner, a soft
+    hyphen, a byte-order mark copied from a web page), then stripped. They had been kept,
+    and every place became a "mismatch 109 -> 109" printed alike."""
+    if text.isascii():
+        return text
+    folded = unicodedata.normalize("NFKC", text)
+    return "".join(c for c in folded if unicodedata.category(c) != "Cf").strip()
 
 
 def _name_problem(place: str, pallet: str, where_place: Loc, where_pallet: Loc) -> Problem | None:

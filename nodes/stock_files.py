@@ -366,6 +366,7 @@ def _xlsx_entries(
     unsaved = _unsaved_formulas(
         data, {i for i, cells in rows if not cells[qc : qc + 1] or not cells[qc]}, qc
     )
+    merged = _merged_cells(data, {pc, qc})
     out: list[Entry] = []
     for i, cells in rows:
         place = cells[pc] if pc < len(cells) else ""
@@ -374,13 +375,23 @@ def _xlsx_entries(
             problems.append(Problem(Loc(path, i, pc + 1), "a row without a place"))
             continue
         why = odd.get((i, pc)) or odd.get((i, qc))
+        col = pc if (i, pc) in odd else qc
+        for c in (pc, qc):
+            if why is None and (i, c) in merged:
+                col, why = (
+                    c,
+                    (
+                        f"a merged cell ({merged[(i, c)]}): one value over several rows, which "
+                        "only its first row holds (the others would read as empty places); "
+                        "unmerge it and give each row its own value"
+                    ),
+                )
         if why is None and i in unsaved:
             why = (
                 f"a formula without a saved result ({unsaved[i][:40]}): the workbook was "
                 "written by a program, not saved by a spreadsheet; open and save it"
             )
         if why is not None:
-            col = pc if (i, pc) in odd else qc
             problems.append(Problem(Loc(path, i, col + 1), why))
             continue
         status = cells[sc] if sc is not None and sc < len(cells) else ""
@@ -400,6 +411,36 @@ def with_cells(path: str, sheet: str, problems: list[Problem]) -> list[Problem]:
         else p
         for p in problems
     ]
+
+
+def _merged_cells(data: bytes, cols: set[int]) -> dict[tuple[int, int], str]:
+    """(row, column from 0) -> the range (``C16:C17``) of every cell of the first shown
+    sheet in columns ``cols`` that a merged range spanning more than one row covers: a
+    spreadsheet shows the value on every row, openpyxl gives it to the first cell only."""
+    from openpyxl import load_workbook
+    from openpyxl.utils.cell import range_boundaries
+
+    found: dict[tuple[int, int], str] = {}
+    try:
+        wb = load_workbook(io.BytesIO(data), read_only=True, data_only=True)
+        try:
+            ws = _shown_sheet(wb)
+            with wb._archive.open(ws._worksheet_path) as f:  # read-only sheets hide them
+                xml = f.read()
+        finally:
+            wb.close()
+    except Exception:  # noqa: BLE001 - read once already; this pass only adds a reason
+        return found
+    for ref in re.findall(rb'<(?:\w+:)?mergeCell\s+ref="([A-Z]+[0-9]+:[A-Z]+[0-9]+)"', xml):
+        text = ref.decode()
+        c0, r0, c1, r1 = range_boundaries(text)
+        if r1 == r0:
+            continue
+        for c in range(c0 - 1, c1):
+            if c in cols:
+                for r in range(r0, r1 + 1):
+                    found[(r, c)] = text
+    return found
 
 
 def _unsaved_formulas(data: bytes, rows: set[int], col: int) -> dict[int, str]:

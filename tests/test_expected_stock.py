@@ -713,3 +713,35 @@ def test_a_workbooks_rows_are_rows_not_lines(tmp_path, world):
     assert [p.message for p in problems] == [
         "place 'A-01-1' listed twice (first at row 2); one row per place (cell Stock!A3)"
     ]
+
+
+def test_a_merged_pallet_cell_is_refused_at_each_row_it_covers(tmp_path, world):
+    """openpyxl gives a merged range's value to its first cell only: the rows below read
+    as "this place should be empty", a false `unexpected`, without a word."""
+    from openpyxl import Workbook
+
+    wb = Workbook()
+    ws = wb.active
+    ws.title = "Stock"
+    for row in [["rack", "place", "pallet"], ["A", "A-01-1", 109], ["A", "A-01-2", None]]:
+        ws.append(row)
+    ws.append(["A", "A-02-1", 110])
+    ws.merge_cells("C2:C3")
+    ws.merge_cells("A2:A4")  # a column not read may be merged
+    ws.merge_cells("D2:E2")  # and a merge along one row changes nothing
+    path = str(tmp_path / "merged.xlsx")
+    wb.save(path)
+    _, problems = read_expected(path, world, WHERE)
+    assert [(p.loc.line, p.loc.col) for p in problems] == [(2, 3), (3, 3)]
+    assert problems[0].message.startswith("a merged cell (C2:C3): one value over several rows")
+    assert problems[1].message.endswith("(cell Stock!C3)")
+
+
+def test_invisible_and_full_width_characters_in_names_are_folded(tmp_path, world):
+    """A zero-width space copied from a web WMS, full-width digits of an East-Asian input
+    method and a DOS end-of-file byte were kept in the names: every place became a
+    "mismatch 109 -> 109" printed alike."""
+    text = "place,pallet\nA-01-1,109\u200b\n\uff21-01-2,\uff11\uff11\uff10\nA-02-1,\ufeff111B\n\x1a"
+    stock, problems = _read(tmp_path, "s.csv", text, world)
+    assert problems == []
+    assert stock.places == {"A-01-1": "109", "A-01-2": "110", "A-02-1": "111B"}
