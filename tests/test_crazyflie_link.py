@@ -213,6 +213,17 @@ def test_sitl_fault_in_flight_ends_with_the_drone_landed(tmp_path, fault, sets) 
     assert truth["final_pose"]["x_m"] < 1.0
 
 
+@pytest.mark.sitl
+def test_a_fault_the_sitl_rig_cannot_inject_is_refused_before_flight(tmp_path) -> None:
+    """faults.battery_sag on rigs/sitl.yaml had been left out without a word: the run
+    flew to its time limit, believed to rehearse a sagging battery."""
+    res, summary = fly_sitl(tmp_path, SLOW_HOP, "faults.battery_sag.at_s=5")
+    assert res.returncode == 2 and not summary, res.stdout + res.stderr
+    assert "faults.battery_sag.at_s: this rig (link: crazyflie, sitl) cannot inject " in res.stderr
+    assert "(it injects: camera_disconnect, camera_stall, link_drop, " in res.stderr
+    assert "Traceback" not in res.stderr
+
+
 def test_a_link_error_raised_while_sending_does_not_wait_for_the_ping_thread(tmp_path) -> None:
     """cflib's UDP driver reports a failed send from inside ``send_packet``, holding the
     send lock; its link-error handling stopped the link statistics by joining the ping

@@ -103,6 +103,24 @@ def make_crazyflie_platform(
         raise
     if sitl is not None:
         sitl.register_faults(faults)
+    unable = [n for n, spec in data["faults"].items() if spec.get("at_s") is not None]
+    unable = [n for n in unable if n not in faults.handlers]
+    if unable:  # they had been left out without a word: a rehearsal without its fault
+        _close_all(on_close)
+        can = ", ".join(sorted(faults.handlers)) or "none"
+        raise ConfigError(
+            [
+                SettingProblem(
+                    rig.path,
+                    1,
+                    1,
+                    f"faults.{name}.at_s: this rig (link: crazyflie"
+                    f"{', sitl' if sitl is not None else ''}) cannot inject {name} "
+                    f"(it injects: {can}); the simulator (link: sim) injects every fault",
+                )
+                for name in unable
+            ]
+        )
     kind = section["pose_source"]
     if pose_source is None and kind == "sitl":
         if sitl is None or sitl.mocap is None:
