@@ -210,6 +210,8 @@ def build_summary(
     for name, res in mission.ctx.resources.items():
         if name not in summary and isinstance(res, RunReporter):
             try:
+                if hasattr(res, "mission_end_s"):  # this run's end (a fleet's drones share
+                    res.mission_end_s = summary.get("mission_time_s")  # a clock running on)
                 summary[name] = to_jsonable(res.run_summary())
             except Exception as exc:
                 add_error(summary, error_line(f"section {name}", exc))

@@ -70,6 +70,9 @@ class InventoryLog:
         #: the mission clock (``now() -> s``), for the pace (places per hour); None: the
         #: last row's time stands for the mission time
         self.now: Callable[[], float] | None = None
+        #: the run's end (mission time), set as its summary is written: a fleet's drones
+        #: share one clock, which runs on until the last drone lands; None: :attr:`now`
+        self.mission_end_s: float | None = None
         #: the ``run`` column of new rows: the run folder's name (a fleet's drones give
         #: the fleet's folder, so carried-over rows stay told apart from new ones)
         self.run = run or (os.path.basename(os.path.normpath(run_dir)) if run_dir else "")
@@ -256,7 +259,10 @@ class InventoryLog:
         answered = sum(
             1 for r in rows if r.get("status") in FINISHED and r["place"] not in self.carried
         )
-        mission_s = self.now() if self.now is not None else out["mission_time_s"]
+        if self.mission_end_s is not None:
+            mission_s = self.mission_end_s
+        else:
+            mission_s = self.now() if self.now is not None else out["mission_time_s"]
         out.update(pace(answered, mission_s))
         if self.expected is not None:
             found = discrepancy.discrepancy_rows(_with_planned(rows, self.planned), self.expected)

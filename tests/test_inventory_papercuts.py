@@ -361,3 +361,28 @@ def test_counts_of_one_are_said_in_the_singular(tmp_path):
     log.plan(["A-01-1", "A-01-2"])
     log.record({"place": "A-01-1", "answer": "101A", "status": "identified"})
     assert log.result_lines()[0].startswith("inventory: 2 places, 1 identified")
+
+
+def test_a_fleet_drones_pace_is_over_its_own_mission_time() -> None:
+    """A fleet's drones share one clock, which runs on until the last drone lands: each
+    drone's summary.json had the pace over the fleet's whole time (813.6 for all four,
+    though one drone's own 36 places in 142.8 s are 908 per hour)."""
+    from types import SimpleNamespace
+
+    from bt_engine.summary import build_summary
+
+    log = InventoryLog(None, None, "cf3")
+    log.now = lambda: 159.3  # the fleet's clock when the summaries are written
+    for b in range(1, 37):
+        log.record({"place": f"A-{b:02d}-1", "answer": "", "status": "empty"})
+    assert log.run_summary()["places_per_hour"] == round(36 * 3600 / 159.3, 1)
+    result = SimpleNamespace(
+        status="SUCCESS", reason="", ticks=1, mission_time_s=142.8, wall_time_s=1.0
+    )
+    mission = SimpleNamespace(
+        ctx=SimpleNamespace(resources={"inventory": log}),
+        blackboard={},
+        leaf_failures={},
+    )
+    summary = build_summary(result, mission, mission_path="m.xml", seed=0, rate_hz=50.0)
+    assert summary["inventory"]["places_per_hour"] == round(36 * 3600 / 142.8, 1) == 907.6
