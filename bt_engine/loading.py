@@ -117,7 +117,14 @@ class Includes:
             )
             return
         if not os.path.exists(full):
-            spec.load_problems.append(Problem(loc, f"included file not found: {full}"))
+            spec.load_problems.append(
+                Problem(
+                    loc,
+                    f"included file not found: {full} (a path is read from the including "
+                    "file's folder, as BehaviorTree.CPP reads it; --include-path allows a "
+                    "folder, it is not searched)",
+                )
+            )
             return
         if real in self.merged:
             return

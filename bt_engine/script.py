@@ -134,7 +134,7 @@ _NO_ENUMS: Mapping[str, int] = {}
 class Script:
     """A parsed script: immutable, shareable, and cheap to execute repeatedly."""
 
-    __slots__ = ("source", "reads", "writes", "creates", "_run")
+    __slots__ = ("source", "reads", "writes", "creates", "regrouped", "_run")
 
     def __init__(
         self,
@@ -143,8 +143,12 @@ class Script:
         writes: frozenset[str],
         run: Evaluator,
         creates: frozenset[str] | None = None,
+        regrouped: tuple[int, ...] = (),
     ):
         self.source = source
+        #: columns of operators BehaviorTree.CPP 4 groups otherwise (``a - b - c``: it
+        #: computes ``a - (b - c)``); ``btrun validate`` warns of them
+        self.regrouped = regrouped
         self.reads = reads  # entry names read (may include enum names: enums are runtime data)
         self.writes = writes  # entry names assigned by any assignment operator
         # entry names assigned with ':=', the one operator that creates a missing entry
@@ -232,6 +236,10 @@ class _Parser:
         self.reads: dict[int, str] = {}  # column -> name, for every name read
         self.writes: set[str] = set()
         self.creates: set[str] = set()  # targets of ':=' (the others need the entry to exist)
+        self.grouped: set[int] = set()  # ids of the nodes written in parentheses
+        #: columns of operators that BehaviorTree.CPP 4 groups otherwise: it takes a chain
+        #: of + - or of * / % from the right (10 - 4 - 2 is 8 there, 4 here)
+        self.regrouped: list[int] = []
 
     def peek(self) -> tuple[str, Any, int]:
         return self.tokens[self.pos]
@@ -297,6 +305,14 @@ class _Parser:
                 if kind == "op" and op in _COMPARE:
                     raise ScriptError("comparisons cannot be chained; combine them with &&", col)
             else:
+                if (
+                    bp in (9, 10)
+                    and left[0] == "bin"
+                    and left[3] in ("-", "/", "%")
+                    and _INFIX[left[3]] == bp
+                    and id(left) not in self.grouped
+                ):
+                    self.regrouped.append(col)
                 left = self.node("bin", col, left, self.expr(bp + 1), payload=(op,))
         self.nesting -= 1
         return left
@@ -313,6 +329,7 @@ class _Parser:
         if kind == "op" and value == "(":
             inner = self.expr(0)
             self.expect(")")
+            self.grouped.add(id(inner))
             return inner
         raise ScriptError(f"expected a value but found {_show(kind, value)}", col)
 
@@ -461,7 +478,7 @@ def _parse_cached(code: str) -> Script:
             return last(env, enums)
 
     reads, writes = frozenset(parser.reads.values()), frozenset(parser.writes)
-    return Script(code, reads, writes, run, frozenset(parser.creates))
+    return Script(code, reads, writes, run, frozenset(parser.creates), tuple(parser.regrouped))
 
 
 def parse_script(code: str) -> Script:

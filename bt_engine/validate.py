@@ -156,6 +156,7 @@ class _Validator(_ExpansionChecks, _WarningChecks, _TypeChecks):
         if main in spec.trees:
             self.subtree_reads()
         self.unbounded_loops()
+        self.btcpp_grouping()
         self.reactive_children()
         self.warnings = sorted(set(self.warnings), key=_order)
         return sorted(set(self.problems), key=_order)

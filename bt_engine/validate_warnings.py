@@ -191,6 +191,23 @@ class _WarningChecks:
                     "the last instant (conditions)",
                 )
 
+    def btcpp_grouping(self) -> None:
+        """Warn about a chain of ``-`` or ``/`` (or ``%``) that BehaviorTree.CPP 4 groups
+        from the right: ``10 - 4 - 2`` is 4 in btrun (as in arithmetic) and 8 there, so the
+        same file computes other numbers on a BT.CPP executor. Parentheses agree in both."""
+        for node in self.nodes():
+            for attr, script in self.scripts(node):
+                for col in script.regrouped[:1]:
+                    more = len(script.regrouped) - 1
+                    self.warn(
+                        attr.loc,
+                        f"{script.source[max(0, col - 30) : col + 30]!r}: the operator at "
+                        f"column {col + 1}{f' (and {more} more)' if more else ''} follows a "
+                        "'-', '/' or '%' of the same precedence: "
+                        "btrun groups them from the left (10 - 4 - 2 is 4), BehaviorTree.CPP 4 "
+                        "from the right (8); add parentheses to mean the same in both",
+                    )
+
     def unbounded_loops(self) -> None:
         """Warn about ``Repeat``/``RetryUntilSuccessful`` with -1 around instant children."""
         for node in self.nodes():

@@ -812,3 +812,32 @@ def test_an_autoremap_default_is_read_only_while_no_scope_holds_the_entry() -> N
     m = Mission(load_xml("d.xml", text=doc(body, sub).replace("</root>", model)), registry=REG)
     assert m.tick() == SUCCESS
     assert (m.scope.get("c3"), m.scope.get("c2")) == (6, 41)
+
+
+@pytest.mark.parametrize(
+    "expr, warned",
+    [
+        ("10 - 4 - 2", True),
+        ("1 - 2 + 3", True),
+        ("12 / 3 * 2", True),
+        ("(10 - 4) - 2", False),
+        ("10 - (4 - 2)", False),
+        ("1 + 2 - 3", False),
+        ("2 * 3 + 1", False),
+    ],
+)
+def test_a_chain_btcpp_groups_otherwise_is_warned_and_parentheses_agree(
+    expr: str, warned: bool
+) -> None:
+    """BehaviorTree.CPP 4 takes a chain of + - (or * / %) from the right: ``10 - 4 - 2`` is
+    8 there and 4 in btrun. validate warns of such a chain; written with parentheses (or a
+    chain that groups alike), both engines compute the same."""
+    from bt_engine.validate import validate
+
+    xml = doc(f'<Script name="s" code="c0 := {expr}"/>')
+    warnings: list = []
+    assert validate(load_xml("d.xml", text=xml), REG, warnings) == []
+    said = [w for w in warnings if "BehaviorTree.CPP 4 from the right" in w.message]
+    assert bool(said) == warned, warnings
+    if not warned:
+        check(xml, ticks=1)
