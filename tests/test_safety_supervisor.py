@@ -324,7 +324,10 @@ def test_a_final_state_the_drone_did_not_report_is_not_claimed_as_confirmed() ->
     truth = platform.summary
     platform.summary = lambda: {k: v for k, v in truth().items() if k != "collisions"}
     s = sup.summary()  # as a real drone's platform: no ground truth
-    assert s["confirmed"] is False and "what btrun last commanded" in s["note"]
+    assert (
+        s["confirmed"] is False
+        and "not confirmed by the drone, which may still be armed" in s["note"]
+    )
 
 
 def test_a_second_interrupt_during_the_landing_is_in_the_reason() -> None:

@@ -345,8 +345,9 @@ class SafetySupervisor:
             pass
         return {
             "confirmed": False,
-            "note": "the link was down at the end: final_state and disarmed are what btrun "
-            "last commanded, not what the drone reported",
+            "note": "the link was down at the end: final_state and disarmed are btrun's last "
+            "knowledge (the last telemetry, and what btrun last commanded), not confirmed by "
+            "the drone, which may still be armed: check it before anyone goes near",
         }
 
     def summary(self) -> dict[str, Any]:
