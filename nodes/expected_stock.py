@@ -309,6 +309,11 @@ def _outside(
     return []
 
 
+#: an id a spreadsheet saved as a number: ``1,02346E+17`` (an SSCC in scientific
+#: notation, a comma or point as decimal mark) or ``109,0`` / ``109.0``
+_MANGLED_NUMBER = re.compile(r"\d+(?:[.,]\d+[eE][+-]?|[eE][+-])\d+|\d+[.,]0+")
+
+
 def plain_name(text: str) -> str:
     """A WMS cell's name as the gallery and the world spell theirs: compatibility forms
     folded (NFKC: full-width digits and letters of an East-Asian input method, ``１０９`` ->
@@ -330,6 +335,12 @@ def _name_problem(place: str, pallet: str, where_place: Loc, where_pallet: Loc) 
             where_pallet,
             f"a pallet name longer than {_LONGEST_PALLET} characters (a gallery holds "
             f"identities of at most {MAX_IDENTITY_CHARS}: it could never be verified)",
+        )
+    if _MANGLED_NUMBER.fullmatch(pallet):
+        return Problem(
+            where_pallet,
+            f"'{pallet}' is a number a spreadsheet rewrote (scientific notation or a decimal "
+            "part): the id it was has lost digits or gained some; export the column as text",
         )
     for name, where in ((place, where_place), (pallet, where_pallet)):
         if any(ord(c) < 32 or ord(c) == 127 for c in name):

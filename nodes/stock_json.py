@@ -108,7 +108,8 @@ def entries_json(path: str, text: str) -> tuple[list[Entry], list[Problem]]:
             pos = start + 1 if start >= 0 else pos
         where = lines.loc(max(start, 0))
         obj = (
-            dict(item)
+            # keys in any case, as CSV and XLSX headers ("Place", "PALLET")
+            {str(k).strip().lower(): v for k, v in item}
             if isinstance(item, list) and all(isinstance(p, tuple) for p in item)
             else None
         )

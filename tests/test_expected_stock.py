@@ -745,3 +745,18 @@ def test_invisible_and_full_width_characters_in_names_are_folded(tmp_path, world
     stock, problems = _read(tmp_path, "s.csv", text, world)
     assert problems == []
     assert stock.places == {"A-01-1": "109", "A-01-2": "110", "A-02-1": "111B"}
+
+
+def test_ids_a_spreadsheet_rewrote_as_numbers_are_refused_in_csv_too(tmp_path, world):
+    """A German Excel saves an SSCC column typed as number as ``1,02346E+17`` and 109 as
+    ``109,0``: they were read as names (false mismatches); the XLSX reader refused them."""
+    text = "place;pallet\nA-01-1;1,02346E+17\nA-01-2;109,0\nA-02-1;109.00\nA-02-2;12E4\n"
+    _, problems = _read(tmp_path, "s.csv", text, world)
+    assert [(p.loc.line, p.loc.col) for p in problems] == [(2, 8), (3, 8), (4, 8)]
+    assert "a number a spreadsheet rewrote" in problems[0].message
+
+
+def test_json_keys_are_read_in_any_case_as_csv_headers(tmp_path, world):
+    text = '[{"Place": "A-01-1", "PALLET": "109"}, {"place": "A-01-2", "Pallet": null}]'
+    stock, problems = _read(tmp_path, "s.json", text, world)
+    assert problems == [] and stock.places == {"A-01-1": "109", "A-01-2": None}
