@@ -16,7 +16,8 @@ def diff_rows(rows_a: list[dict], rows_b: list[dict]) -> list[dict]:
     for place in sorted(set(a) | set(b)):
         ra, rb = a.get(place), b.get(place)
         x, y = (ra or {}).get("answer") or "", (rb or {}).get("answer") or ""
-        if x == y:
+        kx, ky = _key(x), _key(y)
+        if kx == ky:  # the same answer, in another case or zero padding (pal-7A, PAL-7A)
             continue
         if not x:
             change = "only in B"
@@ -26,7 +27,7 @@ def diff_rows(rows_a: list[dict], rows_b: list[dict]) -> list[dict]:
             change = "appeared"
         elif y == "empty":
             change = "disappeared"
-        elif _side_of(x) is not None and _side_of(x) == _side_of(y):
+        elif _side_of(kx) is not None and _side_of(kx) == _side_of(ky):
             change = "turned"
         else:
             change = "changed"
@@ -54,6 +55,16 @@ def flown_by(run: dict) -> str | None:
         return None
     name = os.path.basename(str(rig).replace("\\", "/"))
     return f"rig {os.path.splitext(name)[0] or name}"
+
+
+def _key(answer: str) -> str:
+    """An answer as pallets are told apart: in any case, without a pallet number's zero
+    padding (``0115A`` is ``115a``; ``PAL-7A`` is ``pal-7a``)."""
+    s = answer.strip().casefold()
+    i = 0
+    while i < len(s) - 1 and s[i] == "0" and s[i + 1].isdigit():
+        i += 1
+    return s[i:]
 
 
 def _side_of(answer: str) -> str | None:

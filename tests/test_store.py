@@ -246,3 +246,20 @@ def test_rows_the_store_did_not_take_in_time_name_the_folder_to_import(tmp_path)
         lock.execute("ROLLBACK")
         lock.close()
     assert any(f"btrun inventory import {folder} --store" in m for m in said), said
+
+
+def test_diff_tells_pallets_apart_as_history_does() -> None:
+    """``pal-7A`` -> ``PAL-7B`` and ``0115A`` -> ``115B`` had been "changed" (another
+    pallet): case and zero padding do not tell pallets apart, so they are "turned"; the
+    same answer spelled otherwise is no change."""
+    from store.diff import diff_rows
+
+    a = [("A", "pal-7A"), ("B", "0115A"), ("C", "PAL-7A"), ("D", "109A"), ("E", "0109")]
+    b = [("A", "PAL-7B"), ("B", "115B"), ("C", "pal-7a"), ("D", "110A"), ("E", "109")]
+    rows_a = [{"place": p, "answer": x} for p, x in a]
+    rows_b = [{"place": p, "answer": x} for p, x in b]
+    assert [(r["place"], r["change"]) for r in diff_rows(rows_a, rows_b)] == [
+        ("A", "turned"),
+        ("B", "turned"),
+        ("D", "changed"),
+    ]

@@ -201,8 +201,6 @@ def close_place(name: str, places: list[str]) -> list[str]:
 
 def _run_name(text: str) -> str:
     """A run named by its id or by its folder (``runs/inventory-...``)."""
-    import os
-
     return os.path.basename(os.path.normpath(text)) if os.path.isdir(text) else text
 
 
@@ -247,7 +245,7 @@ def _runs(store: InventoryStore, args: argparse.Namespace) -> int:
                 _when(r["started"]),
                 r["status"],
                 r["rows"],
-                r["fleet"] or (r["rig"] and os.path.basename(r["rig"])),
+                (flown_by(r) or "").partition(" ")[2],  # as history names it
                 r["seed"],
                 r["host"],
             ]
