@@ -29,6 +29,7 @@ from bt_engine.node import (
     NodeRuntimeError,
     NodeStatus,
 )
+from bt_engine.node_checks import said
 from bt_engine.plugin_code import conversion_said
 from bt_engine.registry import REGISTRY, Registry
 from bt_engine.spec import Loc, MissionError, MissionSpec, Problem
@@ -219,7 +220,7 @@ class Mission:
             try:
                 found = list(check() or ()) if check is not None else []
             except Exception as exc:  # a broken check must not hide the others
-                found = [("", f"pre-flight check failed: {type(exc).__name__}: {exc}")]
+                found = [("", f"pre-flight check failed: {said(exc, type(node))}")]
             ranges = self._range_problems(node)
             for item in found + ranges:
                 if isinstance(item, Problem):

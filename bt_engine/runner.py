@@ -362,7 +362,12 @@ class Runner:
                     result = "ABORTED"
                 except (Exception, SystemExit) as exc:  # a plug-in's sys.exit() too
                     self.error_traceback += traceback.format_exc()
-                    reason += f"; halting the tree failed: {type(exc).__name__}: {exc}"
+                    from bt_engine.node_checks import said
+
+                    # the node and its line, and the plug-in's file:line, as a tick's error
+                    node = _raising_node(exc)
+                    cls = _raising_class(exc)
+                    reason += f"; halting the tree failed{node}: {said(exc, cls)}"
                     result = "ABORTED" if result == "SUCCESS" else result
                 if self._halt_given_up.is_set():  # that thread ended the run
                     self._give_up_done.wait()
@@ -538,6 +543,20 @@ def _raising_node(exc: BaseException) -> str:
             found = obj
         tb = tb.tb_next
     return f" in {found.describe()} ({found.loc})" if found is not None else ""
+
+
+def _raising_class(exc: BaseException) -> type | None:
+    """The class of the deepest node whose code raised ``exc`` (None: no node's)."""
+    from bt_engine.node import BTNode
+
+    found = None
+    tb = exc.__traceback__
+    while tb is not None:
+        obj = tb.tb_frame.f_locals.get("self")
+        if isinstance(obj, BTNode):
+            found = type(obj)
+        tb = tb.tb_next
+    return found
 
 
 #: Wall-clock budget of one tick while the run is at rest (the drone on the ground).

@@ -524,3 +524,58 @@ def test_a_stateful_action_without_on_running_or_a_condition_without_check_is_re
     for cls, said in ((NoRun, "on_running"), (NoCheck, "check")):
         with pytest.raises(ValueError, match=f"{cls.__name__} does not define {said}"):
             REGISTRY.copy().register(cls)
+
+
+FAULTY_HOOKS_PLUGIN = """from bt_engine import StatefulActionNode, SyncActionNode, register, RUNNING, SUCCESS
+
+
+@register
+class HaltRaises(StatefulActionNode):
+    def on_start(self):
+        return RUNNING
+
+    def on_running(self):
+        return RUNNING
+
+    def on_halted(self):
+        raise RuntimeError("boom in on_halted")
+
+
+@register
+class PreflightRaises(SyncActionNode):
+    def preflight(self):
+        raise RuntimeError("preflight exploded")
+
+    def tick_impl(self):
+        return SUCCESS
+"""
+
+
+def test_a_halt_or_preflight_that_raises_names_its_node_and_line(
+    plugin_env, tmp_path, capsys
+) -> None:
+    """Both had lost where they came from: ``halting the tree failed: RuntimeError: ...``
+    and ``pre-flight check failed: RuntimeError: ...`` without the node, its line or the
+    plug-in's file:line, unlike the same error in a tick."""
+    plugin_env("hooks_50:PLUGIN", FAULTY_HOOKS_PLUGIN + LEAF_PLUGIN_TAIL)
+    plugin = tmp_path / "hooks_50.py"
+    mission = tmp_path / "m.xml"
+    mission.write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main">\n'
+        "<HaltRaises/></BehaviorTree></root>"
+    )
+    out = tmp_path / "run"
+    assert main([str(mission), "--out", str(out), "-q", "--no-report", "--max-time", "1"]) == 1
+    reason = json.loads((out / "summary.json").read_text())["reason"]
+    assert (
+        f"halting the tree failed in HaltRaises ({mission}:2:1): RuntimeError: boom in "
+        f"on_halted (raised at {plugin}:13)"
+    ) in reason, reason
+    mission.write_text(mission.read_text().replace("HaltRaises", "PreflightRaises"))
+    assert main(["validate", str(mission)]) == 0  # a check that runs before flight only
+    capsys.readouterr()
+    assert main([str(mission), "--out", str(tmp_path / "run2"), "-q"]) == 2
+    assert (
+        f"{mission}:2:1: PreflightRaises: pre-flight check failed: RuntimeError: preflight "
+        f"exploded (raised at {plugin}:19)"
+    ) in capsys.readouterr().err
