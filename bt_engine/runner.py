@@ -321,6 +321,15 @@ class Runner:
         except SystemExit as exc:  # a plug-in's sys.exit() in a tick: the run ends, landed
             self.error_traceback = traceback.format_exc()
             return "ABORTED", f"a node called sys.exit({exc.code!r}){_raising_node(exc)}"
+        except KeyboardInterrupt as exc:
+            if self._interrupted:  # an operator's second signal: the caller says it
+                raise
+            # no signal came: a node's own code raised it (it had been told as Ctrl-C)
+            self.error_traceback = traceback.format_exc()
+            return "ABORTED", (
+                f"a node raised KeyboardInterrupt{_raising_node(exc)} (no operator interrupt "
+                "came)"
+            )
         except Exception as exc:  # a bug in a leaf must not leave the drone flying
             self.error_traceback = traceback.format_exc()
             return "ABORTED", f"internal error{_raising_node(exc)}: {type(exc).__name__}: {exc}"

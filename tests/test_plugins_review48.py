@@ -579,3 +579,27 @@ def test_a_halt_or_preflight_that_raises_names_its_node_and_line(
         f"{mission}:2:1: PreflightRaises: pre-flight check failed: RuntimeError: preflight "
         f"exploded (raised at {plugin}:19)"
     ) in capsys.readouterr().err
+
+
+def test_a_keyboard_interrupt_a_node_raises_is_not_told_as_an_operators(tmp_path) -> None:
+    """A plug-in raising KeyboardInterrupt in a tick had been reported as "operator
+    interrupt (Ctrl-C)", without its node or line: the blame on the operator."""
+    from bt_engine.node import StatefulActionNode as Stateful
+
+    class CtrlC(Stateful):
+        """Raises KeyboardInterrupt on its second tick."""
+
+        def on_start(self):
+            return RUNNING
+
+        def on_running(self):
+            raise KeyboardInterrupt
+
+    reg = REGISTRY.copy()
+    reg.register(CtrlC)
+    m = xml_mission(wrap("<CtrlC/>"), "k.xml", registry=reg)
+    res = Runner(m).run(5)
+    assert res.status == "ABORTED"
+    assert res.reason == (
+        "a node raised KeyboardInterrupt in CtrlC (k.xml:3:1) (no operator interrupt came)"
+    ), res.reason
