@@ -88,19 +88,43 @@ def main() -> int:
         print("interrupted", file=sys.stderr)
         return 1
     if os.path.basename(sys.argv[0]).startswith("btrun"):  # the command, not a test's call
-        _exit_without_stray_threads(code)
+        _leave_on_signal(code)
+        _exit(code)
     return code
+
+
+def _leave_on_signal(code: int) -> None:
+    """The command is done (its summary written): a Ctrl-C, SIGTERM or SIGHUP now only
+    hurries the exit, with the command's code. A second Ctrl-C just after a run ended had
+    come while Python tore itself down (with its signal handlers back to the default, so
+    the signal killed it): exit code 130 for a run that had ended and said so."""
+
+    def leave(signum: int, frame: object) -> None:  # noqa: ARG001
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(code)
+
+    for sig in _SIGNALS:
+        try:
+            signal.signal(sig, leave)
+        except (ValueError, OSError):  # pragma: no cover - not the main thread
+            pass
 
 
 #: how long ``btrun`` waits, once its command is done, for threads that are not daemons
 EXIT_WAIT_S = 5.0
 
 
-def _exit_without_stray_threads(code: int) -> None:
-    """Exit with ``code`` even when a thread that is no daemon still runs (a plug-in's that
-    never ends): Python waits for such threads at exit, so btrun had hung after writing its
-    summary, ignoring Ctrl-C, and the exit code a campaign or CI waits for never came. Waits
-    :data:`EXIT_WAIT_S` for them, then says which and leaves (atexit handlers run first)."""
+def _exit(code: int) -> None:
+    """Exit with ``code``: the threads that are no daemons are waited for at most
+    :data:`EXIT_WAIT_S` (a plug-in's that never ends had kept btrun alive after its
+    summary, deaf to Ctrl-C, and the exit code a campaign or CI waits for never came; it is
+    named and left behind), the exit handlers run (logs, temporary folders, worker
+    processes), the streams are flushed, and the process ends without the interpreter's
+    teardown, whose default signal handlers a late Ctrl-C would die of."""
     import atexit
     import threading
     import time
@@ -113,21 +137,20 @@ def _exit_without_stray_threads(code: int) -> None:
         t.join(max(0.0, deadline - time.monotonic()))
         if t.is_alive():
             stray.append(t.name)
-    if not stray:
-        return
-    print(
-        f"btrun: exiting with {len(stray)} thread(s) still running ({', '.join(stray[:5])}): "
-        "a thread that never ends (a plug-in's?) is left behind; make it a daemon or end it "
-        "in the leaf's halt",
-        file=sys.stderr,
-    )
+    if stray:
+        print(
+            f"btrun: exiting with {len(stray)} thread(s) still running "
+            f"({', '.join(stray[:5])}): a thread that never ends (a plug-in's?) is left "
+            "behind; make it a daemon or end it in the leaf's halt",
+            file=sys.stderr,
+        )
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except (OSError, ValueError):
             pass
-    os._exit(code)
+    os._exit(code if isinstance(code, int) else 1)
 
 
 if __name__ == "__main__":  # pragma: no cover

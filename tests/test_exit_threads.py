@@ -53,3 +53,40 @@ def test_a_stray_thread_does_not_keep_btrun_from_exiting(tmp_path) -> None:
     assert "exiting with 1 thread(s) still running (forever)" in done.stderr
     assert time.monotonic() - started < EXIT_WAIT_S + 45
     assert json.loads((out / "summary.json").read_text())["status"] == "SUCCESS"
+
+
+def test_a_ctrl_c_after_the_run_ended_keeps_its_exit_code(tmp_path) -> None:
+    """A second Ctrl-C just after a run ended came while Python tore itself down, its
+    signal handlers back to the default: the process died of SIGINT (exit code 130, -2 for
+    Python) though the run had ended and said so. Here the signal comes while btrun waits
+    for the stray thread at its exit: it leaves at once, with the run's code."""
+    import signal
+
+    env = leaf_plugin_env(tmp_path, "btrun_stray_thread_2", LEAVES)
+    mission = tmp_path / "m.xml"
+    mission.write_text(
+        '<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main">'
+        "<StartsAThread/></BehaviorTree></root>"
+    )
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [BTRUN, str(mission), "--out", str(out), "-q", "--no-report"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        line = proc.stdout.readline()  # the result line: the run is over
+        assert line.startswith("SUCCESS"), line
+        deadline = time.monotonic() + 30
+        while not (out / "summary.json").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)  # btrun is now waiting for the thread (EXIT_WAIT_S)
+        started = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+        assert time.monotonic() - started < EXIT_WAIT_S - 2  # it did not wait on
+    finally:
+        if proc.poll() is None:
+            proc.kill()
