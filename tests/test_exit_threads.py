@@ -33,13 +33,19 @@ class StartsAThread(SyncActionNode):
 '''
 
 
-def test_a_stray_thread_does_not_keep_btrun_from_exiting(tmp_path) -> None:
-    env = leaf_plugin_env(tmp_path, "btrun_stray_thread", LEAVES)
+def _mission(tmp_path, module: str):
+    """The plug-in's environment and a mission of its one leaf."""
+    env = leaf_plugin_env(tmp_path, module, LEAVES)
     mission = tmp_path / "m.xml"
     mission.write_text(
         '<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main">'
         "<StartsAThread/></BehaviorTree></root>"
     )
+    return env, mission
+
+
+def test_a_stray_thread_does_not_keep_btrun_from_exiting(tmp_path) -> None:
+    env, mission = _mission(tmp_path, "btrun_stray_thread")
     out = tmp_path / "run"
     started = time.monotonic()
     done = subprocess.run(
@@ -62,12 +68,7 @@ def test_a_ctrl_c_after_the_run_ended_keeps_its_exit_code(tmp_path) -> None:
     for the stray thread at its exit: it leaves at once, with the run's code."""
     import signal
 
-    env = leaf_plugin_env(tmp_path, "btrun_stray_thread_2", LEAVES)
-    mission = tmp_path / "m.xml"
-    mission.write_text(
-        '<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main">'
-        "<StartsAThread/></BehaviorTree></root>"
-    )
+    env, mission = _mission(tmp_path, "btrun_stray_thread_2")
     out = tmp_path / "run"
     proc = subprocess.Popen(
         [BTRUN, str(mission), "--out", str(out), "-q", "--no-report"],
