@@ -503,16 +503,8 @@ def unimplemented(cls: type) -> str | None:
     registry refuses it; None when nothing is missing. A class that ticks its own way
     (overrides ``tick_impl``) lacks nothing."""
     if issubclass(cls, StatefulActionNode) and cls.tick_impl is StatefulActionNode.tick_impl:
-        need = [
-            m
-            for m in ("on_start", "on_running")
-            if getattr(cls, m) is getattr(StatefulActionNode, m)
-        ]
-        if need:
-            return (
-                f"does not define {' and '.join(need)}: a StatefulActionNode "
-                "calls on_start on its first tick and on_running while it is RUNNING"
-            )
+        if cls.on_start is StatefulActionNode.on_start:
+            return "does not define on_start: a StatefulActionNode calls it on its first tick"
     if issubclass(cls, ConditionNode) and cls.tick_impl is ConditionNode.tick_impl:
         if cls.check is ConditionNode.check:
             return "does not define check: a ConditionNode returns what check() returns"
@@ -534,7 +526,11 @@ class StatefulActionNode(LeafNode):
 
     def on_running(self) -> NodeStatus:
         """Continue the action; return RUNNING, SUCCESS or FAILURE."""
-        raise NotImplementedError
+        raise NodeRuntimeError(  # it had been an empty NotImplementedError, in the air
+            self,
+            f"{type(self).__name__} returned RUNNING but does not define on_running (called "
+            "on every tick while it is RUNNING)",
+        )
 
     def on_halted(self) -> None:  # noqa: B027 - optional hook
         """Clean up when a parent halts the running action."""

@@ -327,8 +327,7 @@ class Runner:
             # no signal came: a node's own code raised it (it had been told as Ctrl-C)
             self.error_traceback = traceback.format_exc()
             return "ABORTED", (
-                f"a node raised KeyboardInterrupt{_raising_node(exc)} (no operator interrupt "
-                "came)"
+                f"a node raised KeyboardInterrupt{_raising_node(exc)} (no operator interrupt came)"
             )
         except Exception as exc:  # a bug in a leaf must not leave the drone flying
             self.error_traceback = traceback.format_exc()

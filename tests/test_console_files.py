@@ -320,9 +320,7 @@ def test_a_review_names_pallets_as_a_gallery_does(root, name, refused):
     assert ("cannot be a pallet identity" in said or "printable" in said) is refused, said
 
 
-def test_the_runs_index_reads_a_finished_run_again_only_when_its_files_change(
-    root, monkeypatch
-):
+def test_the_runs_index_reads_a_finished_run_again_only_when_its_files_change(root, monkeypatch):
     """A refresh of the index read every run's inventory each time (about 3 s of CPU for
     500 site runs); it now reads a finished run again only when one of its files changed,
     and a run without a summary every time (RUNNING depends on the clock)."""

@@ -507,10 +507,22 @@ def test_a_plugin_writing_an_undeclared_output_is_stopped_where_it_writes(
     )
 
 
-def test_a_stateful_action_without_on_running_or_a_condition_without_check_is_refused() -> None:
+def test_a_stateful_action_without_on_running_or_a_condition_without_check_is_said() -> None:
     """They loaded and validated, then ABORTED in the air with an empty
-    NotImplementedError."""
+    NotImplementedError. A class without ``on_start`` (called on every first tick) or a
+    condition without ``check`` is refused when it registers; ``on_running`` is needed only
+    by an action that returns RUNNING, so its absence is said, located, when it does."""
     from bt_engine import StatefulActionNode
+
+    class NoStart(StatefulActionNode):
+        """Never starts."""
+
+    class NoCheck(ConditionNode):
+        """Checks nothing."""
+
+    for cls, said in ((NoStart, "on_start"), (NoCheck, "check")):
+        with pytest.raises(ValueError, match=f"{cls.__name__} does not define {said}"):
+            REGISTRY.copy().register(cls)
 
     class NoRun(StatefulActionNode):
         """Starts, never goes on."""
@@ -518,12 +530,14 @@ def test_a_stateful_action_without_on_running_or_a_condition_without_check_is_re
         def on_start(self):
             return RUNNING
 
-    class NoCheck(ConditionNode):
-        """Checks nothing."""
-
-    for cls, said in ((NoRun, "on_running"), (NoCheck, "check")):
-        with pytest.raises(ValueError, match=f"{cls.__name__} does not define {said}"):
-            REGISTRY.copy().register(cls)
+    reg = REGISTRY.copy()
+    reg.register(NoRun)
+    res = Runner(xml_mission(wrap("<NoRun/>"), "r.xml", registry=reg)).run(5)
+    assert (res.status, res.reason) == (
+        "ABORTED",
+        "r.xml:3:1: NoRun 'NoRun': NoRun returned RUNNING but does not define on_running "
+        "(called on every tick while it is RUNNING)",
+    ), res.reason
 
 
 FAULTY_HOOKS_PLUGIN = """from bt_engine import StatefulActionNode, SyncActionNode, register, RUNNING, SUCCESS
