@@ -12,7 +12,6 @@ with summary.json, exit code 1; any other command prints ``interrupted`` and exi
 
 from __future__ import annotations
 
-import os
 import signal
 import sys
 
@@ -87,6 +86,8 @@ def main() -> int:
     except KeyboardInterrupt:  # between the two handlers: nothing has started yet
         print("interrupted", file=sys.stderr)
         return 1
+    import os  # (here: the module level imports only what catching Ctrl-C needs)
+
     if os.path.basename(sys.argv[0]).startswith("btrun"):  # the command, not a test's call
         _leave_on_signal(code)
         _exit(code)
@@ -98,6 +99,8 @@ def _leave_on_signal(code: int) -> None:
     hurries the exit, with the command's code. A second Ctrl-C just after a run ended had
     come while Python tore itself down (with its signal handlers back to the default, so
     the signal killed it): exit code 130 for a run that had ended and said so."""
+
+    import os
 
     def leave(signum: int, frame: object) -> None:  # noqa: ARG001
         for stream in (sys.stdout, sys.stderr):
@@ -126,6 +129,7 @@ def _exit(code: int) -> None:
     processes), the streams are flushed, and the process ends without the interpreter's
     teardown, whose default signal handlers a late Ctrl-C would die of."""
     import atexit
+    import os
     import threading
     import time
 
