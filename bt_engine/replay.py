@@ -56,9 +56,10 @@ MCAP_STATUS, MCAP_BB, MCAP_VEHICLE, MCAP_HEADER = (
 def read_mcap(path: str, warnings: list[str] | None = None) -> tuple[dict, list[dict]]:
     """Read a run's ``run.mcap`` back into ``(header, tick_records)`` as
     :func:`bt_engine.ticklog.read_log` returns them from ``ticks.jsonl`` (tick, t, status,
-    changed, done, bb, messages, vehicle). A file cut short (a killed run) gives the ticks
-    up to its last complete chunk; ``warnings`` (if given) then gets a line saying where
-    reading stopped."""
+    changed, done, bb, messages, vehicle). A complete file is read chunk by chunk, each
+    against its checksum: a damaged chunk (bytes changed on disk) is left out and said, the
+    others read. A file cut short (a killed run) gives the ticks up to its last complete
+    chunk; ``warnings`` (if given) then gets a line saying where reading stopped."""
     from mcap.records import Channel, Message, Metadata
     from mcap.stream_reader import StreamReader
 
@@ -67,31 +68,38 @@ def read_mcap(path: str, warnings: list[str] | None = None) -> tuple[dict, list[
     ticks: dict[int, dict] = {}
     bb: dict[int, dict] = {}
     vehicle: dict[int, dict] = {}
+
+    def take(rec: object) -> None:
+        nonlocal header
+        if isinstance(rec, Channel):
+            topics[rec.id] = rec.topic
+        elif isinstance(rec, Metadata) and rec.name == MCAP_HEADER:
+            header = json.loads(rec.metadata.get("header", "{}"))
+        elif isinstance(rec, Message):
+            topic = topics.get(rec.channel_id)
+            if topic == MCAP_STATUS:
+                msg = json.loads(rec.data)
+                ticks[msg["tick"]] = msg
+            elif topic == MCAP_BB:
+                msg = json.loads(rec.data)
+                bb.setdefault(msg["tick"], {})[msg["key"]] = msg["value"]
+            elif topic == MCAP_VEHICLE:
+                msg = json.loads(rec.data)
+                vehicle[msg["tick"]] = msg["vehicle"]
+
     with open(path, "rb") as f:
-        try:
-            for rec in StreamReader(f).records:
-                if isinstance(rec, Channel):
-                    topics[rec.id] = rec.topic
-                elif isinstance(rec, Metadata) and rec.name == MCAP_HEADER:
-                    header = json.loads(rec.metadata.get("header", "{}"))
-                elif isinstance(rec, Message):
-                    topic = topics.get(rec.channel_id)
-                    if topic == MCAP_STATUS:
-                        msg = json.loads(rec.data)
-                        ticks[msg["tick"]] = msg
-                    elif topic == MCAP_BB:
-                        msg = json.loads(rec.data)
-                        bb.setdefault(msg["tick"], {})[msg["key"]] = msg["value"]
-                    elif topic == MCAP_VEHICLE:
-                        msg = json.loads(rec.data)
-                        vehicle[msg["tick"]] = msg["vehicle"]
-        except Exception as exc:  # noqa: BLE001  (a torn end: keep what was read)
-            if warnings is not None:
-                warnings.append(
-                    f"{path}: warning: reading stopped at byte {f.tell()} of "
-                    f"{os.fstat(f.fileno()).st_size} ({_said(exc)}); the ticks before it "
-                    "are replayed"
-                )
+        if not _read_chunks(f, take, topics, warnings, path):
+            f.seek(0)
+            try:
+                for rec in StreamReader(f, validate_crcs=True).records:
+                    take(rec)
+            except Exception as exc:  # noqa: BLE001  (a torn end: keep what was read)
+                if warnings is not None:
+                    warnings.append(
+                        f"{path}: warning: reading stopped at byte {f.tell()} of "
+                        f"{os.fstat(f.fileno()).st_size} ({_said(exc)}); the ticks before it "
+                        "are replayed"
+                    )
     records = []
     for tick in sorted(ticks):
         msg = ticks[tick]
@@ -104,6 +112,46 @@ def read_mcap(path: str, warnings: list[str] | None = None) -> tuple[dict, list[
             rec["vehicle"] = vehicle[tick]
         records.append(rec)
     return header, records
+
+
+def _read_chunks(f, take, topics: dict, warnings: list[str] | None, path: str) -> bool:
+    """Read a complete MCAP file (its summary and chunk index present) chunk by chunk,
+    each checked against its CRC, giving every record to ``take``; a chunk that does not
+    read back is left out and said in ``warnings``. False (nothing read) when the file has
+    no summary or no chunk index: the caller streams it."""
+    import io
+
+    from mcap.exceptions import EndOfFile
+    from mcap.reader import make_reader
+    from mcap.stream_reader import StreamReader
+
+    try:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        if summary is None or not summary.chunk_indexes:
+            return False
+        topics.update({cid: ch.topic for cid, ch in summary.channels.items()})
+        for md in reader.iter_metadata():
+            take(md)
+    except Exception:  # noqa: BLE001 - no usable summary: streamed instead
+        return False
+    bad: list[str] = []
+    for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+        f.seek(ci.chunk_start_offset)
+        raw = f.read(ci.chunk_length)
+        try:
+            for rec in StreamReader(io.BytesIO(raw), skip_magic=True, validate_crcs=True).records:
+                take(rec)
+        except EndOfFile:  # the chunk's end
+            continue
+        except Exception as exc:  # noqa: BLE001 - a damaged chunk: the others still read
+            bad.append(f"byte {ci.chunk_start_offset}: {_said(exc)}")
+    if bad and warnings is not None:
+        warnings.append(
+            f"{path}: warning: {len(bad)} chunk(s) do not read back, left out (at "
+            f"{bad[0]}{'; ...' if len(bad) > 1 else ''})"
+        )
+    return True
 
 
 @dataclass
@@ -125,6 +173,7 @@ class McapRepair:
     backup: str = ""
     stopped_at: int = 0
     size: int = 0
+    damaged: str = ""
 
     def where(self) -> str:
         """Where and why reading stopped, in a few words."""
@@ -140,6 +189,12 @@ class McapRepair:
             return (
                 f"{self.path}: not repaired: nothing in it could be recovered ({self.where()});"
                 " the file is left as it is"
+            )
+        if not self.repaired and self.damaged:
+            return (
+                f"{self.path}: complete (summary and index present), but a record does not "
+                f"read back ({self.damaged}): its messages are lost, the other chunks read; "
+                "the file is left as it is"
             )
         if not self.repaired:
             return f"{self.path}: complete (summary and index present); nothing to repair"
@@ -167,6 +222,33 @@ def mcap_complete(path: str) -> bool:
             return make_reader(f).get_summary() is not None
     except Exception:  # noqa: BLE001 - torn, truncated or garbage at the end
         return False
+
+
+def first_damage(path: str) -> str | None:
+    """Where and why the records of the MCAP file ``path`` stop reading back, checksums
+    included (a chunk whose bytes changed on disk: its CRC), or None if every record does.
+    A file with its summary and index can still hold a damaged chunk: an indexed reader
+    then loses its messages without a word."""
+    from mcap.stream_reader import StreamReader
+
+    with open(path, "rb") as f:
+        try:
+            for _ in StreamReader(f, validate_crcs=True).records:
+                pass
+        except Exception as exc:  # noqa: BLE001 - what stopped it is the answer
+            return f"byte {f.tell()} of {os.fstat(f.fileno()).st_size}: {_said(exc)}"
+    return None
+
+
+def tick_gaps(records: list[dict]) -> list[tuple[int, int]]:
+    """The runs of tick numbers missing between the first and last record (a log holds a
+    record per tick: a gap is a damaged or edited file)."""
+    gaps = []
+    ticks = [r["tick"] for r in records]
+    for a, b in zip(ticks, ticks[1:], strict=False):
+        if b > a + 1:
+            gaps.append((a + 1, b - 1))
+    return gaps
 
 
 def _in_use(f) -> bool:
@@ -238,8 +320,9 @@ def repair_mcap(path: str) -> McapRepair:
     with open(path, "rb") as src:
         if _in_use(src):
             return McapRepair(path, False, in_use=True)
-        if mcap_complete(path):
-            return McapRepair(path, False)
+        if mcap_complete(path):  # a damaged chunk inside is said, the file kept as it is:
+            # rewriting it would lose every chunk after the damaged one
+            return McapRepair(path, False, damaged=first_damage(path) or "")
         tmp = f"{path}.repair.tmp"
         out = McapRepair(path, True, size=os.fstat(src.fileno()).st_size)
         schemas: dict[int, int] = {}
@@ -406,9 +489,12 @@ def _rows(header: dict) -> list[Row]:
 
 
 def _show(header: dict, records: list[dict], tick: int) -> None:
-    rec = next((r for r in records if r.get("tick") == tick), {})
+    rec = next((r for r in records if r.get("tick") == tick), None)
     st, bb = states_at(header, records, tick)
-    print(f"tick {tick}  t={rec.get('t', 0):.2f} s  root {rec.get('status', '?')}")
+    if rec is None:  # a gap (said when read): no time or status is made up for it
+        print(f"tick {tick}  (not in the log: the tree as the ticks before it left it)")
+    else:
+        print(f"tick {tick}  t={rec.get('t', 0):.2f} s  root {rec.get('status', '?')}")
     print("\n".join(tree_lines(_rows(header), st)))
     if bb:
         print("blackboard: " + ", ".join(f"{k}={v!r}" for k, v in sorted(bb.items())))
@@ -469,6 +555,14 @@ def replay(path: str, tick: int | None = None, show_all: bool = False, repair: b
         header, records = read_mcap(path, warnings)
     else:
         header, records, warnings = read_ticks(path)
+    gaps = tick_gaps(records) if records else []
+    if gaps:  # a log holds a record per tick
+        shown = ", ".join(f"{a}" if a == b else f"{a}..{b}" for a, b in gaps[:5])
+        more = f" and {len(gaps) - 5} more gaps" if len(gaps) > 5 else ""
+        warnings.append(
+            f"{path}: warning: ticks {shown}{more} are missing (a damaged or edited file): "
+            "the tree is shown as the ticks before them left it"
+        )
     for line in warnings:
         print(line, file=sys.stderr)
     if not header or not records:
