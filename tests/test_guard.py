@@ -230,6 +230,10 @@ def test_lock_step_run_blocked_holding_the_gil_is_ended_with_a_summary(
     assert summary["guard"]["mode"] == "watch"
     assert "simulated in the mission process" in summary["guard"]["landing"]
     assert summary["ticks"] > 0 and summary["mission_time_s"] > 0
+    # the tick log's last tick, as its reason says (it had given the last heartbeat's)
+    with open(os.path.join(run_dir, "ticks.jsonl"), encoding="utf-8") as f:
+        last = [json.loads(line) for line in f.read().splitlines()[1:] if line.endswith("}")][-1]
+    assert summary["ticks"] == last["tick"] and summary["mission_time_s"] == last["t"]
 
 
 def test_a_run_that_ends_normally_reports_its_guard_and_leaves_no_process(tmp_path) -> None:

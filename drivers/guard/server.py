@@ -354,15 +354,29 @@ class Guard:
             }
             self._write_record({"mission_process": "gone", **self._final()})
 
-    def _last_known(self) -> str:
-        """``; last known: <state> at z <m> (tick N)`` from the mission process's last
-        heartbeat and tick log line, or ""."""
+    def _log_tail(self) -> list[bytes]:
+        """The last lines of the run's tick log (about 64 kB), [] if it cannot be read."""
         try:
             with open(os.path.join(self.s.run_dir, "ticks.jsonl"), "rb") as f:
                 f.seek(max(0, os.path.getsize(f.name) - 65536))
-                lines = f.read().splitlines()
+                return f.read().splitlines()
         except OSError:
-            return ""
+            return []
+
+    def _last_tick(self) -> tuple[int, float] | None:
+        """(tick, mission time) of the tick log's last complete tick record, or None."""
+        for line in reversed(self._log_tail()):
+            try:
+                rec = json.loads(line)
+                return int(rec["tick"]), float(rec["t"])
+            except (ValueError, KeyError, TypeError):
+                continue
+        return None
+
+    def _last_known(self) -> str:
+        """``; last known: <state> at z <m> (tick N)`` from the mission process's last
+        heartbeat and tick log line, or ""."""
+        lines = self._log_tail()
         for line in reversed(lines):
             if b'"vehicle"' not in line:
                 continue
@@ -514,14 +528,19 @@ class Guard:
         hb = self.last_hb or []
         if summary is None:
             rec = self.s.record
+            ticks = hb[1] if len(hb) > 1 else 0
+            mission_s = hb[4] if len(hb) > 4 else None
+            logged = self._last_tick()  # the tick log's last tick, if later than the
+            if logged is not None and logged[0] > (ticks or 0):  # last heartbeat's (the
+                ticks, mission_s = logged  # reason's "tick N" is the log's)
             summary = {
                 "status": "ABORTED",
                 "reason": f"guard: {section.get('reason', 'took over')}",
                 "mission": rec.get("mission"),
                 "seed": rec.get("seed"),
                 "rig": rec.get("rig"),
-                "ticks": hb[1] if len(hb) > 1 else 0,
-                "mission_time_s": hb[4] if len(hb) > 4 else None,
+                "ticks": ticks,
+                "mission_time_s": mission_s,
                 "wall_time_s": round(time.monotonic() - self.started, 3),
                 "written_by": "guard",
             }
