@@ -88,7 +88,8 @@ def main() -> int:
         return 1
     import os  # (here: the module level imports only what catching Ctrl-C needs)
 
-    if os.path.basename(sys.argv[0]).startswith("btrun"):  # the command, not a test's call
+    main_file = getattr(sys.modules.get("__main__"), "__file__", None) or ""
+    if os.path.basename(main_file).startswith("btrun"):  # the command, not a test's call
         _leave_on_signal(code)
         _exit(code)
     return code

@@ -177,6 +177,23 @@ def test_a_resumed_campaign_runs_only_the_missing_rows(probe, pool_run) -> None:
     assert again.ran == [] and again.complete
 
 
+def test_another_campaign_is_refused_where_one_has_its_results(probe, pool_run, capsys) -> None:
+    """A different campaign run into a campaign's --out had replaced its tables and report
+    and mixed both campaigns' run folders, without a word (the dry run said nothing)."""
+    from bt_engine.cli import main
+
+    other = probe / "other.yaml"
+    other.write_text((probe / "probe.yaml").read_text().replace("name: probe", "name: other"))
+    before = read_results(pool_run.out_dir)
+    for extra in (["--dry-run"], ["--workers", "1"]):
+        code = main(["campaign", str(other), "--out", pool_run.out_dir, *extra])
+        err = capsys.readouterr().err
+        assert code == 2, err
+        assert f"--out {pool_run.out_dir} holds the results of campaign 'probe'" in err, err
+        assert "not of 'other'" in err
+    assert read_results(pool_run.out_dir).equals(before)
+
+
 @pytest.mark.slow
 def test_a_dask_local_cluster_gives_the_same_table(probe, pool_run) -> None:
     from dask.distributed import LocalCluster

@@ -68,12 +68,13 @@ def setup(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the command; :class:`~bt_engine.spec.MissionError` propagates (exit code 2)."""
     from bt_engine.campaign.check import check_campaign
-    from bt_engine.campaign.execution import finished_keys, run_campaign
+    from bt_engine.campaign.execution import finished_keys, other_campaign, run_campaign
     from bt_engine.campaign.pool import SchedulerUnreachable, WorkerError, WorkersCannotRun
     from bt_engine.campaign.report import print_summary
     from bt_engine.campaign.results import ResultStore
     from bt_engine.campaign.rows import dry_run_lines, expand
     from bt_engine.campaign.spec import load_campaign
+    from bt_engine.spec import MissionError
 
     if args.limit is not None and args.limit < 1:
         print("btrun campaign: --limit must be at least 1", file=sys.stderr)
@@ -82,6 +83,9 @@ def run(args: argparse.Namespace) -> int:
         print("btrun campaign: --workers must be at least 1", file=sys.stderr)
         return 2
     c = load_campaign(args.campaign)
+    taken = other_campaign(c, args.out) if args.out else None
+    if taken is not None:  # the dry run says it too
+        raise MissionError([taken])
     if args.dry_run:
         rows = expand(c, args.include_path)
         checked = check_campaign(c, rows, args.include_path)

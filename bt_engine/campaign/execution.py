@@ -30,6 +30,7 @@ from bt_engine.campaign.pool import CONNECT_TIMEOUT_S, DaskPool, LocalPool
 from bt_engine.campaign.results import ResultStore, table_rows, write_tables
 from bt_engine.campaign.rows import Row, expand
 from bt_engine.campaign.spec import Campaign, load_campaign
+from bt_engine.spec import Loc, MissionError, Problem
 
 
 @dataclass
@@ -197,6 +198,31 @@ def _duration(s: float) -> str:
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
 
 
+def other_campaign(c: Campaign, out_dir: str) -> Problem | None:
+    """A problem when ``out_dir`` holds the results of another campaign (the name its
+    ``results.parquet`` records differs): running this one there had replaced that one's
+    tables and report, and mixed both campaigns' run folders, without a word. None when
+    the folder is new, holds this campaign (a resume, an edited file), or cannot tell."""
+    path = os.path.join(out_dir, "results.parquet")
+    if not os.path.isfile(path):
+        return None
+    try:
+        import pyarrow.parquet as pq
+
+        meta = pq.read_schema(path).metadata or {}
+        theirs = meta[b"btrun.campaign"].decode()
+    except Exception:  # noqa: BLE001 - an unreadable table: the rows' keys still tell
+        return None
+    if theirs == c.name:
+        return None
+    return Problem(
+        Loc("--out", 0, 0),
+        f"{out_dir} holds the results of campaign {theirs!r} (its results.parquet), not of "
+        f"{c.name!r}: running it there would replace them; give another --out (or continue "
+        "that campaign there)",
+    )
+
+
 def run_campaign(
     campaign: str | Campaign,
     out_dir: str,
@@ -225,6 +251,9 @@ def run_campaign(
     missions' nodes (:meth:`~bt_engine.campaign.pool.DaskPool.check_workers`; raises
     :class:`~bt_engine.campaign.pool.WorkersCannotRun`: nothing runs)."""
     c = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
+    taken = other_campaign(c, out_dir)
+    if taken is not None:  # before anything is checked or written
+        raise MissionError([taken])
     include_paths = list(include_paths or ())
     rows = expand(c, include_paths)  # lazy; raises first if there are more than c.max_rows
     check_campaign(c, rows, include_paths)
