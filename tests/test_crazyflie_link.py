@@ -203,7 +203,10 @@ def test_sitl_fault_in_flight_ends_with_the_drone_landed(tmp_path, fault, sets) 
     assert res.returncode == 1, res.stdout + res.stderr
     assert summary["status"] == "ABORTED" and summary["reason"].startswith(f"safety: {fault}")
     s = summary["safety"]
-    assert [a["action"] for a in s["actions"]][-2:] == ["land", "disarm"]
+    acts = [a["action"] for a in s["actions"]]
+    # the supervisor lands it; or, on a slow host, the link came back within the hold and
+    # the run's own end (it is ABORTED) landed it: either way it ends landed and disarmed
+    assert acts[-2:] == ["land", "disarm"] or acts == ["hold (up to 1 s)"], acts
     assert s["final_state"] == "landed" and s["disarmed"]
     truth = summary["vehicle"]["sitl"]  # the emulator's own drone, not what the link said
     assert truth["landed"] and not truth["crashed"] and truth["final_pose"]["z_m"] < 0.05
