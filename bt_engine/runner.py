@@ -539,8 +539,8 @@ def _failure_reason(mission: Mission) -> str:
     return mission.last_failure or "the mission tree returned FAILURE"
 
 
-def _raising_node(exc: BaseException) -> str:
-    """' in <node> (<file:line:col>)' for the deepest node whose code raised ``exc``."""
+def _raising(exc: BaseException) -> Any:
+    """The deepest node whose code raised ``exc`` (None: no node's)."""
     from bt_engine.node import BTNode
 
     found = None
@@ -550,21 +550,19 @@ def _raising_node(exc: BaseException) -> str:
         if isinstance(obj, BTNode):
             found = obj
         tb = tb.tb_next
+    return found
+
+
+def _raising_node(exc: BaseException) -> str:
+    """' in <node> (<file:line:col>)' for the deepest node whose code raised ``exc``."""
+    found = _raising(exc)
     return f" in {found.describe()} ({found.loc})" if found is not None else ""
 
 
 def _raising_class(exc: BaseException) -> type | None:
     """The class of the deepest node whose code raised ``exc`` (None: no node's)."""
-    from bt_engine.node import BTNode
-
-    found = None
-    tb = exc.__traceback__
-    while tb is not None:
-        obj = tb.tb_frame.f_locals.get("self")
-        if isinstance(obj, BTNode):
-            found = type(obj)
-        tb = tb.tb_next
-    return found
+    found = _raising(exc)
+    return type(found) if found is not None else None
 
 
 #: Wall-clock budget of one tick while the run is at rest (the drone on the ground).
