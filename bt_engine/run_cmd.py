@@ -163,7 +163,6 @@ def prepare(
         where = Loc(args.rig or "--set", 0, 0)
         raise MissionError([Problem(where, "no vehicle plug-in is installed to use a rig")])
     factor = args.realtime or (target.realtime_factor if target is not None else None)
-    external_clock = clock is not None  # a fleet's shared clock: the fleet keeps its time
     if clock is None:
         clock = WallClock(factor) if factor else SimClock()
     run_dir = _run_dir(args)
@@ -196,7 +195,6 @@ def prepare(
         },
         blackboard=bb,
     )
-    built_at = clock.now()
     if not getattr(args, "quiet", False):  # models and galleries load now: say so as it goes
         mission.ctx.echo = wall_echo()
     try:
@@ -208,8 +206,6 @@ def prepare(
         mission.close()
         raise
     mission.ctx.echo = None
-    if hasattr(clock, "restart_at") and not external_clock:  # preflight is not mission time
-        clock.restart_at(built_at)
     before_flight = list(mission.ctx.messages)  # shown already; kept in the tick log header
     mission.ctx.messages.clear()
     if preflight:
@@ -347,10 +343,21 @@ def make_runner(run: PreparedRun) -> Runner:
     )
 
 
+def start_mission_clock(clock: Any) -> None:
+    """Set a wall clock to mission time 0 just before the first tick: connecting to the
+    drone, loading models and building galleries are not mission time. Fault times
+    (``faults.*.at_s``), the tick log's ``t``, the safety record and ``mission_time_s``
+    then share one origin, however long a loaded host took to connect. A lock-step clock
+    has no start-up to drop."""
+    if hasattr(clock, "restart_at"):
+        clock.restart_at(0.0)
+
+
 def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
     """Tick the mission to its end (live tree view on a terminal, one line per action
     otherwise); the tick log is closed afterwards."""
     args, mission, clock = run.args, run.mission, run.clock
+    start_mission_clock(clock)  # a fleet's shared clock is started by the fleet
     runner = make_runner(run)
     if not args.quiet:
         where = f"rig {run.target.path or '-'}" if run.target is not None else "no vehicle"

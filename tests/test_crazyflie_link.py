@@ -214,6 +214,14 @@ def _fly_the_fault(tmp_path, fault: str, sets: list[str]) -> None:
     tmp_path.mkdir()
     res, summary = fly_sitl(tmp_path, SLOW_HOP, *sets)
     assert res.returncode == 1, res.stdout + res.stderr
+    # mission time 0 is the first tick, whatever connecting took: the fault at 4 s fires 4 s
+    # into the flight (a loaded CI host took 4 s to connect, and the link dropped in the
+    # take-off, where the firmware's watchdog cut the motors: "crash", not "link_lost")
+    with open(tmp_path / "run" / "ticks.jsonl") as f:
+        first_tick_t = next(r["t"] for r in map(json.loads, f) if "t" in r)
+    assert first_tick_t < 0.1, first_tick_t
+    fired = summary["vehicle"]["faults"][0]
+    assert 4.0 <= fired["t_s"] < 4.3, fired
     assert summary["status"] == "ABORTED" and summary["reason"].startswith(f"safety: {fault}")
     s = summary["safety"]
     acts = [a["action"] for a in s["actions"]]

@@ -151,7 +151,9 @@ class CrazyfliePlatform:
             v.camera_health.connected = bool(getattr(cam, "connected", True))
         v.control_step(t_s)
         pose = v.pose
-        if not self._poses or pose.t_s > self._poses[-1].t_s:
+        if self._poses and pose.t_s < self._poses[-1].t_s - 1.0:  # the clock was set back
+            self._poses.clear()  # (mission time 0 at the first tick): older poses are not
+        if not self._poses or pose.t_s > self._poses[-1].t_s:  # before these
             self._poses.append(pose)
         if self.camera_ready_s is None and v.camera_health.samples > 0:
             self.camera_ready_monotonic_s = time.monotonic()

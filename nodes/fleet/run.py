@@ -32,6 +32,7 @@ from bt_engine.run_cmd import (
     real_time_words,
     release,
     run_dir_problem,
+    start_mission_clock,
     used_run_dir_problem,
 )
 from bt_engine.spec import Loc, MissionError, Problem, plural
@@ -290,6 +291,8 @@ def _fly(
         vehicles[name] = v
     airspace.clear = _clear_of(runs)
     guard = SeparationGuard(vehicles, sep["minimum_m"], sep["hold_margin_m"])
+    if runs:  # one clock for all drones: mission time 0 is the fleet's first tick
+        start_mission_clock(next(iter(runs.values())).clock)
     runners = {name: make_runner(r) for name, r in runs.items()}
     fleet = FleetRunner(runners, hooks=[airspace, guard])
     if not args.quiet:
