@@ -17,7 +17,7 @@ from typing import Any
 
 from bt_engine.builder import build_tree
 from bt_engine.clock import Clock, SimClock
-from bt_engine.inputs import mission_inputs
+from bt_engine.inputs import mission_inputs, parse_set_value, typed_inputs
 from bt_engine.loading import load_spec
 from bt_engine.node import (
     FAILURE,
@@ -117,7 +117,12 @@ class Mission:
             spec, self.registry, self.ctx, namespace
         )
         self.blackboard: MutableMapping[str, Any] = _BlackboardView(self)
-        self.inputs = mission_inputs(spec)
+        # a default goes on the blackboard as a --set of it would: typed (laps="3" is 3)
+        self.inputs = {
+            k: parse_set_value(v) if isinstance(v, str) else v
+            for k, v in mission_inputs(spec).items()
+        }
+        typed_inputs(spec, self.inputs)  # a default of no value of its type: validate says it
         for k, v in self.inputs.items():
             if k not in (blackboard or {}):
                 self.scope.set(k, v)

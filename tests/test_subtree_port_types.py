@@ -52,3 +52,36 @@ def test_a_tree_named_like_a_node_is_refused_as_btcpp_does() -> None:
     )
     problems = problems_of_xml(xml)
     assert any("tree 'GoTo' has the name of a node" in p for p in problems), problems
+
+
+def test_a_main_tree_input_default_goes_on_the_blackboard_as_its_set_would() -> None:
+    """A main-tree input's default had gone on the blackboard as text ('3') while
+    ``--set laps=3`` put the number 3 there: the summary's blackboard and a plug-in
+    reading the entry without a port saw two types for one value."""
+    from helpers import wrap, xml_mission
+
+    from bt_engine.inputs import typed_inputs
+    from bt_engine.run_inputs import parse_sets
+    from bt_engine.xml_io import load_xml
+
+    model = """  <TreeNodesModel>
+    <SubTree ID="Main">
+      <input_port name="laps" default="3"/>
+      <input_port name="ratio" type="double" default="1"/>
+      <input_port name="on" type="bool" default="true"/>
+      <input_port name="route" default="1;2;3"/>
+      <input_port name="code" default="010"/>
+    </SubTree>
+  </TreeNodesModel>
+"""
+    xml = wrap('    <Script code="total := laps + ratio" />', model)
+    defaults = xml_mission(xml).blackboard
+    sets = ["laps=3", "ratio=1", "on=true", "route=1;2;3", "code=010"]
+    given, _over, problems = parse_sets(sets, None, "inline.xml")
+    assert not problems and not typed_inputs(load_xml("inline.xml", text=xml), given)  # run's
+    given_mission = xml_mission(xml, blackboard=given).blackboard
+    for name in ("laps", "ratio", "on", "route", "code"):
+        assert defaults[name] == given_mission[name], name
+        assert type(defaults[name]) is type(given_mission[name]), name
+    assert defaults["laps"] == 3 and defaults["ratio"] == 1.0 and defaults["on"] is True
+    assert defaults["route"] == "1;2;3"  # text, as a --set of it
