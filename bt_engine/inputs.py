@@ -77,6 +77,8 @@ def parse_set_value(text: str) -> Any:
         if not _PLAIN_NUMBER.fullmatch(t):
             return text
         return int(t, 10) if _PLAIN_INT.fullmatch(t) else float(t)
+    if isinstance(parsed, bool) and text.strip().lower() not in ("true", "false"):
+        return text  # YAML 1.1's yes/no/on/off: a bool port reads them, a text port keeps them
     return parsed if isinstance(parsed, (int, float, bool, str, list)) else text
 
 

@@ -71,17 +71,19 @@ def test_a_main_tree_input_default_goes_on_the_blackboard_as_its_set_would() -> 
       <input_port name="on" type="bool" default="true"/>
       <input_port name="route" default="1;2;3"/>
       <input_port name="code" default="010"/>
+      <input_port name="mode" default="off"/>
     </SubTree>
   </TreeNodesModel>
 """
     xml = wrap('    <Script code="total := laps + ratio" />', model)
     defaults = xml_mission(xml).blackboard
-    sets = ["laps=3", "ratio=1", "on=true", "route=1;2;3", "code=010"]
+    sets = ["laps=3", "ratio=1", "on=true", "route=1;2;3", "code=010", "mode=off"]
     given, _over, problems = parse_sets(sets, None, "inline.xml")
     assert not problems and not typed_inputs(load_xml("inline.xml", text=xml), given)  # run's
     given_mission = xml_mission(xml, blackboard=given).blackboard
-    for name in ("laps", "ratio", "on", "route", "code"):
+    for name in ("laps", "ratio", "on", "route", "code", "mode"):
         assert defaults[name] == given_mission[name], name
         assert type(defaults[name]) is type(given_mission[name]), name
     assert defaults["laps"] == 3 and defaults["ratio"] == 1.0 and defaults["on"] is True
     assert defaults["route"] == "1;2;3"  # text, as a --set of it
+    assert defaults["mode"] == "off"  # not YAML 1.1's false: a text port would read "false"
