@@ -497,7 +497,21 @@ def _show(header: dict, records: list[dict], tick: int) -> None:
         print(f"tick {tick}  t={rec.get('t', 0):.2f} s  root {rec.get('status', '?')}")
     print("\n".join(tree_lines(_rows(header), st)))
     if bb:
-        print("blackboard: " + ", ".join(f"{k}={v!r}" for k, v in sorted(bb.items())))
+        print("blackboard: " + ", ".join(f"{k}={shown_value(v)}" for k, v in sorted(bb.items())))
+
+
+#: longest blackboard value replay prints in full (a gallery's embeddings, a route of
+#: thousands of points would bury the tree): longer ones are cut, with their length
+SHOWN_CHARS = 160
+
+
+def shown_value(value: object) -> str:
+    """``repr(value)``, cut to :data:`SHOWN_CHARS` with the full length said (the whole
+    value is in the tick log, line by line)."""
+    text = repr(value)
+    if len(text) <= SHOWN_CHARS:
+        return text
+    return f"{text[: SHOWN_CHARS - 20]}... ({len(text):,} characters in all)"
 
 
 def _fleet_hint(folder: str | None) -> str:

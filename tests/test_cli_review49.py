@@ -303,3 +303,16 @@ def test_many_combinations_inside_the_geofence_are_checked_quickly(tmp_path, cap
     assert main(["campaign", path, "--dry-run"]) == 0
     assert time.perf_counter() - t0 < 20.0  # 400 flights, one mission built (about 0.5 s)
     assert "800 rows (800 in the campaign)" in capsys.readouterr().out
+
+
+def test_replay_cuts_a_huge_blackboard_value_and_says_its_length(tmp_path, capsys) -> None:
+    """A 10,000-point route on the blackboard had been printed in full at every tick."""
+    route = ";".join(f"{i}.5" for i in range(10_000))
+    lines = [_tick(1, changed={"Main/seq": "RUNNING"}, bb={"route": route, "n": 3})]
+    folder = _run_folder(tmp_path, lines)
+    assert main(["replay", folder, "--tick", "1"]) == 0
+    out = capsys.readouterr().out
+    line = next(x for x in out.splitlines() if x.startswith("blackboard: "))
+    assert len(line) < 400, len(line)
+    assert "n=3" in line and "route='0.5;1.5;2.5" in line
+    assert f"({len(repr(route)):,} characters in all)" in line
