@@ -370,3 +370,13 @@ def test_a_resume_skips_saved_rows_that_are_not_regular_files(tmp_path) -> None:
     if reader.is_alive():  # free the blocked reader before failing
         os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
     assert not reader.is_alive() and set(got) == {"a"}
+
+
+def test_a_saved_row_with_no_status_a_run_gives_runs_again(tmp_path) -> None:
+    """A hand-edited (or cut) row record whose status is none a run gives had been counted
+    as finished: the resume skipped it and the tables showed a status no run had."""
+    store = ResultStore(str(tmp_path))
+    for key, status in [("a", "SUCCESS"), ("b", "CRASHED"), ("c", "DONE"), ("d", None)]:
+        store.save({"key": key, "status": status})
+    store.save({"key": "e"})
+    assert set(store.finished()) == {"a", "b"}

@@ -19,7 +19,7 @@ import sys
 from collections import Counter, defaultdict
 from typing import Any, TextIO
 
-from bt_engine.campaign.results import table_columns
+from bt_engine.campaign.results import ROW_STATUSES, table_columns
 from bt_engine.campaign.rows import value_text
 from bt_engine.campaign.spec import Campaign
 
@@ -40,7 +40,7 @@ img{max-width:100%;border:1px solid #eee;margin:.4em 0}.note{color:#555;font-siz
 MAX_BINS = 5  # numeric settings with more distinct values than this are binned
 MAX_FAILED_LISTED = 200
 #: Statuses in the order the terminal summary shows them (others follow, by name).
-STATUSES = ("SUCCESS", "FAILURE", "ABORTED", "CRASHED", "TIMEOUT")
+STATUSES = ROW_STATUSES
 #: The most metrics the terminal summary shows (the report shows every one).
 MAX_SUMMARY_METRICS = 4
 #: What a terminal summary line groups by (those that vary between the runs).

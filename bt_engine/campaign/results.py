@@ -31,7 +31,12 @@ from typing import Any
 
 from bt_engine.campaign.rows import Row
 from bt_engine.campaign.spec import Campaign, column_name
+from bt_engine.campaign.worker import CAMPAIGN_STATUSES, RUN_STATUSES
 from bt_engine.files import read_bytes
+
+#: the statuses a finished row has: the run's own, or the campaign's for a run that never
+#: ended by itself
+ROW_STATUSES = RUN_STATUSES + CAMPAIGN_STATUSES
 
 TIMING_KEY = b"btrun.timing_columns"
 COLUMNS_KEY = b"btrun.columns"
@@ -67,7 +72,8 @@ class ResultStore:
     def finished(self) -> dict[str, dict[str, Any]]:
         """Every saved record, by row key (unreadable files are ignored: they re-run; so are
         files that are not regular, such as a FIFO, or larger than ``MAX_FILE_BYTES``: a
-        record is read with the bounded reader of :mod:`bt_engine.files`)."""
+        record is read with the bounded reader of :mod:`bt_engine.files`; and records whose
+        ``status`` is none of :data:`ROW_STATUSES`)."""
         out: dict[str, dict[str, Any]] = {}
         if not os.path.isdir(self.rows_dir):
             return out
@@ -81,8 +87,9 @@ class ResultStore:
                 rec = json.loads(data)
             except ValueError:
                 continue
-            if isinstance(rec, dict) and rec.get("key"):
-                out[rec["key"]] = rec
+            if isinstance(rec, dict) and rec.get("key") and rec.get("status") in ROW_STATUSES:
+                out[rec["key"]] = rec  # a record with no status a run gives (hand-edited,
+                # cut): not a finished row, it runs again
         return out
 
     def save(self, record: dict[str, Any]) -> None:
