@@ -17,9 +17,16 @@ def repo() -> str:
 
 @pytest.fixture(autouse=True, scope="session")
 def _btrun_cache(tmp_path_factory):
-    """Generated files (the demo gallery) go to a temporary cache, built once per session."""
+    """Generated files (the demo gallery) go to a temporary cache, built once per session:
+    with pytest-xdist, one cache for all the session's workers (the demo gallery's build
+    holds a lock, so the second worker waits for the first's and reads it)."""
     old = os.environ.get("BTRUN_CACHE_DIR")
-    os.environ["BTRUN_CACHE_DIR"] = str(tmp_path_factory.mktemp("btrun-cache"))
+    if os.environ.get("PYTEST_XDIST_WORKER"):  # gw0, gw1, ...: the session's folder is shared
+        cache = tmp_path_factory.getbasetemp().parent / "btrun-cache"
+        cache.mkdir(exist_ok=True)
+    else:
+        cache = tmp_path_factory.mktemp("btrun-cache")
+    os.environ["BTRUN_CACHE_DIR"] = str(cache)
     yield
     if old is None:
         os.environ.pop("BTRUN_CACHE_DIR", None)
