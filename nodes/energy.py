@@ -31,10 +31,23 @@ RATE_KEY = "energy_rate"
 PERCENT_KEY = "energy_percent"
 #: ``ctx.resources`` key of how many batteries ``ChangeBattery`` has put in so far
 BATTERY_KEY = "energy_battery"
+#: ``ctx.resources`` key of how many times the mission's energy checks (every EnoughEnergy,
+#: EnoughEnergyForPass) have been evaluated: an interval between two of one check's own
+#: evaluations that others interleave is not one task (the mission did other work between)
+CHECKS_KEY = "energy_checks"
+#: the latest task times (on one battery) EnoughEnergy takes the median of
+TASKS_KEPT = 50
 #: the charge is read as the median of the readings over this many seconds: the gauge dips
 #: for a moment when the drone brakes or climbs (more thrust, more sag: 0.02 V, a few % at
 #: a low charge) and a check on the dip would stop a pass the charge covers
 STEADY_S = 3.0
+
+
+def count_energy_check(ctx: Any) -> int:
+    """Count one evaluation of an energy check (:data:`CHECKS_KEY`); return the count."""
+    n = int(ctx.resources.get(CHECKS_KEY, 0)) + 1
+    ctx.resources[CHECKS_KEY] = n
+    return n
 
 
 def travel_m(ctx: Any, a: Any, b: Any) -> float:
@@ -110,7 +123,9 @@ ENDURANCE_PORT = input_port(
 @register
 class EnoughEnergy(ConditionNode):
     """SUCCESS if the battery covers the next task and the way home: flying to ``target``,
-    ``task_time`` there (once two tasks were timed on this battery: their median), flying
+    ``task_time`` there (once two tasks were timed on this battery: their median; a task is
+    the time from one evaluation of this check to its next, unless another energy check was
+    evaluated between: then the mission did other work, such as a sweep's pass), flying
     to ``home`` at ``speed`` and landing, with ``reserve`` percent left. The consumption is
     measured on the current battery after 20 s airborne (before that: a full battery lasts
     ``endurance``). FAILURE says how much is left and how much is needed."""
@@ -161,17 +176,23 @@ class EnoughEnergy(ConditionNode):
             pct > hist[-1][1] + NEW_BATTERY_JUMP or battery != getattr(self, "_battery", 0)
         )
         self._battery = battery
+        seq = count_energy_check(self.ctx)
         if hist is None or renewed or not v.is_flying:
             hist = self._hist = []  # a new battery (or on the ground): measure afresh
+            self._tasks: list[float] = []  # the times of this check's tasks on it, s
             if renewed or not v.is_flying:
                 self.ctx.resources.pop(RATE_KEY, None)
         if v.is_flying:
+            if hist and getattr(self, "_seq", None) == seq - 1:  # nothing else checked since
+                self._tasks.append(now - hist[-1][0])
+                del self._tasks[:-TASKS_KEPT]
             hist.append((now, pct))
             recent = [p for t, p in hist if now - t <= STEADY_S]
             pct = statistics.median(recent)
             self.ctx.resources[PERCENT_KEY] = (now, pct)
         else:
             self.ctx.resources.pop(PERCENT_KEY, None)
+        self._seq = seq
         (t0, p0) = hist[0] if hist else (now, pct)
         if hist and now - t0 >= MEASURE_AFTER_S and p0 > pct:
             rate = (p0 - pct) / (now - t0)
@@ -181,8 +202,8 @@ class EnoughEnergy(ConditionNode):
             how = "assumed"
         if how == "measured":
             self.ctx.resources[RATE_KEY] = (now, rate)
-        intervals = [b[0] - a[0] for a, b in zip(hist, hist[1:], strict=False)]
-        task = statistics.median(intervals) if len(intervals) >= 2 else self.get_input("task_time")
+        tasks = self._tasks
+        task = statistics.median(tasks) if len(tasks) >= 2 else self.get_input("task_time")
         target, home = self.get_input("target"), self.get_input("home")
         need, seconds = needed_percent(
             rate,

@@ -25,6 +25,7 @@ from nodes.energy import (
     CATEGORY_ENERGY,
     ENDURANCE_PORT,
     RESERVE_PORT,
+    count_energy_check,
     measured_rate,
     steady_percent,
     travel_m,
@@ -179,6 +180,7 @@ class EnoughEnergyForPass(ConditionNode):
         v = vehicle_of(self)
         plan = sweep_plan_of(self.ctx)
         name = self.get_input("pass")
+        count_energy_check(self.ctx)  # the rescans' EnoughEnergy: a pass came between
         if plan is None or name not in plan.passes or not v.is_flying:
             return True  # SweepPass says what is wrong with the pass
         if not self.get_input("enabled"):

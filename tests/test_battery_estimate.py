@@ -91,3 +91,43 @@ def test_a_check_evaluated_once_per_battery_does_not_time_the_changes_as_tasks()
     _, runner, _ = sim_mission(xml)
     result = runner.run(max_time_s=400)
     assert result.status == "SUCCESS", result.reason
+
+
+def test_a_check_another_energy_check_interleaves_does_not_time_the_other_work() -> None:
+    """The sweep's EnoughEnergy before a rescan is evaluated after passes that left places,
+    and its readings spanned the passes between (other energy checks ran there): the
+    time of whole passes was taken as the time one rescan takes, and a battery the rescans
+    had fitted in was changed (about 80 s lost in a probe's run). Only the intervals no other
+    energy check interleaves are tasks."""
+    xml = wrap(
+        """    <Sequence>
+      <TakeOff height="1.0" speed="0.5" takeoff_point="{home}"/>
+      <Repeat num_cycles="3">
+        <Sequence>
+          <EnoughEnergy name="before_rescan" target="{home}" home="{home}" speed="1.0"
+                        task_time="5" landing_time="1" reserve="10"/>
+          <Sleep msec="2000"/>
+          <EnoughEnergy name="beside_pass" target="{home}" home="{home}" speed="1.0"
+                        task_time="0" landing_time="1" reserve="10"/>
+          <Sleep msec="40000"/>
+        </Sequence>
+      </Repeat>
+      <Repeat num_cycles="3">
+        <Sequence>
+          <EnoughEnergy name="one_after_another" target="{home}" home="{home}" speed="1.0"
+                        task_time="30" landing_time="1" reserve="10"/>
+          <Sleep msec="3000"/>
+        </Sequence>
+      </Repeat>
+      <Land/>
+    </Sequence>"""
+    )
+    m, runner, _ = sim_mission(xml)
+    result = runner.run(max_time_s=400)
+    assert result.status == "SUCCESS", result.reason
+    rescan = m.node("before_rescan")
+    # the 42 s between its evaluations held another check and a pass: not a task (the
+    # assumed 5 s stays); before, two such intervals made every rescan a 42 s task
+    assert " 6 s to the next task" in rescan.failure_reason, rescan.failure_reason
+    after = m.node("one_after_another")  # nothing between: 3 s tasks, measured
+    assert " 4 s to the next task" in after.failure_reason, after.failure_reason
