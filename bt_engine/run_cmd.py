@@ -7,6 +7,7 @@ Each step is a function: :func:`prepare` refuses bad input before anything flies
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
@@ -343,21 +344,38 @@ def make_runner(run: PreparedRun) -> Runner:
     )
 
 
-def start_mission_clock(clock: Any) -> None:
+def start_mission_clock(clock: Any, platforms: list[Any]) -> None:
     """Set a wall clock to mission time 0 just before the first tick: connecting to the
     drone, loading models and building galleries are not mission time. Fault times
     (``faults.*.at_s``), the tick log's ``t``, the safety record and ``mission_time_s``
     then share one origin, however long a loaded host took to connect. A lock-step clock
-    has no start-up to drop."""
-    if hasattr(clock, "restart_at"):
+    has no start-up to drop.
+
+    A platform stepping on a thread of its own is held between two steps
+    (``between_steps()``) while the clock jumps, and told how far (``clock_shifted(dt)``):
+    a step spanning the jump had left the Vehicle on the old time, and the take-off began
+    that many seconds late."""
+    if not hasattr(clock, "restart_at"):
+        return
+    with contextlib.ExitStack() as held:
+        for p in platforms:
+            between = getattr(p, "between_steps", None)
+            if between is not None:
+                held.enter_context(between())
+        before = clock.now()
         clock.restart_at(0.0)
+        shift = clock.now() - before
+        for p in platforms:
+            shifted = getattr(p, "clock_shifted", None)
+            if shifted is not None:
+                shifted(shift)
 
 
 def fly(run: PreparedRun) -> tuple[Runner, RunResult]:
     """Tick the mission to its end (live tree view on a terminal, one line per action
     otherwise); the tick log is closed afterwards."""
     args, mission, clock = run.args, run.mission, run.clock
-    start_mission_clock(clock)  # a fleet's shared clock is started by the fleet
+    start_mission_clock(clock, [run.platform])  # a fleet's shared clock: by the fleet
     runner = make_runner(run)
     if not args.quiet:
         where = f"rig {run.target.path or '-'}" if run.target is not None else "no vehicle"

@@ -279,3 +279,74 @@ def test_a_link_error_raised_while_sending_does_not_wait_for_the_ping_thread(tmp
     if ping is not None:  # it ends by itself once the lock is free
         ping.join(5.0)
         assert not ping.is_alive()
+
+
+RESTART_RACE = """
+import sys, threading, time
+import bt_engine.run_cmd as rc
+fly = rc.fly
+
+def slow_fly(run):
+    # one control step, as on a busy host, takes 30 ms and reads the clock just before the
+    # mission clock is set back to 0: it must not leave the Vehicle on the old time
+    v, clock = run.platform.raw_vehicle, run.clock
+    inside, armed = threading.Event(), threading.Event()
+    step = v.control_step
+
+    def slow_step(t_s):
+        if armed.is_set() and not inside.is_set():
+            inside.set()
+            time.sleep(0.03)
+        return step(t_s)
+
+    v.control_step = slow_step
+    restart = clock.restart_at
+
+    def restart_at(t_s):
+        armed.set()
+        inside.wait(1.0)  # the platform's step lock is held (the fix): no step comes
+        restart(t_s)
+
+    clock.restart_at = restart_at
+
+    class FirstTick:
+        def after_tick(self, t_s):
+            if not getattr(self, "seen", False):
+                self.seen = True
+                ref = v._ref
+                print(f"FIRST t={t_s:.3f} now={v.now_s:.3f} ref={ref.t0_s:.3f}", flush=True)
+
+    run.hooks = [*run.hooks, FirstTick()]
+    return fly(run)
+
+rc.fly = slow_fly
+from btrun_launcher import main
+sys.exit(main())
+"""
+
+
+@pytest.mark.sitl
+@pytest.mark.slow
+def test_a_control_step_spanning_the_clock_restart_does_not_delay_the_take_off(tmp_path) -> None:
+    """The mission clock is set back to 0 at the first tick. A control step that read the
+    clock just before that (its thread is the platform's own) had left the Vehicle on the
+    old time: the take-off's reference started at the old time, and the drone sat on the
+    ground for as long as connecting had taken (about 3 s, 1 flight in 10 in a probe)."""
+    script = tmp_path / "race.py"
+    script.write_text(RESTART_RACE)
+    mission = tmp_path / "hop.xml"
+    mission.write_text(HOP)
+    cmd = [
+        sys.executable,
+        str(script),
+        str(mission),
+        "--rig",
+        os.path.join(REPO, "rigs", "sitl.yaml"),
+    ]
+    cmd += ["--out", str(tmp_path / "run"), "--quiet", "--no-report", "--max-time", "2"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=90, cwd=tmp_path)
+    line = next((x for x in res.stdout.splitlines() if x.startswith("FIRST ")), None)
+    assert line is not None, res.stdout[-2000:] + res.stderr[-2000:]
+    got = dict(kv.split("=") for kv in line.split()[1:])
+    assert float(got["t"]) < 0.1 and float(got["now"]) < 0.1, line
+    assert abs(float(got["ref"]) - float(got["now"])) < 0.05, line  # climbs from the first tick

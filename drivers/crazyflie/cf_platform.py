@@ -151,9 +151,7 @@ class CrazyfliePlatform:
             v.camera_health.connected = bool(getattr(cam, "connected", True))
         v.control_step(t_s)
         pose = v.pose
-        if self._poses and pose.t_s < self._poses[-1].t_s - 1.0:  # the clock was set back
-            self._poses.clear()  # (mission time 0 at the first tick): older poses are not
-        if not self._poses or pose.t_s > self._poses[-1].t_s:  # before these
+        if not self._poses or pose.t_s > self._poses[-1].t_s:
             self._poses.append(pose)
         if self.camera_ready_s is None and v.camera_health.samples > 0:
             self.camera_ready_monotonic_s = time.monotonic()
@@ -192,6 +190,17 @@ class CrazyfliePlatform:
             t_s,
             near.source,
         )
+
+    def between_steps(self) -> Any:
+        """The lock the control thread steps under: held, no step runs (a context manager)."""
+        return self._lock
+
+    def clock_shifted(self, dt_s: float) -> None:
+        """The mission clock was moved by ``dt_s`` (set back to 0 at the first tick), with
+        :meth:`between_steps` held: the Vehicle's times move with it and the pose history
+        (on the old times) is dropped."""
+        self.raw_vehicle.shift_time(dt_s)
+        self._poses.clear()
 
     # ------------------------------------------------------------------ Platform protocol
     def before_tick(self, t_s: float) -> None:

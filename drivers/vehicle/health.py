@@ -19,6 +19,10 @@ class RateWindow:
         """Record a sample at time ``t_s`` (any monotonic clock, used consistently)."""
         self._times.append(t_s)
 
+    def shift(self, dt_s: float) -> None:
+        """Move every recorded time by ``dt_s`` (the clock was set back or on)."""
+        self._times = deque(t + dt_s for t in self._times)
+
     def rate_hz(self, now_s: float) -> float:
         """Samples per second over the window ending at ``now_s``."""
         times = self._times
@@ -50,6 +54,12 @@ class HealthTracker:
         self._rate.add(t_s)
         if changed:
             self.last_new_s = t_s
+
+    def shift(self, dt_s: float) -> None:
+        """Move the recorded sample times by ``dt_s``: the clock was set back (mission time 0
+        at the first tick), and ages and rates must not read the old times as future ones."""
+        self.last_new_s += dt_s  # -inf stays -inf
+        self._rate.shift(dt_s)
 
     def drop(self, count: int = 1) -> None:
         """Record ``count`` samples that should have arrived and did not."""

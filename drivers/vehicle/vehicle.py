@@ -13,6 +13,7 @@ control rate; the platform does it (lock-step: inside ``before_tick``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 
@@ -261,6 +262,23 @@ class Vehicle(MotionRequests):
         while self._next_step_s <= t_s + 1e-9:
             self.control_step(self._next_step_s)
             self._next_step_s += period
+
+    def shift_time(self, dt_s: float) -> None:
+        """Move every time the Vehicle keeps by ``dt_s``: the mission clock was set back to
+        0 at the first tick (connecting and the preflight are not mission time). Called on
+        the ground, between control steps (the platform's lock held), before any motion."""
+        self.now_s += dt_s
+        self._armed_cmd_s += dt_s
+        self._flight_start_s += dt_s
+        self._next_step_s += dt_s
+        if self._touchdown_since is not None:
+            self._touchdown_since += dt_s
+        for h in (self.link_health, self.mocap_health, self.camera_health):
+            h.shift(dt_s)
+        for name in ("_telemetry", "_mocap", "_frame"):
+            rec = getattr(self, name)
+            if rec is not None:
+                setattr(self, name, dataclasses.replace(rec, t_s=rec.t_s + dt_s))
 
     def control_step(self, t_s: float) -> None:
         """One control step: read sources, update state and progress, send a set-point."""

@@ -292,7 +292,7 @@ def _fly(
     airspace.clear = _clear_of(runs)
     guard = SeparationGuard(vehicles, sep["minimum_m"], sep["hold_margin_m"])
     if runs:  # one clock for all drones: mission time 0 is the fleet's first tick
-        start_mission_clock(next(iter(runs.values())).clock)
+        start_mission_clock(next(iter(runs.values())).clock, [r.platform for r in runs.values()])
     runners = {name: make_runner(r) for name, r in runs.items()}
     fleet = FleetRunner(runners, hooks=[airspace, guard])
     if not args.quiet:
