@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from bt_engine.ports import PortValueError, declared_type
+from bt_engine.ports import PortValueError, StringType, declared_type
 from bt_engine.registry import REGISTRY, Registry
 from bt_engine.spec import Loc, MissionSpec, Problem
 from bt_engine.validate import (
@@ -66,8 +66,10 @@ def parse_set_value(text: str) -> Any:
     (numbers, booleans), otherwise the text; the ports convert it when read."""
     try:
         parsed = yaml.safe_load(text) if text.strip() else ""
-    except yaml.YAMLError:
+    except (yaml.YAMLError, RecursionError, ValueError):  # a list nested 500 deep, ...
         return text
+    if isinstance(parsed, str) and _PLAIN_NUMBER.fullmatch(text.strip()):
+        parsed = float(text.strip())  # 1e3: YAML 1.1 reads an exponent only after a dot
     if isinstance(parsed, (int, float)) and not isinstance(parsed, bool):
         # YAML 1.1 reads 010 as 8, 1:30 as 90 and 0_5 as 5: only plain decimal numbers
         # are numbers here; any other text is left to the ports, which refuse or read it
@@ -138,11 +140,14 @@ def missing_inputs(
     ]
 
 
-def typed_inputs(spec: MissionSpec, bb: dict[str, Any]) -> list[Problem]:
+def typed_inputs(
+    spec: MissionSpec, bb: dict[str, Any], raw: dict[str, str] | None = None
+) -> list[Problem]:
     """``--set`` values (in ``bb``, changed in place) of main-tree inputs whose
     ``<TreeNodesModel>`` port declares a type (``type="int"``): a value of another type is a
     problem (a script reading it failed in flight), a number or truth value is put on the
-    blackboard as that type (``--set laps=5.0`` for an int input: 5)."""
+    blackboard as that type (``--set laps=5.0`` for an int input: 5), and a text input
+    (``type="std::string"``) gets its text as written in ``raw`` (name -> text)."""
     main = spec.main_tree_id()
     model = spec.models.get(main) if main else None
     if model is None:
@@ -152,6 +157,9 @@ def typed_inputs(spec: MissionSpec, bb: dict[str, Any]) -> list[Problem]:
     for port in model.ports.values():
         kind = declared_type(port.type)
         if kind is None or port.name not in bb or bb[port.name] is None:
+            continue
+        if isinstance(kind, StringType) and raw is not None and port.name in raw:
+            bb[port.name] = raw[port.name]  # text as written: 0042 is not the number 42
             continue
         if port.name in by_ports or port.name == MAX_TIME_INPUT:  # (the time limit's own)
             continue

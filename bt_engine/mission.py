@@ -118,11 +118,11 @@ class Mission:
         )
         self.blackboard: MutableMapping[str, Any] = _BlackboardView(self)
         # a default goes on the blackboard as a --set of it would: typed (laps="3" is 3)
+        written = mission_inputs(spec)
         self.inputs = {
-            k: parse_set_value(v) if isinstance(v, str) else v
-            for k, v in mission_inputs(spec).items()
+            k: parse_set_value(v) if isinstance(v, str) else v for k, v in written.items()
         }
-        typed_inputs(spec, self.inputs)  # a default of no value of its type: validate says it
+        typed_inputs(spec, self.inputs, written)  # a default of no value of its type: validate
         for k, v in self.inputs.items():
             if k not in (blackboard or {}):
                 self.scope.set(k, v)

@@ -27,6 +27,7 @@ from bt_engine.run_inputs import (  # noqa: F401 - importable from here as befor
     parse_sets,
     resume_settings,
     run_dir_problem,
+    set_texts,
     used_run_dir_problem,
 )
 from bt_engine.runner import Runner, RunResult
@@ -153,7 +154,7 @@ def prepare(
     problems += set_problems
     if declared is not None and not set_problems:  # an input no one gives: refused, not
         problems += missing_inputs(spec, set(bb))  # found by the first leaf in the air
-        problems += typed_inputs(spec, bb)  # and one given as no value of its type
+        problems += typed_inputs(spec, bb, set_texts(args.set))  # and one of no value of its type
     if getattr(args, "max_time", None) is None and not problems:
         args.max_time, limit_problem = mission_time_limit(spec, bb)
         problems += [limit_problem] if limit_problem is not None else []

@@ -63,6 +63,20 @@ def parse_sets(
     return bb, rig, problems
 
 
+def set_texts(items: list[str]) -> dict[str, str]:
+    """The text each ``--set KEY=VALUE`` blackboard item gave, by entry name (the last one
+    wins, as in :func:`parse_sets`): a text input keeps it as written."""
+    out: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if key.startswith(UNCHECKED_PREFIX):
+            key = key[len(UNCHECKED_PREFIX) :].strip()
+        if sep and key and "." not in key:
+            out[key] = value
+    return out
+
+
 #: the mission-time limit of a run when neither ``--max-time`` nor the mission says (s)
 DEFAULT_MAX_TIME_S = 900.0
 #: the main tree's input that sets its own limit (``<input_port name="max_time" ...>``)

@@ -87,3 +87,40 @@ def test_a_main_tree_input_default_goes_on_the_blackboard_as_its_set_would() -> 
     assert defaults["laps"] == 3 and defaults["ratio"] == 1.0 and defaults["on"] is True
     assert defaults["route"] == "1;2;3"  # text, as a --set of it
     assert defaults["mode"] == "off"  # not YAML 1.1's false: a text port would read "false"
+
+
+def test_a_text_input_keeps_its_text_and_a_set_value_never_crashes() -> None:
+    """A ``type="std::string"`` input's default ``0042`` (and ``--set pallet=0042``) had
+    gone on the blackboard as the number 42; ``1e3`` stayed text (YAML 1.1 reads an
+    exponent only after a dot); a list nested 500 deep had crashed ``btrun run`` with a
+    RecursionError traceback after ``validate`` said ok."""
+    from helpers import wrap, xml_mission
+
+    from bt_engine.inputs import parse_set_value, typed_inputs
+    from bt_engine.run_inputs import parse_sets, set_texts
+    from bt_engine.xml_io import load_xml
+
+    model = """  <TreeNodesModel>
+    <SubTree ID="Main">
+      <input_port name="pallet" type="std::string" default="0042"/>
+      <input_port name="word" type="std::string" default="true"/>
+      <input_port name="rate" default="1e3"/>
+    </SubTree>
+  </TreeNodesModel>
+"""
+    xml = wrap('    <Script code="x := rate + rate" />', model)
+    bb = xml_mission(xml).blackboard
+    assert bb["pallet"] == "0042" and bb["word"] == "true" and bb["rate"] == 1000.0
+    sets = ["pallet=0042", "word=true", "rate=1e3"]
+    given, _, problems = parse_sets(sets, None, "inline.xml")
+    assert not problems
+    assert not typed_inputs(load_xml("inline.xml", text=xml), given, set_texts(sets))
+    assert given == {"pallet": "0042", "word": "true", "rate": 1000.0}
+    deep = "[" * 500 + "]" * 500
+    assert parse_set_value(deep) == deep
+    assert [parse_set_value(t) for t in ("1.5e3", "-1e-05", "1e", "e3")] == [
+        1500.0,
+        -1e-05,
+        "1e",
+        "e3",
+    ]
