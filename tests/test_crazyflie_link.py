@@ -350,3 +350,27 @@ def test_a_control_step_spanning_the_clock_restart_does_not_delay_the_take_off(t
     got = dict(kv.split("=") for kv in line.split()[1:])
     assert float(got["t"]) < 0.1 and float(got["now"]) < 0.1, line
     assert abs(float(got["ref"]) - float(got["now"])) < 0.05, line  # climbs from the first tick
+
+
+@pytest.mark.parametrize(
+    "sets, name",
+    [
+        (["sensors.mocap.enabled=false", "faults.mocap_freeze.at_s=3"], "mocap_freeze"),
+        (["faults.camera_disconnect.at_s=3"], "camera_disconnect"),
+    ],
+)
+def test_a_fault_the_simulator_cannot_inject_is_refused_before_flight(tmp_path, sets, name) -> None:
+    """A mocap fault on a simulated rig without mocap had ended ``btrun`` in a ValueError
+    traceback at start-up; camera_disconnect (the SITL's AI-deck going offline) is a rig
+    setting now, which the simulator cannot inject."""
+    btrun = os.path.join(os.path.dirname(sys.executable), "btrun")
+    cmd = [btrun, os.path.join(REPO, "missions", "square.xml"), "--rig"]
+    cmd += [os.path.join(REPO, "rigs", "sim.yaml"), "--out", str(tmp_path / "run"), "--quiet"]
+    for s in sets:
+        cmd += ["--set", s]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert (
+        f"faults.{name}.at_s: this rig (link: sim) cannot inject {name} (it injects: " in res.stderr
+    )
+    assert "Traceback" not in res.stderr and not (tmp_path / "run").exists()

@@ -50,12 +50,33 @@ def make_platform(
     """
     if rig.kind == "sim":
         platform = SimPlatform(rig.load_world(seed), rig.data, seed, clock)
+        if platform.unable_faults:
+            raise ConfigError(
+                unable_problems(rig.path, "sim", platform.unable_faults, platform.faults)
+            )
         if guard is not None:
             _start_guard(rig, guard, None)
         return platform
     if rig.kind == "crazyflie":
         return make_crazyflie_platform(rig, clock, seed, pose_source, guard)
     raise ConfigError([SettingProblem(rig.path, 1, 1, f"link '{rig.kind}' is not available")])
+
+
+def unable_problems(
+    path: str, kind: str, unable: list[str], faults: FaultInjector
+) -> list[SettingProblem]:
+    """One problem per fault the rig schedules and its platform cannot inject (they had
+    been left out without a word, or ended the run in a traceback), naming those it can."""
+    can = ", ".join(sorted(faults.handlers)) or "none"
+    return [
+        SettingProblem(
+            path,
+            1,
+            1,
+            f"faults.{name}.at_s: this rig (link: {kind}) cannot inject {name} (it injects: {can})",
+        )
+        for name in unable
+    ]
 
 
 def make_crazyflie_platform(
@@ -107,20 +128,8 @@ def make_crazyflie_platform(
     unable = [n for n in unable if n not in faults.handlers]
     if unable:  # they had been left out without a word: a rehearsal without its fault
         _close_all(on_close)
-        can = ", ".join(sorted(faults.handlers)) or "none"
-        raise ConfigError(
-            [
-                SettingProblem(
-                    rig.path,
-                    1,
-                    1,
-                    f"faults.{name}.at_s: this rig (link: crazyflie"
-                    f"{', sitl' if sitl is not None else ''}) cannot inject {name} "
-                    f"(it injects: {can}); the simulator (link: sim) injects every fault",
-                )
-                for name in unable
-            ]
-        )
+        kind = f"crazyflie{', sitl' if sitl is not None else ''}"
+        raise ConfigError(unable_problems(rig.path, kind, unable, faults))
     kind = section["pose_source"]
     if pose_source is None and kind == "sitl":
         if sitl is None or sitl.mocap is None:

@@ -384,6 +384,7 @@ RIG_SCHEMA = _m(
                     probability=_f("float", 1.0, "loss probability", min=0.0, max=1.0),
                 ),
                 "camera_stall": _fault("the camera stops delivering frames"),
+                "camera_disconnect": _fault("the camera's stream disconnects (AI-deck offline)"),
                 "battery_sag": _fault(
                     "the battery voltage drops",
                     drop_v=_f("float", 0.5, "extra voltage drop (V)", min=0.0),
