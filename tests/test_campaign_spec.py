@@ -253,3 +253,28 @@ def test_a_row_key_covers_the_files_its_mission_includes(tmp_path) -> None:
     # a mission without includes: its keys do not depend on this (the same as before)
     c = load_campaign(write(tmp_path, f"missions: [{SQUARE}]\nseeds: {{start: 0, count: 1}}\n"))
     assert not expand(c)._includes.get(SQUARE)
+
+
+def test_an_unquoted_grid_or_set_value_is_read_as_set_reads_its_text(tmp_path) -> None:
+    """A campaign's YAML had read ``mode: [off]`` as false (YAML 1.1) and ``[0042]`` as the
+    octal 34, where ``--set mode=off`` gives the text off and ``--set pallet=0042`` 42: the
+    dry run passed and the flights compared the text 'off' with false in the air."""
+    path = write(
+        tmp_path,
+        f"""\
+        missions: [{SQUARE}]
+        seeds: {{start: 0, count: 1}}
+        set:
+          bb.label: 1:30
+          bb.rate: 1e3
+        grid:
+          bb.mode: [off, "on", true]
+          bb.pallet: [0042, '0042', 010]
+          bb.speed: [0.5, [1, 2]]
+        """,
+    )
+    c = load_campaign(path)
+    assert c.fixed == {"bb.label": "1:30", "bb.rate": 1000.0}
+    assert c.grid["bb.mode"] == ["off", "on", True]
+    assert c.grid["bb.pallet"] == [42, "0042", 10]
+    assert c.grid["bb.speed"] == [0.5, [1, 2]]

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import yaml
-from yaml.nodes import MappingNode, Node, SequenceNode
+from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 from bt_engine.campaign.metrics import Metric, metric_from_data
 from bt_engine.campaign.model import (
@@ -37,6 +37,7 @@ from bt_engine.campaign.model import (
 from bt_engine.campaign.model import MAX_ROWS as MAX_ROWS
 from bt_engine.campaign.yaml_reader import SAFE, Reader, scan, show
 from bt_engine.files import read_bytes
+from bt_engine.inputs import parse_set_value
 from bt_engine.registry import suggest_name
 from bt_engine.spec import Loc, MissionError, Problem
 
@@ -257,6 +258,9 @@ def _settings(r: Reader, node: Node, section: str, first: dict) -> list[tuple[st
 
 
 def _plain_value(r: Reader, node: Node, where: str) -> Any:
+    if isinstance(node, ScalarNode) and not node.style:  # unquoted: read as --set reads
+        return parse_set_value(node.value)  # it (off is text, not YAML 1.1's false; 0042 is
+        # 42, not octal 34; 1:30 is text, not 90)
     v = r.value(node)
     ok = v is None or isinstance(v, (str, int, float, bool))
     if isinstance(v, list):
