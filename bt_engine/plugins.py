@@ -41,7 +41,12 @@ ENV_VAR = "BTRUN_PLUGINS"
 
 
 class Platform(Protocol):
-    """What a run target's platform gives the runner (see ``bt_engine.runner.Hooks``)."""
+    """What a run target's platform gives the runner (see ``bt_engine.runner.Hooks``).
+
+    A platform that steps its vehicle on a thread of its own may also give
+    ``between_steps()`` (a context manager: held, no step runs) and ``clock_shifted(dt_s)``
+    (move every time it keeps by ``dt_s``): :func:`bt_engine.run_cmd.start_mission_clock`
+    uses both when it sets a wall clock to mission time 0 before the first tick."""
 
     vehicle: Any
 

@@ -50,16 +50,24 @@ def make_platform(
     """
     if rig.kind == "sim":
         platform = SimPlatform(rig.load_world(seed), rig.data, seed, clock)
-        if platform.unable_faults:
-            raise ConfigError(
-                unable_problems(rig.path, "sim", platform.unable_faults, platform.faults)
-            )
+        unable = unable_faults(rig.data, platform.faults)
+        if unable:
+            raise ConfigError(unable_problems(rig.path, "sim", unable, platform.faults))
         if guard is not None:
             _start_guard(rig, guard, None)
         return platform
     if rig.kind == "crazyflie":
         return make_crazyflie_platform(rig, clock, seed, pose_source, guard)
     raise ConfigError([SettingProblem(rig.path, 1, 1, f"link '{rig.kind}' is not available")])
+
+
+def unable_faults(data: dict, faults: FaultInjector) -> list[str]:
+    """The faults the rig ``data`` schedules (``at_s`` set) that ``faults`` cannot inject."""
+    return [
+        n
+        for n, spec in data["faults"].items()
+        if spec.get("at_s") is not None and n not in faults.handlers
+    ]
 
 
 def unable_problems(
@@ -124,8 +132,7 @@ def make_crazyflie_platform(
         raise
     if sitl is not None:
         sitl.register_faults(faults)
-    unable = [n for n, spec in data["faults"].items() if spec.get("at_s") is not None]
-    unable = [n for n in unable if n not in faults.handlers]
+    unable = unable_faults(data, faults)
     if unable:  # they had been left out without a word: a rehearsal without its fault
         _close_all(on_close)
         kind = f"crazyflie{', sitl' if sitl is not None else ''}"

@@ -99,14 +99,9 @@ class SimPlatform:
         self.vehicle = Vehicle(self.link, self.config, self.mocap, self.camera)
         self.faults = FaultInjector()
         self._register_faults()
-        #: faults the rig schedules that this simulator cannot inject (the camera's stream
-        #: disconnecting, a mocap fault without mocap): the factory refuses the rig
-        self.unable_faults: list[str] = []
         for name, spec in rig_data["faults"].items():
-            if spec.get("at_s") is not None:
-                if name not in self.faults.handlers:
-                    self.unable_faults.append(name)
-                    continue
+            # one it cannot inject (a mocap fault without mocap): the factory refuses the rig
+            if spec.get("at_s") is not None and name in self.faults.handlers:
                 params_ = {k: v for k, v in spec.items() if k != "at_s" and v is not None}
                 self.faults.schedule(name, spec["at_s"], **params_)
         self._tasks = [_Periodic(1.0 / self.config.rate_hz, self._control)]
