@@ -134,6 +134,14 @@ def _exit(code: int) -> None:
     import threading
     import time
 
+    # Python's own exit runs these before it waits for the threads (concurrent.futures'
+    # wakes its idle pool workers so they end): without them an idle worker of btrun's own
+    # pools (verify_0) was waited for, then called a stray thread
+    for hook in reversed(list(getattr(threading, "_threading_atexits", ()))):
+        try:
+            hook()
+        except Exception:  # noqa: BLE001 - the exit goes on
+            pass
     deadline = time.monotonic() + EXIT_WAIT_S
     stray = []
     for t in threading.enumerate():

@@ -30,16 +30,28 @@ class StartsAThread(SyncActionNode):
     def tick_impl(self):
         threading.Thread(target=threading.Event().wait, name="forever", daemon=False).start()
         return SUCCESS
+
+
+@register
+class UsesAPool(SyncActionNode):
+    """Runs a job on a thread pool it keeps (its idle workers are no daemons)."""
+
+    def tick_impl(self):
+        from concurrent.futures import ThreadPoolExecutor
+
+        type(self).pool = ThreadPoolExecutor(1, thread_name_prefix="pooled")
+        self.pool.submit(sum, [1, 2]).result()
+        return SUCCESS
 '''
 
 
-def _mission(tmp_path, module: str):
-    """The plug-in's environment and a mission of its one leaf."""
+def _mission(tmp_path, module: str, leaf: str = "StartsAThread"):
+    """The plug-in's environment and a mission of one of its leaves."""
     env = leaf_plugin_env(tmp_path, module, LEAVES)
     mission = tmp_path / "m.xml"
     mission.write_text(
         '<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main">'
-        "<StartsAThread/></BehaviorTree></root>"
+        f"<{leaf}/></BehaviorTree></root>"
     )
     return env, mission
 
@@ -91,3 +103,20 @@ def test_a_ctrl_c_after_the_run_ended_keeps_its_exit_code(tmp_path) -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_an_idle_thread_pool_is_no_stray_thread(tmp_path) -> None:
+    """The idle workers of a thread pool (btrun's own verify_0 in every pallet scan) were
+    waited for 5 s at exit and called a stray thread: Python's exit wakes them first."""
+    env, mission = _mission(tmp_path, "btrun_pool_thread", "UsesAPool")
+    out = tmp_path / "run"
+    done = subprocess.run(
+        [BTRUN, str(mission), "--out", str(out), "-q", "--no-report"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=EXIT_WAIT_S + 60,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "still running" not in done.stderr, done.stderr
+    assert json.loads((out / "summary.json").read_text())["status"] == "SUCCESS"
